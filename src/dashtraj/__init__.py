@@ -1,0 +1,3 @@
+"""dashtraj: reconstruct the routes vehicles drove from what many moving dashcams saw."""
+
+__version__ = "0.1.0"

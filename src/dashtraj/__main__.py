@@ -1,0 +1,5 @@
+import sys
+
+from dashtraj.cli import main
+
+sys.exit(main())

@@ -1,0 +1,23 @@
+"""Domain errors. Each names the thing that was wrong and, where it helps, what to do."""
+
+from __future__ import annotations
+
+
+class DashtrajError(Exception):
+    """Base class of every error dashtraj raises on purpose."""
+
+
+class OpenDriveError(DashtrajError):
+    """A file is not OpenDRIVE, or is broken beyond what a warning can cover."""
+
+
+class OffRoadError(DashtrajError):
+    """A location lies off every lane of the requested type."""
+
+
+class NoRouteError(DashtrajError):
+    """The destination cannot be reached from the origin on the lane graph."""
+
+
+class InputFormatError(DashtrajError):
+    """A row, column or value of an input file is malformed; the message names file, line and column."""
