@@ -63,9 +63,7 @@ def _as_points(traj: Trajectory | np.ndarray, name: str) -> np.ndarray:
     return pts
 
 
-def _prepare(
-    traj: Trajectory | np.ndarray, name: str, resample_m: float | None
-) -> np.ndarray:
+def _prepare(traj: Trajectory | np.ndarray, name: str, resample_m: float | None) -> np.ndarray:
     pts = _as_points(traj, name)
     if resample_m is None:
         return pts
