@@ -26,6 +26,7 @@ segment (0 at its start, 1 at its end), the perpendicular distance is used only
 for 1e-5 <= u <= 1; for u < 1e-5 (not just u < 0) the nearer endpoint distance is
 taken. The deviation from the exact distance is at most about 1e-5 of the
 segment length. A zero-length segment is a point.
+(Also one whose squared length underflows to zero, where traj-dist divides by 0.)
 
 Departure from traj-dist: a one-point trajectory is treated as a point (traj-dist
 returns 9e100 or fails there), so D(p, T) is the distance to that point.
@@ -108,7 +109,9 @@ def point_to_polyline_distances(
     dy = q[1:, 1] - s1[:, 1]
     segl = np.sqrt(dx * dx + dy * dy)
     seg2 = segl * segl
-    degenerate = (dx == 0) & (dy == 0)
+    # A zero-length segment is a point (traj-dist tests dx == dy == 0; a segment so
+    # short that its squared length underflows to 0 is treated the same way here).
+    degenerate = seg2 == 0
     safe_seg2 = np.where(degenerate, 1.0, seg2)
     rows = max(1, int(chunk_elements) // max(m, 1))
     for start in range(0, n, rows):
@@ -124,11 +127,12 @@ def point_to_polyline_distances(
         ex = np.minimum(vertex[:, :-1], vertex[:, 1:])  # nearer endpoint, (C, M-1)
         ax = vx[:, :-1]
         ay = vy[:, :-1]
-        u = (ax * dx + ay * dy) / safe_seg2
-        # traj-dist: projection foot (ix, iy) = s1 + u (s2 - s1); distance p - foot.
-        fx = px - (s1[:, 0] + u * dx)
-        fy = py - (s1[:, 1] + u * dy)
-        perp = np.sqrt(fx * fx + fy * fy)
+        with np.errstate(over="ignore", invalid="ignore"):  # masked out below
+            u = (ax * dx + ay * dy) / safe_seg2
+            # traj-dist: projection foot (ix, iy) = s1 + u (s2 - s1); distance p - foot.
+            fx = px - (s1[:, 0] + u * dx)
+            fy = py - (s1[:, 1] + u * dy)
+            perp = np.sqrt(fx * fx + fy * fy)
         use_end = degenerate | (u < _U_MIN) | (u > 1)
         d = np.where(use_end, ex, perp)
         out[start : start + rows] = d.min(axis=1)

@@ -209,7 +209,8 @@ class Trajectory:
             return Trajectory(pts[:1], None if times is None else times[:1])
         n_steps = math.ceil(total / step_m)
         s_new = np.arange(n_steps, dtype=np.float64) * step_m
-        s_new = np.append(s_new[s_new < total], total)
+        # Samples closer than rounding to the end would duplicate it: drop them.
+        s_new = np.append(s_new[s_new < total - 1e-9 * step_m], total)
         new_pts = np.column_stack((np.interp(s_new, s, pts[:, 0]), np.interp(s_new, s, pts[:, 1])))
         new_pts[0] = pts[0]
         new_pts[-1] = pts[-1]
