@@ -1,0 +1,700 @@
+"""`RoadMap`: an OpenDRIVE road network answering CARLA's questions.
+
+All inputs and outputs are in the CARLA world frame (metres; OpenDRIVE's y is
+flipped; yaw in degrees along the lane's driving direction). A waypoint is
+(road_id, section_id, lane_id, s) as in CARLA; see ``shared/CARLA_FACTS.md``.
+
+The map samples every lane's centre line at most 1 m apart (exact positions and
+headings at the samples) and indexes the sample segments with a k-d tree. A
+query finds the nearest segment exactly (the candidate search grows until no
+unseen segment can be nearer) and then refines the foot point on the cubic
+Hermite curve through the segment's end samples, which is within micrometres of
+the true lane centre.
+
+Example:
+    >>> m = RoadMap.from_file("Town10HD.xodr")  # doctest: +SKIP
+    >>> wp = m.get_waypoint(Location(-41.0, 20.0))  # doctest: +SKIP
+    >>> wp.road_id, wp.lane_id, round(wp.s, 2)  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from dashtraj.errors import OffRoadError
+from dashtraj.roads.opendrive import (
+    OpenDrive,
+    OpenDriveWarning,
+    RoadRecord,
+    parse_opendrive,
+    read_opendrive,
+)
+from dashtraj.roads.types import LaneType, Location, Rotation, Transform, as_xy, normalize_yaw
+
+LaneKey = tuple[int, int, int]  # (road_id, section_id, lane_id)
+
+SAMPLE_STEP_M = 1.0
+_EPS = 10.0 * np.finfo(float).eps  # CARLA's EPSILON in Map::GenerateWaypoints
+
+
+@dataclass(slots=True)
+class Lane:
+    """One lane of one lane section (internal; exposed for the lane graph and tools)."""
+
+    key: LaneKey
+    index: int
+    type: LaneType
+    type_name: str
+    s0: float  # section start, road s, metres
+    s1: float  # section end
+    junction: int
+    successors: list[LaneKey] = field(default_factory=list)
+    predecessors: list[LaneKey] = field(default_factory=list)
+    v0: int = 0  # first sample index in the map's sample arrays
+    v1: int = 0  # one past the last sample index
+
+    @property
+    def road_id(self) -> int:
+        return self.key[0]
+
+    @property
+    def section_id(self) -> int:
+        return self.key[1]
+
+    @property
+    def lane_id(self) -> int:
+        return self.key[2]
+
+    @property
+    def forward(self) -> bool:
+        """True when the lane drives along increasing s (negative lane id)."""
+        return self.key[2] < 0
+
+    @property
+    def start_s(self) -> float:
+        """s at the start of the lane in its driving direction."""
+        return self.s0 if self.forward else self.s1
+
+    @property
+    def end_s(self) -> float:
+        return self.s1 if self.forward else self.s0
+
+
+@dataclass(frozen=True, slots=True)
+class Waypoint:
+    """A point on a lane centre: CARLA's (road_id, section_id, lane_id, s).
+
+    `s` is metres from the road start (reference line), whatever the lane's
+    driving direction. The pose is computed exactly from the road geometry.
+    """
+
+    road_id: int
+    section_id: int
+    lane_id: int
+    s: float
+    map: RoadMap = field(repr=False, compare=False, hash=False)
+
+    @property
+    def key(self) -> LaneKey:
+        return (self.road_id, self.section_id, self.lane_id)
+
+    @property
+    def lane(self) -> Lane:
+        return self.map.lanes[self.key]
+
+    @property
+    def transform(self) -> Transform:
+        """Lane-centre pose: location (m) and yaw (deg) along the driving direction."""
+        x, y, z, yaw = self.map._lane_pose(self.key, np.array([self.s]))
+        return Transform(Location(float(x[0]), float(y[0]), float(z[0])),
+                         Rotation(0.0, float(yaw[0]), 0.0))
+
+    @property
+    def lane_width(self) -> float:
+        return float(self.map._lane_width(self.key, np.array([self.s]))[0])
+
+    @property
+    def is_junction(self) -> bool:
+        return self.map.roads[self.road_id].junction != -1
+
+    @property
+    def junction_id(self) -> int:
+        return self.map.roads[self.road_id].junction
+
+    @property
+    def lane_type(self) -> LaneType:
+        return self.lane.type
+
+    @property
+    def id(self) -> int:
+        """A stable integer id of (road, section, lane, s to the centimetre)."""
+        h = hashlib.blake2b(
+            f"{self.road_id}/{self.section_id}/{self.lane_id}/{round(self.s, 2):.2f}".encode(),
+            digest_size=8,
+        )
+        return int.from_bytes(h.digest(), "little") >> 1
+
+    def next(self, distance: float) -> list[Waypoint]:
+        """Waypoints `distance` metres ahead along the driving direction.
+
+        Past the lane's end the walk continues into every successor lane, so the
+        list can hold several waypoints (a junction ahead), or none (a dead end).
+        Distances are measured in road s, as CARLA does.
+
+        Raises:
+            ValueError: distance is not positive.
+        """
+        return self.map._walk(self, distance, forward=True)
+
+    def previous(self, distance: float) -> list[Waypoint]:
+        """Waypoints `distance` metres behind, mirroring `next`."""
+        return self.map._walk(self, distance, forward=False)
+
+    def next_until_lane_end(self, distance: float) -> list[Waypoint]:
+        """Waypoints every `distance` metres from here to the end of this lane."""
+        lane = self.lane
+        step = distance if lane.forward else -distance
+        out = []
+        s = self.s + step
+        while (s <= lane.s1) if lane.forward else (s >= lane.s0):
+            out.append(self.map.waypoint(*self.key, s))
+            s += step
+        return out
+
+    def get_left_lane(self) -> Waypoint | None:
+        """The lane to the left of the driving direction at the same s (any type), or None."""
+        return self.map._side_lane(self, left=True)
+
+    def get_right_lane(self) -> Waypoint | None:
+        """The lane to the right of the driving direction at the same s (any type), or None."""
+        return self.map._side_lane(self, left=False)
+
+
+@dataclass(frozen=True, slots=True)
+class LaneProjection:
+    """The vectorised answer of `RoadMap.project`: one row per query point.
+
+    Arrays, all (N,): `road_id`, `section_id`, `lane_id` (int), `s` (m from road
+    start), `x`, `y`, `z` (lane-centre point, CARLA world, m), `yaw` (deg, driving
+    direction), `lateral_m` (signed offset of the query from the centre, positive to
+    the right of the driving direction), `distance_m` (2-D distance to the
+    centre line), `lane_width` (m), `lane_index` (index into `RoadMap.lane_list`).
+    """
+
+    road_id: np.ndarray
+    section_id: np.ndarray
+    lane_id: np.ndarray
+    s: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    yaw: np.ndarray
+    lateral_m: np.ndarray
+    distance_m: np.ndarray
+    lane_width: np.ndarray
+    lane_index: np.ndarray
+    map: RoadMap = field(repr=False, compare=False)
+
+    def __len__(self) -> int:
+        return len(self.s)
+
+    @property
+    def inside(self) -> np.ndarray:
+        """True where the query lies within half a lane width of the centre line."""
+        return np.abs(self.lateral_m) <= 0.5 * self.lane_width + 1e-9
+
+    def waypoint(self, i: int) -> Waypoint:
+        return Waypoint(int(self.road_id[i]), int(self.section_id[i]), int(self.lane_id[i]),
+                        float(self.s[i]), self.map)
+
+    def waypoints(self) -> list[Waypoint]:
+        return [self.waypoint(i) for i in range(len(self))]
+
+
+class RoadMap:
+    """A road network read from OpenDRIVE, queried like `carla.Map`.
+
+    Build with `RoadMap.from_file(path)` or `RoadMap.from_string(text)`.
+    """
+
+    def __init__(self, od: OpenDrive, sample_step_m: float = SAMPLE_STEP_M):
+        self.opendrive = od
+        self.name = od.name
+        self.roads: dict[int, RoadRecord] = od.roads
+        self.junctions = od.junctions
+        self.sample_step_m = float(sample_step_m)
+        self.lanes: dict[LaneKey, Lane] = {}
+        self.lane_list: list[Lane] = []
+        self._build_lanes()
+        self._link_lanes()
+        self._sample_lanes()
+        self._trees: dict[int, tuple[cKDTree, np.ndarray, float]] = {}
+        self._graphs: dict = {}
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_file(cls, path: str | Path, **kw) -> RoadMap:
+        """Read and index an OpenDRIVE file. Raises `OpenDriveError` if it is not one."""
+        m = cls(read_opendrive(path), **kw)
+        m.path = Path(path)
+        return m
+
+    @classmethod
+    def from_string(cls, text: str | bytes, name: str = "<string>", **kw) -> RoadMap:
+        m = cls(parse_opendrive(text, name=name), **kw)
+        m.path = None
+        return m
+
+    path: Path | None = None
+
+    def _build_lanes(self) -> None:
+        for road in self.roads.values():
+            for k, sec in enumerate(road.sections):
+                s1 = road.section_ends[k]
+                for lid in sorted(sec.lanes):
+                    rec = sec.lanes[lid]
+                    lane = Lane((road.id, k, lid), len(self.lane_list),
+                                LaneType.from_opendrive(rec.type), rec.type, sec.s, s1,
+                                road.junction)
+                    self.lanes[lane.key] = lane
+                    self.lane_list.append(lane)
+
+    def _section_of(self, road: RoadRecord, contact: str | None) -> int:
+        return 0 if contact == "start" else len(road.sections) - 1
+
+    def _link_lanes(self) -> None:
+        """Successor lanes in the driving direction, as CARLA's MapBuilder links them."""
+        name = self.name
+        # Junction connections grouped by incoming road.
+        incoming: dict[tuple[int, int], list] = {}
+        for j in self.junctions.values():
+            for c in j.connections:
+                incoming.setdefault((j.id, c.incoming_road), []).append(c)
+
+        def lane_or_warn(road_id: int, section: int, lane_id: int, where: str) -> LaneKey | None:
+            key = (road_id, section, lane_id)
+            if key not in self.lanes:
+                warnings.warn(f"{name}: {where} links to lane {lane_id} of road {road_id} "
+                              f"section {section}, which does not exist; link ignored",
+                              OpenDriveWarning, stacklevel=3)
+                return None
+            return key
+
+        for lane in self.lane_list:
+            rid, k, lid = lane.key
+            road = self.roads[rid]
+            rec = road.sections[k].lanes[lid]
+            forward = lid < 0
+            where = f"road {rid} section {k} lane {lid}"
+            link_id = rec.successor if forward else rec.predecessor
+            last = len(road.sections) - 1
+            targets: list[LaneKey] = []
+            if (forward and k < last) or (not forward and k > 0):
+                if link_id is not None:
+                    t = lane_or_warn(rid, k + 1 if forward else k - 1, link_id, where)
+                    if t:
+                        targets.append(t)
+            else:
+                rlink = road.successor if forward else road.predecessor
+                if rlink is not None and rlink.element_type == "road":
+                    if link_id is not None and rlink.element_id in self.roads:
+                        other = self.roads[rlink.element_id]
+                        t = lane_or_warn(other.id, self._section_of(other, rlink.contact_point),
+                                         link_id, where)
+                        if t:
+                            targets.append(t)
+                elif rlink is not None and rlink.element_type == "junction":
+                    for c in incoming.get((rlink.element_id, rid), ()):
+                        if c.connecting_road not in self.roads:
+                            continue
+                        other = self.roads[c.connecting_road]
+                        sec = self._section_of(other, c.contact_point)
+                        for a, b in c.lane_links:
+                            if a == lid:
+                                t = lane_or_warn(other.id, sec, b,
+                                                 f"junction {rlink.element_id} connection {c.id}")
+                                if t:
+                                    targets.append(t)
+            seen = set()
+            for t in targets:
+                if t not in seen:
+                    seen.add(t)
+                    lane.successors.append(t)
+                    self.lanes[t].predecessors.append(lane.key)
+
+    # ------------------------------------------------------------------ lane geometry
+    def _section_centres(self, road: RoadRecord, k: int, s: np.ndarray):
+        """Centre offsets of every lane of a section at road s (OpenDRIVE frame).
+
+        Returns {lane_id: (t, dt/ds, width)} with t the signed lateral offset of
+        the lane centre from the reference line (left positive), metres.
+        """
+        sec = road.sections[k]
+        ds = s - sec.s
+        off = road.lane_offset(s)
+        doff = road.lane_offset.derivative(s)
+        out = {}
+        for side in (-1, 1):
+            inner, dinner = off, doff
+            ids = sorted((i for i in sec.lanes if i * side > 0), key=abs)
+            for lid in ids:
+                rec = sec.lanes[lid]
+                if rec.border is not None:
+                    outer = off + rec.border(ds) * side
+                    douter = doff + rec.border.derivative(ds) * side
+                    w = np.abs(outer - inner)
+                    dw = (douter - dinner) * side
+                else:
+                    w = rec.width(ds)
+                    dw = rec.width.derivative(ds)
+                    outer = inner + side * w
+                    douter = dinner + side * dw
+                out[lid] = (inner + 0.5 * side * w, dinner + 0.5 * side * dw, w)
+                inner, dinner = outer, douter
+        return out
+
+    def _lane_frame(self, key: LaneKey, s: np.ndarray):
+        """CARLA-frame centre x, y, z and tangent angle along +s (rad), and width."""
+        road = self.roads[key[0]]
+        xr, yr, hr, kr = road.plan_view.evaluate(s)
+        t, dt, w = self._section_centres(road, key[1], s)[key[2]]
+        x = xr - t * np.sin(hr)
+        y = yr + t * np.cos(hr)
+        h = hr + np.arctan2(dt, 1.0 - t * kr)
+        z = road.elevation(s)
+        return x, -y, z, -h, w
+
+    def _lane_pose(self, key: LaneKey, s: np.ndarray):
+        x, y, z, h, _ = self._lane_frame(key, s)
+        yaw = np.degrees(h) + (180.0 if key[2] > 0 else 0.0)
+        return x, y, z, normalize_yaw(yaw)
+
+    def _lane_width(self, key: LaneKey, s: np.ndarray) -> np.ndarray:
+        road = self.roads[key[0]]
+        return self._section_centres(road, key[1], s)[key[2]][2]
+
+    def _sample_lanes(self) -> None:
+        xs, ys, zs, hs, ss, ws, owner = [], [], [], [], [], [], []
+        step = self.sample_step_m
+        n_total = 0
+        for road in self.roads.values():
+            xr_all = None
+            for k, sec in enumerate(road.sections):
+                s0, s1 = sec.s, road.section_ends[k]
+                if not sec.lanes:
+                    continue
+                n = max(2, int(math.ceil((s1 - s0) / step)) + 1)
+                s = np.linspace(s0, s1, n)
+                xr_all = road.plan_view.evaluate(s)
+                xr, yr, hr, kr = xr_all
+                sn, cs = np.sin(hr), np.cos(hr)
+                z = road.elevation(s)
+                for lid, (t, dt, w) in self._section_centres(road, k, s).items():
+                    lane = self.lanes[(road.id, k, lid)]
+                    lane.v0, lane.v1 = n_total, n_total + n
+                    n_total += n
+                    xs.append(xr - t * sn)
+                    ys.append(-(yr + t * cs))
+                    hs.append(-(hr + np.arctan2(dt, 1.0 - t * kr)))
+                    zs.append(z)
+                    ss.append(s)
+                    ws.append(w)
+                    owner.append(np.full(n, lane.index, dtype=np.int32))
+        self._vx = np.concatenate(xs)
+        self._vy = np.concatenate(ys)
+        self._vz = np.concatenate(zs)
+        self._vh = np.concatenate(hs)
+        self._vs = np.concatenate(ss)
+        self._vw = np.concatenate(ws)
+        self._vlane = np.concatenate(owner)
+        same = self._vlane[:-1] == self._vlane[1:]
+        self._seg = np.flatnonzero(same & (self._vs[1:] > self._vs[:-1]))  # segment i: v[i]→v[i+1]
+        self._lane_types = np.array([int(ln.type) for ln in self.lane_list], dtype=np.int64)
+        self._lane_keys = np.array([ln.key for ln in self.lane_list], dtype=np.int64).reshape(-1, 3)
+
+    # ------------------------------------------------------------------ spatial index
+    def _index(self, lane_type: LaneType) -> tuple[cKDTree, np.ndarray, float]:
+        key = int(lane_type)
+        if key not in self._trees:
+            seg = self._seg[(self._lane_types[self._vlane[self._seg]] & key) != 0]
+            if len(seg) == 0:
+                raise OffRoadError(f"{self.name} has no lanes of type {lane_type!r}")
+            mx = 0.5 * (self._vx[seg] + self._vx[seg + 1])
+            my = 0.5 * (self._vy[seg] + self._vy[seg + 1])
+            half = 0.5 * np.hypot(self._vx[seg + 1] - self._vx[seg],
+                                  self._vy[seg + 1] - self._vy[seg])
+            self._trees[key] = (cKDTree(np.column_stack([mx, my])), seg, float(half.max()))
+        return self._trees[key]
+
+    def project(self, points, lane_type: LaneType = LaneType.Driving) -> LaneProjection:
+        """Project many points onto the nearest lane centre of the given type(s).
+
+        Args:
+            points: (N, 2) or (N, 3) array, CARLA world, metres (z is ignored).
+            lane_type: a `LaneType` flag; lanes of any type in the flag are searched.
+
+        Returns:
+            `LaneProjection` with one row per point.
+
+        Raises:
+            OffRoadError: the map has no lane of that type.
+        """
+        pts = np.asarray(points, dtype=float).reshape(-1, np.shape(points)[-1])[:, :2]
+        tree, seg, half = self._index(lane_type)
+        n_seg = len(seg)
+        best = np.empty(len(pts), dtype=np.int64)
+        best_d = np.empty(len(pts))
+        todo = np.arange(len(pts))
+        k = min(8, n_seg)
+        while len(todo):
+            d, j = tree.query(pts[todo], k=k)
+            d = d.reshape(len(todo), -1)
+            cand = seg[j.reshape(len(todo), -1)]
+            dist = self._segment_distance(pts[todo, None, :], cand)
+            a = np.argmin(dist, axis=1)
+            rows = np.arange(len(todo))
+            best[todo] = cand[rows, a]
+            best_d[todo] = dist[rows, a]
+            # A segment whose midpoint is farther than d_k cannot be nearer than d_k - half.
+            unsure = (d[:, -1] - half < best_d[todo]) & (k < n_seg)
+            todo = todo[unsure]
+            k = min(4 * k, n_seg)
+        return self._refine(pts, best)
+
+    def _segment_distance(self, q: np.ndarray, i: np.ndarray) -> np.ndarray:
+        ax, ay = self._vx[i], self._vy[i]
+        bx, by = self._vx[i + 1], self._vy[i + 1]
+        dx, dy = bx - ax, by - ay
+        l2 = dx * dx + dy * dy
+        t = ((q[..., 0] - ax) * dx + (q[..., 1] - ay) * dy) / np.where(l2 > 0, l2, 1.0)
+        np.clip(t, 0.0, 1.0, out=t)
+        return np.hypot(ax + t * dx - q[..., 0], ay + t * dy - q[..., 1])
+
+    def _refine(self, q: np.ndarray, i: np.ndarray) -> LaneProjection:
+        """Foot point on the cubic Hermite curve of segment i (Newton, from the chord)."""
+        p0 = np.column_stack([self._vx[i], self._vy[i]])
+        p1 = np.column_stack([self._vx[i + 1], self._vy[i + 1]])
+        chord = np.linalg.norm(p1 - p0, axis=1)[:, None]
+        t0 = np.column_stack([np.cos(self._vh[i]), np.sin(self._vh[i])]) * chord
+        t1 = np.column_stack([np.cos(self._vh[i + 1]), np.sin(self._vh[i + 1])]) * chord
+        d = p1 - p0
+        t = np.clip(np.einsum("ij,ij->i", q - p0, d) / np.maximum(chord[:, 0] ** 2, 1e-18), 0, 1)
+        for _ in range(3):
+            tt = t[:, None]
+            c = (p0 * (2 * tt**3 - 3 * tt**2 + 1) + t0 * (tt**3 - 2 * tt**2 + tt)
+                 + p1 * (-2 * tt**3 + 3 * tt**2) + t1 * (tt**3 - tt**2))
+            c1 = (p0 * (6 * tt**2 - 6 * tt) + t0 * (3 * tt**2 - 4 * tt + 1)
+                  + p1 * (-6 * tt**2 + 6 * tt) + t1 * (3 * tt**2 - 2 * tt))
+            c2 = p0 * (12 * tt - 6) + t0 * (6 * tt - 4) + p1 * (6 - 12 * tt) + t1 * (6 * tt - 2)
+            r = c - q
+            g = np.einsum("ij,ij->i", r, c1)
+            dg = np.einsum("ij,ij->i", c1, c1) + np.einsum("ij,ij->i", r, c2)
+            t = np.clip(t - g / np.where(np.abs(dg) > 1e-12, dg, 1e-12), 0.0, 1.0)
+        tt = t[:, None]
+        c = (p0 * (2 * tt**3 - 3 * tt**2 + 1) + t0 * (tt**3 - 2 * tt**2 + tt)
+             + p1 * (-2 * tt**3 + 3 * tt**2) + t1 * (tt**3 - tt**2))
+        c1 = (p0 * (6 * tt**2 - 6 * tt) + t0 * (3 * tt**2 - 4 * tt + 1)
+              + p1 * (-6 * tt**2 + 6 * tt) + t1 * (3 * tt**2 - 2 * tt))
+        lane_idx = self._vlane[i]
+        keys = self._lane_keys[lane_idx]
+        s = self._vs[i] + t * (self._vs[i + 1] - self._vs[i])
+        heading = np.arctan2(c1[:, 1], c1[:, 0])  # along +s, CARLA frame
+        backward = keys[:, 2] > 0
+        yaw = normalize_yaw(np.degrees(heading) + np.where(backward, 180.0, 0.0))
+        r = q - c
+        # Right of the +s direction in CARLA's left-handed frame is (-sin h, cos h).
+        lateral = -r[:, 0] * np.sin(heading) + r[:, 1] * np.cos(heading)
+        lateral = np.where(backward, -lateral, lateral)
+        w = self._vw[i] + t * (self._vw[i + 1] - self._vw[i])
+        z = self._vz[i] + t * (self._vz[i + 1] - self._vz[i])
+        return LaneProjection(keys[:, 0], keys[:, 1], keys[:, 2], s, c[:, 0], c[:, 1], z, yaw,
+                              lateral, np.hypot(r[:, 0], r[:, 1]), w, lane_idx.astype(np.int64),
+                              self)
+
+    # ------------------------------------------------------------------ CARLA queries
+    def get_waypoint(self, location, project_to_road: bool = True,
+                     lane_type: LaneType = LaneType.Driving) -> Waypoint | None:
+        """The lane-centre waypoint nearest to `location`, as `carla.Map.get_waypoint`.
+
+        Args:
+            location: `Location`, carla.Location or (x, y[, z]); CARLA world, metres.
+            project_to_road: when False, return a waypoint only if the point lies
+                within half a lane width of the nearest centre line, else None.
+            lane_type: `LaneType` flag of the lanes to consider.
+        """
+        p = self.project(np.array([as_xy(location)]), lane_type)
+        if not project_to_road and not p.inside[0]:
+            return None
+        return p.waypoint(0)
+
+    def get_waypoints(self, points, project_to_road: bool = True,
+                      lane_type: LaneType = LaneType.Driving) -> list[Waypoint | None]:
+        """`get_waypoint` for (N, 2) points at once."""
+        p = self.project(points, lane_type)
+        inside = p.inside
+        return [p.waypoint(i) if (project_to_road or inside[i]) else None for i in range(len(p))]
+
+    def waypoint(self, road_id: int, section_id: int, lane_id: int, s: float) -> Waypoint:
+        """The waypoint at (road, section, lane, s); s is clamped into the section.
+
+        Raises:
+            KeyError: no such lane, with the valid lanes of that road in the message.
+        """
+        key = (int(road_id), int(section_id), int(lane_id))
+        lane = self.lanes.get(key)
+        if lane is None:
+            valid = sorted(k for k in self.lanes if k[0] == key[0])
+            raise KeyError(f"{self.name}: no lane {key}; lanes of road {key[0]}: {valid}")
+        return Waypoint(*key, float(min(max(s, lane.s0), lane.s1)), self)
+
+    def get_waypoint_xodr(self, road_id: int, lane_id: int, s: float) -> Waypoint | None:
+        """As `carla.Map.get_waypoint_xodr`: the lane at road s, or None."""
+        road = self.roads.get(int(road_id))
+        if road is None or not (0.0 <= s <= road.length):
+            return None
+        k = self.section_at(road, s)
+        if (road.id, k, lane_id) not in self.lanes:
+            return None
+        return Waypoint(road.id, k, int(lane_id), float(s), self)
+
+    @staticmethod
+    def section_at(road: RoadRecord, s: float) -> int:
+        starts = [sec.s for sec in road.sections]
+        return max(0, int(np.searchsorted(starts, s, side="right")) - 1)
+
+    def lane_start(self, key: LaneKey) -> Waypoint:
+        """The waypoint where lane `key` begins in its driving direction."""
+        return Waypoint(*key, self.lanes[key].start_s, self)
+
+    def get_topology(self) -> list[tuple[Waypoint, Waypoint]]:
+        """(start of a Driving lane, start of one successor lane) pairs, as CARLA's."""
+        out = []
+        for lane in self.lane_list:
+            if lane.type != LaneType.Driving:
+                continue
+            a = self.lane_start(lane.key)
+            for t in lane.successors:
+                out.append((a, self.lane_start(t)))
+        return out
+
+    def generate_waypoints(self, distance: float) -> list[Waypoint]:
+        """Per road, s = ε, ε + d, … < length − ε; one waypoint per Driving lane at s."""
+        if distance <= 0:
+            raise ValueError(f"distance must be positive, got {distance}")
+        out = []
+        for road in self.roads.values():
+            for s in np.arange(_EPS, road.length - _EPS, distance):
+                k = self.section_at(road, float(s))
+                for lid in sorted(road.sections[k].lanes):
+                    if self.lanes[(road.id, k, lid)].type == LaneType.Driving:
+                        out.append(Waypoint(road.id, k, lid, float(s), self))
+        return out
+
+    def _walk(self, wp: Waypoint, distance: float, forward: bool) -> list[Waypoint]:
+        if not distance > 0:
+            raise ValueError(f"distance must be positive, got {distance}")
+        out: list[Waypoint] = []
+        stack = [(wp.key, wp.s, float(distance), 0)]
+        while stack:
+            key, s, d, depth = stack.pop()
+            lane = self.lanes[key]
+            along = lane.forward == forward  # moving towards increasing s?
+            left = (lane.s1 - s) if along else (s - lane.s0)
+            if d <= left + 1e-9 or depth > 256:
+                ns = s + d if along else s - d
+                out.append(Waypoint(*key, float(min(max(ns, lane.s0), lane.s1)), self))
+                continue
+            nxt = lane.successors if forward else lane.predecessors
+            for t in nxt:
+                tl = self.lanes[t]
+                start = tl.start_s if forward else tl.end_s
+                stack.append((t, start, d - max(left, 0.0), depth + 1))
+        out.sort(key=lambda w: (w.road_id, w.section_id, w.lane_id))
+        return out
+
+    def _side_lane(self, wp: Waypoint, left: bool) -> Waypoint | None:
+        lid = wp.lane_id
+        # Left of the driving direction is towards the reference line on both sides.
+        inward = 1 if lid < 0 else -1
+        nid = lid + inward if left else lid - inward
+        if nid == 0:
+            nid = inward
+        key = (wp.road_id, wp.section_id, nid)
+        if key not in self.lanes:
+            return None
+        return Waypoint(*key, wp.s, self)
+
+    # ------------------------------------------------------------------ summaries
+    @property
+    def extent(self) -> tuple[float, float, float, float]:
+        """(x_min, y_min, x_max, y_max) of the road reference lines, CARLA frame, metres."""
+        xs, ys = [], []
+        for road in self.roads.values():
+            s = np.linspace(0.0, road.length, max(2, int(road.length / 0.5) + 1))
+            x, y, _, _ = road.plan_view.evaluate(s)
+            xs.append(x)
+            ys.append(-y)
+        x, y = np.concatenate(xs), np.concatenate(ys)
+        return float(x.min()), float(y.min()), float(x.max()), float(y.max())
+
+    def driving_lanes(self) -> list[Lane]:
+        return [ln for ln in self.lane_list if ln.type == LaneType.Driving]
+
+    def lane_polyline(self, key: LaneKey, driving_order: bool = True) -> np.ndarray:
+        """The sampled centre line of a lane, (M, 3) x, y, z, CARLA world, metres."""
+        lane = self.lanes[key]
+        sl = slice(lane.v0, lane.v1)
+        pts = np.column_stack([self._vx[sl], self._vy[sl], self._vz[sl]])
+        return pts[::-1] if (driving_order and not lane.forward) else pts
+
+    def lane_centres(self, lane_type: LaneType = LaneType.Driving):
+        """Yield (lane, (M, 3) centre polyline in driving order) for lanes of a type."""
+        for lane in self.lane_list:
+            if lane.type & lane_type:
+                yield lane, self.lane_polyline(lane.key)
+
+    def lane_border_polylines(self, key: LaneKey) -> tuple[np.ndarray, np.ndarray]:
+        """Left and right borders (w.r.t. +s) of a lane, (M, 2) each, CARLA frame."""
+        lane = self.lanes[key]
+        sl = slice(lane.v0, lane.v1)
+        x, y, h, w = self._vx[sl], self._vy[sl], self._vh[sl], self._vw[sl]
+        rx, ry = -np.sin(h), np.cos(h)  # right of +s in CARLA's frame
+        right = np.column_stack([x + 0.5 * w * rx, y + 0.5 * w * ry])
+        left = np.column_stack([x - 0.5 * w * rx, y - 0.5 * w * ry])
+        return left, right
+
+    def summary(self) -> dict:
+        """Counts and extent, as `dashtraj map info` prints them."""
+        x0, y0, x1, y1 = self.extent
+        return {
+            "map": self.name,
+            "roads": len(self.roads),
+            "junctions": len(self.junctions),
+            "lane_sections": sum(len(r.sections) for r in self.roads.values()),
+            "driving_lanes": len(self.driving_lanes()),
+            "topology_pairs": len(self.get_topology()),
+            "extent": {"x_min": x0, "y_min": y0, "x_max": x1, "y_max": y1},
+        }
+
+    def lane_graph(self, lane_change_cost_m: float = 15.0):
+        """The directed lane graph (cached per lane-change cost); see `LaneGraph`."""
+        from dashtraj.roads.lanegraph import LaneGraph
+
+        key = float(lane_change_cost_m)
+        if key not in self._graphs:
+            self._graphs[key] = LaneGraph(self, lane_change_cost_m=key)
+        return self._graphs[key]
+
+    def route(self, origin, destination, lane_change_cost_m: float = 15.0):
+        """Shortest route between two locations; see `LaneGraph.route`."""
+        return self.lane_graph(lane_change_cost_m).route(origin, destination)
+
+    def __repr__(self) -> str:
+        return f"RoadMap({self.name!r}, roads={len(self.roads)}, lanes={len(self.lanes)})"
