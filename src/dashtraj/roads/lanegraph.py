@@ -174,7 +174,8 @@ class LaneGraph:
         lane = self.map.lanes[key]
         sl = slice(lane.v0, lane.v1)
         vs = self.map._vs[sl]
-        return (float(np.interp(s, vs, self.map._vx[sl])), float(np.interp(s, vs, self.map._vy[sl])))
+        return (float(np.interp(s, vs, self.map._vx[sl])),
+                float(np.interp(s, vs, self.map._vy[sl])))
 
     # ------------------------------------------------------------------ search
     def _search(self, origin: Waypoint, goals: list[tuple[LaneKey, float]],

@@ -390,7 +390,7 @@ class RoadMap:
                 s0, s1 = sec.s, road.section_ends[k]
                 if not sec.lanes:
                     continue
-                n = max(2, int(math.ceil((s1 - s0) / step)) + 1)
+                n = max(2, math.ceil((s1 - s0) / step) + 1)
                 s = np.linspace(s0, s1, n)
                 xr_all = road.plan_view.evaluate(s)
                 xr, yr, hr, kr = xr_all
@@ -467,6 +467,32 @@ class RoadMap:
             todo = todo[unsure]
             k = min(4 * k, n_seg)
         return self._refine(pts, best)
+
+    def candidates(self, location, radius_m: float,
+                   lane_type: LaneType = LaneType.Driving) -> LaneProjection:
+        """Every lane whose centre line passes within `radius_m` of a point.
+
+        One row per lane (its nearest foot point), sorted by distance; empty when
+        no lane is that close. CARLA world, metres.
+
+        Example:
+            >>> c = m.candidates((10.0, 2.0), radius_m=8.0)  # doctest: +SKIP
+            >>> list(zip(c.road_id, c.lane_id))  # doctest: +SKIP
+        """
+        q = np.asarray(as_xy(location), dtype=float)
+        tree, seg, half = self._index(lane_type)
+        idx = np.asarray(tree.query_ball_point(q, radius_m + half), dtype=np.int64)
+        segs = seg[idx]
+        d = self._segment_distance(q[None, :], segs)
+        keep = d <= radius_m
+        segs, d = segs[keep], d[keep]
+        order = np.lexsort((d, self._vlane[segs]))
+        segs, d = segs[order], d[order]
+        lanes = self._vlane[segs]
+        first = np.concatenate([[True], lanes[1:] != lanes[:-1]]) if len(lanes) else lanes
+        segs, d = segs[first], d[first]
+        segs = segs[np.argsort(d, kind="stable")]
+        return self._refine(np.repeat(q[None, :], len(segs), axis=0), segs)
 
     def _segment_distance(self, q: np.ndarray, i: np.ndarray) -> np.ndarray:
         ax, ay = self._vx[i], self._vy[i]
