@@ -277,3 +277,20 @@ def test_trajectory_is_read_only_and_validated():
         Trajectory(src, np.zeros(3))
     with pytest.raises(EmptyTrajectoryError):
         Trajectory(np.empty((0, 2)))
+
+
+def test_memory_stays_bounded_for_10k_point_trajectories():
+    import tracemalloc
+
+    rng = np.random.default_rng(11)
+    a = _walk(rng, 10_000)
+    b = _walk(rng, 10_000)
+    tracemalloc.start()
+    try:
+        d = point_to_polyline_distances(a, b)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert d.shape == (10_000,)
+    # A dense 10k x 10k x 2 float64 temporary would be 1.6 GB; chunks stay ~ MB.
+    assert peak < 50 * 2**20

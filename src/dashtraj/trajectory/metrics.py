@@ -46,8 +46,8 @@ from dashtraj.trajectory.records import EmptyTrajectoryError, Trajectory
 _U_MIN = 1e-5
 """traj-dist's threshold below which the endpoint distance replaces the projection."""
 
-DEFAULT_CHUNK_ELEMENTS = 1_000_000
-"""Point x segment pairs evaluated at once; about 8 MB per float64 temporary."""
+DEFAULT_CHUNK_ELEMENTS = 1 << 15
+"""Point x segment pairs evaluated at once: 7 float64 buffers of 256 KiB (cache-sized)."""
 
 
 def _as_points(traj: Trajectory | np.ndarray, name: str) -> np.ndarray:
@@ -86,7 +86,8 @@ def point_to_polyline_distances(
         points: (N, 2) float, CARLA world, metres (or a Trajectory).
         polyline: (M, 2) float, CARLA world, metres (or a Trajectory), M >= 1.
         chunk_elements: at most this many point x segment pairs are evaluated
-            at once, bounding memory (about 10 float64 arrays of this size).
+            at once, bounding memory (7 float64 and 2 bool buffers of this
+            size, reused; at least one row of M pairs).
 
     Returns:
         (N,) float64 distances, metres.
@@ -113,29 +114,55 @@ def point_to_polyline_distances(
     # short that its squared length underflows to 0 is treated the same way here).
     degenerate = seg2 == 0
     safe_seg2 = np.where(degenerate, 1.0, seg2)
-    rows = max(1, int(chunk_elements) // max(m, 1))
+    if m == 1:
+        v = p - q[0]
+        return np.sqrt((v * v).sum(axis=1))
+    qx, qy = q[:, 0], q[:, 1]
+    s1x, s1y = qx[:-1], qy[:-1]
+    rows = max(1, min(n, int(chunk_elements) // m))
+    # Work buffers reused across chunks; every temporary is (rows, M) or (rows, M-1).
+    vx, vy, v2 = (np.empty((rows, m)) for _ in range(3))
+    u, fx, fy, tmp = (np.empty((rows, m - 1)) for _ in range(4))
+    mask, mask2 = np.empty((rows, m - 1), dtype=bool), np.empty((rows, m - 1), dtype=bool)
+    # Squared distances throughout and one square root at the end: sqrt is monotonic
+    # and correctly rounded, so sqrt(min(d^2)) == min(sqrt(d^2)) bit for bit, the
+    # value traj-dist gets by taking sqrt per pair.
     for start in range(0, n, rows):
-        chunk = p[start : start + rows]
-        px = chunk[:, 0:1]
-        py = chunk[:, 1:2]
-        vx = px - q[:, 0]
-        vy = py - q[:, 1]
-        vertex = np.sqrt(vx * vx + vy * vy)  # (C, M): distance to every vertex
-        if m == 1:
-            out[start : start + rows] = vertex[:, 0]
-            continue
-        ex = np.minimum(vertex[:, :-1], vertex[:, 1:])  # nearer endpoint, (C, M-1)
-        ax = vx[:, :-1]
-        ay = vy[:, :-1]
+        c = min(rows, n - start)
+        px = p[start : start + c, 0:1]
+        py = p[start : start + c, 1:2]
+        bvx, bvy, bv2 = vx[:c], vy[:c], v2[:c]
+        bu, bfx, bfy, btmp = u[:c], fx[:c], fy[:c], tmp[:c]
+        bmask, bmask2 = mask[:c], mask2[:c]
+        np.subtract(px, qx, out=bvx)
+        np.subtract(py, qy, out=bvy)
+        np.multiply(bvx, bvx, out=bv2)
+        bv2 += bvy * bvy  # squared distance to every vertex
         with np.errstate(over="ignore", invalid="ignore"):  # masked out below
-            u = (ax * dx + ay * dy) / safe_seg2
-            # traj-dist: projection foot (ix, iy) = s1 + u (s2 - s1); distance p - foot.
-            fx = px - (s1[:, 0] + u * dx)
-            fy = py - (s1[:, 1] + u * dy)
-            perp = np.sqrt(fx * fx + fy * fy)
-        use_end = degenerate | (u < _U_MIN) | (u > 1)
-        d = np.where(use_end, ex, perp)
-        out[start : start + rows] = d.min(axis=1)
+            # u = ((p - s1) . (s2 - s1)) / |s2 - s1|^2, as traj-dist.
+            np.multiply(bvx[:, :-1], dx, out=bu)
+            np.multiply(bvy[:, :-1], dy, out=btmp)
+            bu += btmp
+            bu /= safe_seg2
+            # Projection foot s1 + u (s2 - s1); squared distance from p to it.
+            np.multiply(bu, dx, out=bfx)
+            bfx += s1x
+            np.subtract(px, bfx, out=bfx)
+            np.multiply(bu, dy, out=bfy)
+            bfy += s1y
+            np.subtract(py, bfy, out=bfy)
+            bfx *= bfx
+            bfy *= bfy
+            bfx += bfy  # perpendicular distance squared
+        # traj-dist: endpoint distance when u < 1e-5 or u > 1 (or a point segment).
+        np.less(bu, _U_MIN, out=bmask)
+        np.greater(bu, 1.0, out=bmask2)
+        bmask |= bmask2
+        bmask |= degenerate
+        np.minimum(bv2[:, :-1], bv2[:, 1:], out=btmp)
+        np.copyto(bfx, btmp, where=bmask)
+        out[start : start + c] = bfx.min(axis=1)
+    np.sqrt(out, out=out)
     return out
 
 
