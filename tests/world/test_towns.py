@@ -264,6 +264,10 @@ def test_extents_in_carla_frame(town):
     assert exp["x_span"][0] <= max(xs) - min(xs) <= exp["x_span"][1]
     assert exp["y_span"][0] <= max(ys) - min(ys) <= exp["y_span"][1]
     assert min(xs) >= 0.0 and min(ys) >= 0.0
+    centres = [_lane_pose(road, lid, road.length * i / 10)
+               for road in roads.values() for lid, v in road.lanes.items()
+               if v[0] == "driving" for i in range(11)]
+    assert min(c[0] for c in centres) >= 0.0 and max(c[1] for c in centres) <= 0.0
 
 
 def test_format_float_is_stable():
@@ -308,3 +312,21 @@ def test_roadmap_reads_towns_without_warnings(town):
             x, y, _h = _lane_pose(road, lid, road.length / 2)
             wp = rmap.get_waypoint((x, -y))  # CARLA frame
             assert (wp.road_id, wp.lane_id) == (road.id, lid)
+
+
+def test_carla_reads_towns_like_we_do(town):
+    """CARLA's own OpenDRIVE parser (carla.Map built client-side, no server) finds the
+    same lane links and junctions. Runs only where the `carla` package is installed."""
+    carla = pytest.importorskip("carla")
+    name, text, root, _roads, g = town
+    cmap = carla.Map(name, text)
+    assert len(cmap.get_topology()) == g.number_of_edges()
+    wps = cmap.generate_waypoints(2.0)
+    assert len({w.get_junction().id for w in wps if w.is_junction}) == len(
+        root.findall("junction"))
+    for w in wps[::25]:
+        cur = w
+        for _ in range(200):  # drive on: never a dead end
+            nxt = cur.next(2.0)
+            assert nxt, f"dead end at road {cur.road_id} lane {cur.lane_id}"
+            cur = nxt[-1]

@@ -121,7 +121,7 @@ _TOWN01 = TownSpec(
     sidewalk_width_m=2.5,
     junction_half_size_m=12.0,
     corner_radius_m=18.0,
-    offset_m=(2.0, 2.0),
+    offset_m=(2.0, 2.0),  # every driving-lane centre at CARLA x, y >= 0
     speed_kmh=30.0,
 )
 
@@ -164,7 +164,7 @@ _TOWN10 = TownSpec(
     sidewalk_width_m=3.0,
     junction_half_size_m=14.0,
     corner_radius_m=15.0,
-    offset_m=(2.0, 2.0),
+    offset_m=(6.0, 6.0),  # every driving-lane centre at CARLA x, y >= 0
     speed_kmh=30.0,
 )
 
