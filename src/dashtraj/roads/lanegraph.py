@@ -171,11 +171,8 @@ class LaneGraph:
         return out
 
     def _point(self, key: LaneKey, s: float) -> tuple[float, float]:
-        lane = self.map.lanes[key]
-        sl = slice(lane.v0, lane.v1)
-        vs = self.map._vs[sl]
-        return (float(np.interp(s, vs, self.map._vx[sl])),
-                float(np.interp(s, vs, self.map._vy[sl])))
+        x, y = self._points_at(key, np.array([s]))[0]
+        return float(x), float(y)
 
     # ------------------------------------------------------------------ search
     def _search(self, origin: Waypoint, goals: list[tuple[LaneKey, float]],
@@ -339,36 +336,43 @@ class LaneGraph:
             legs.append(RouteLeg(k, lanes[k].start_s, s_to, lane_change=lc))
         return legs
 
+    def _points_at(self, key: LaneKey, s: np.ndarray) -> np.ndarray:
+        """Lane-centre points at road s, interpolated between the exact samples (≤ 1 m)."""
+        lane = self.map.lanes[key]
+        sl = slice(lane.v0, lane.v1)
+        vs = self.map._vs[sl]
+        return np.column_stack([np.interp(s, vs, self.map._vx[sl]),
+                                np.interp(s, vs, self.map._vy[sl])])
+
+    def _leg_points(self, key: LaneKey, s_from: float, s_to: float):
+        """Centre points of a leg in driving order: its ends and every sample between."""
+        lane = self.map.lanes[key]
+        lo, hi = (s_from, s_to) if s_from <= s_to else (s_to, s_from)
+        vs = self.map._vs[lane.v0:lane.v1]
+        i0, i1 = np.searchsorted(vs, [lo, hi], side="right")
+        s = np.concatenate([[lo], vs[i0:i1][vs[i0:i1] < hi], [hi]])
+        if not lane.forward:
+            s = s[::-1]
+        return self._points_at(key, s), s
+
     def _polyline(self, legs: list[RouteLeg]) -> np.ndarray:
         """Centre-line points of the legs; a lane change blends across over ≤ 20 m."""
-        m = self.map
         parts: list[np.ndarray] = []
         prev_key = None
         for leg in legs:
-            lane = m.lanes[leg.key]
-            lo, hi = sorted((leg.s_from, leg.s_to))
-            sl = slice(lane.v0, lane.v1)
-            vs = m._vs[sl]
-            inner = vs[(vs > lo) & (vs < hi)]
-            s = np.concatenate([[lo], inner, [hi]])
-            if not lane.forward:
-                s = s[::-1]
-            x, y, _, _, _ = m._lane_frame(leg.key, s)
-            pts = np.column_stack([x, y])
+            pts, s = self._leg_points(leg.key, leg.s_from, leg.s_to)
             if leg.lane_change and prev_key is not None and prev_key[:2] == leg.key[:2]:
-                px, py, _, _, _ = m._lane_frame(prev_key, s)
-                prev_pts = np.column_stack([px, py])
+                prev_pts = self._points_at(prev_key, s)
                 along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0),
                                                                         axis=1))])
                 w = np.clip(along / min(20.0, max(along[-1], 1e-9)), 0.0, 1.0)[:, None]
                 pts = (1 - w) * prev_pts + w * pts
-            if hi - lo > 1e-9:
+            if abs(leg.s_to - leg.s_from) > 1e-9:
                 parts.append(pts)
             prev_key = leg.key
-        if not parts:
-            leg = legs[-1]
-            x, y, _, _, _ = m._lane_frame(leg.key, np.array([leg.s_to]))
-            return np.array([[x[0], y[0]]])
+        first, last = legs[0], legs[-1]
+        parts.insert(0, self._points_at(first.key, np.array([first.s_from])))
+        parts.append(self._points_at(last.key, np.array([last.s_to])))
         poly = np.concatenate(parts)
         keep = np.concatenate([[True], np.linalg.norm(np.diff(poly, axis=0), axis=1) > 1e-6])
         return poly[keep]
