@@ -46,8 +46,16 @@ class LaneRecord:
     border: Cubic | None  # outer border offset, when given instead of width
     predecessor: int | None
     successor: int | None
-    road_marks: tuple[RoadMark, ...] = ()
     level: bool = False
+    _element: object = field(default=None, repr=False, compare=False)
+    _marks: tuple[RoadMark, ...] | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def road_marks(self) -> tuple[RoadMark, ...]:
+        """The lane's `<roadMark>` records, read on first use (most users never need them)."""
+        if self._marks is None:
+            self._marks = _parse_marks(self._element) if self._element is not None else ()
+        return self._marks
 
 
 @dataclass(slots=True)
@@ -177,7 +185,8 @@ def parse_opendrive(data: bytes | str, name: str = "<string>") -> OpenDrive:
     if isinstance(data, str):
         data = data.encode("utf-8")
     try:
-        parser = etree.XMLParser(remove_comments=True, huge_tree=True, resolve_entities=False)
+        parser = etree.XMLParser(remove_comments=True, remove_blank_text=True, collect_ids=False,
+                                 huge_tree=True, resolve_entities=False)
         root = etree.fromstring(data, parser)
     except etree.XMLSyntaxError as exc:
         raise OpenDriveError(f"{name} is not OpenDRIVE: XML error: {exc}") from None
@@ -275,17 +284,12 @@ def _parse_road(el, source: str) -> RoadRecord | None:
 
     ep = el.find("elevationProfile")
     elevation = Cubic.from_records(
-        [(_f(e, "s", 0.0), _f(e, "a", 0.0), _f(e, "b", 0.0), _f(e, "c", 0.0), _f(e, "d", 0.0))
-         for e in (ep.iterfind("elevation") if ep is not None else ())]
-    )
+        [_poly(e, "s") for e in (ep.iterfind("elevation") if ep is not None else ())])
     lanes_el = el.find("lanes")
     if lanes_el is None:
         _warn(source, f"{where} has no <lanes>; road skipped")
         return None
-    lane_offset = Cubic.from_records(
-        [(_f(e, "s", 0.0), _f(e, "a", 0.0), _f(e, "b", 0.0), _f(e, "c", 0.0), _f(e, "d", 0.0))
-         for e in lanes_el.iterfind("laneOffset")]
-    )
+    lane_offset = Cubic.from_records([_poly(e, "s") for e in lanes_el.iterfind("laneOffset")])
     sections = [_parse_section(ls, source, where) for ls in lanes_el.iterfind("laneSection")]
     if not sections:
         _warn(source, f"{where} has no <laneSection>; road skipped")
@@ -304,6 +308,13 @@ def _parse_marks(lane_el) -> tuple[RoadMark, ...]:
     )
 
 
+def _poly(el, start: str) -> tuple[float, float, float, float, float]:
+    """(start, a, b, c, d) of a cubic record; missing attributes read as 0."""
+    g = el.get
+    return (float(g(start) or 0.0), float(g("a") or 0.0), float(g("b") or 0.0),
+            float(g("c") or 0.0), float(g("d") or 0.0))
+
+
 def _parse_section(ls, source: str, road_where: str) -> LaneSectionRecord:
     s = _f(ls, "s", 0.0)
     lanes: dict[int, LaneRecord] = {}
@@ -317,10 +328,8 @@ def _parse_section(ls, source: str, road_where: str) -> LaneSectionRecord:
             if lid == 0:
                 center_marks = _parse_marks(lane)
                 continue
-            widths = [(_f(w, "sOffset", 0.0), _f(w, "a", 0.0), _f(w, "b", 0.0), _f(w, "c", 0.0),
-                       _f(w, "d", 0.0)) for w in lane.iterfind("width")]
-            borders = [(_f(w, "sOffset", 0.0), _f(w, "a", 0.0), _f(w, "b", 0.0),
-                        _f(w, "c", 0.0), _f(w, "d", 0.0)) for w in lane.iterfind("border")]
+            widths = [_poly(w, "sOffset") for w in lane.iterfind("width")]
+            borders = [_poly(w, "sOffset") for w in lane.iterfind("border")]
             pred = succ = None
             link = lane.find("link")
             if link is not None:
@@ -340,8 +349,8 @@ def _parse_section(ls, source: str, road_where: str) -> LaneSectionRecord:
                 border=Cubic.from_records(borders) if (borders and not widths) else None,
                 predecessor=pred,
                 successor=succ,
-                road_marks=_parse_marks(lane),
                 level=lane.get("level", "false") in ("true", "1"),
+                _element=lane,
             )
     return LaneSectionRecord(s, ls.get("singleSide", "false") == "true", lanes, center_marks)
 
