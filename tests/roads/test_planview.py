@@ -237,17 +237,12 @@ def test_param_poly3_points_on_curve_heading_and_arc_length(p_range):
     big_v = co["aV"] + p * (co["bV"] + p * (co["cV"] + p * co["dV"]))
     np.testing.assert_allclose(v, big_v, atol=1e-9)  # on the curve
     np.testing.assert_allclose(_wrap(h - (h0 + np.arctan2(dv(p), du(p)))), 0.0, atol=1e-7)
-    # s is the arc length from the start, to 0.1 mm (1 µm: see the xfail below).
+    # s is the arc length from the start, to 0.1 mm (and to 1 µm: the test below).
     err = np.array([arc(pi) - si for pi, si in zip(p, s, strict=True)])
     assert np.abs(err).max() < 1e-4
     assert p[0] == pytest.approx(0.0, abs=1e-12)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "planview.PlanView._param_poly3 inverts the arc-length table with np.interp and one "
-    "Newton step whose residual also uses the linearly interpolated table "
-    "(np.interp(p, ptab, arc)), so positions miss the true arc-length parametrisation by up "
-    "to ~7e-6 m (normalized, 18.6 m curve) and ~1.5e-5 m (arcLength, 30 m curve), not 1e-6 m"))
 @pytest.mark.parametrize("p_range", ["normalized", "arcLength"])
 def test_param_poly3_arc_length_to_a_micrometre(p_range):
     *_, s, p, _v, _h, _h0, _du, _dv, arc = _pp3_samples(p_range, n=401)

@@ -109,6 +109,25 @@ def _arc_length_table(du, dv, p_end: float, n: int = 256) -> tuple[np.ndarray, n
     return p, np.concatenate([[0.0], np.cumsum(seg)])
 
 
+def _invert_arc_length(target: np.ndarray, ptab: np.ndarray, arc: np.ndarray, speed,
+                       iterations: int = 3) -> np.ndarray:
+    """Parameter p whose arc length from 0 is `target`, to well under a micrometre.
+
+    Starts from the table, then Newton steps whose residual integrates the exact
+    speed from the nearest table node to p (24-point Gauss–Legendre).
+    """
+    p = np.interp(target, arc, ptab)
+    for _ in range(iterations):
+        i = np.clip(np.searchsorted(ptab, p, side="right") - 1, 0, len(ptab) - 2)
+        p0 = ptab[i]
+        half = 0.5 * (p - p0)
+        nodes = (p0 + half)[:, None] + half[:, None] * _GL_X[None, :]
+        length = arc[i] + half * (speed(nodes) @ _GL_W)
+        sp = speed(p)
+        p = p + np.where(sp > 1e-12, (target - length) / np.maximum(sp, 1e-12), 0.0)
+    return p
+
+
 class PlanView:
     """A road's reference line: the sequence of its `<geometry>` records.
 
@@ -203,9 +222,7 @@ class PlanView:
             u_end *= 1.5
             self._tables.pop(i)
             p, arc = self._table(i, lambda u: np.ones_like(u), dv, u_end)
-        u = np.interp(ds, arc, p)
-        # One Newton step on arc(u) = ds (arc'(u) = |(1, v')|).
-        u = u + (ds - np.interp(u, p, arc)) / np.hypot(1.0, dv(u))
+        u = _invert_arc_length(ds, p, arc, lambda q: np.hypot(1.0, dv(q)))
         v = a + u * (b + u * (c + d * u))
         dvu = dv(u)
         ddv = 2 * c + 6 * d * u
@@ -229,9 +246,7 @@ class PlanView:
         # Arc lengths beyond the table are mapped linearly (scaled to the stated length).
         scale = arc[-1] / g.length if g.length > 0 else 1.0
         target = ds * scale
-        p = np.interp(target, arc, ptab)
-        sp = np.hypot(dU(p), dV(p))
-        p = p + np.where(sp > 1e-12, (target - np.interp(p, ptab, arc)) / np.maximum(sp, 1e-12), 0)
+        p = _invert_arc_length(target, ptab, arc, lambda q: np.hypot(dU(q), dV(q)))
         u = au + p * (bu + p * (cu + du_ * p))
         v = av + p * (bv + p * (cv + dv_ * p))
         return self._local_to_world(
