@@ -1,0 +1,612 @@
+"""Traffic on the lane graph: lane following, IDM car following, junction reservations.
+
+Every vehicle is a point on a lane centre: (lane, progress p in metres from the
+lane's start in its driving direction, speed) plus a planned list of lanes ahead
+(its route). Vehicles never change lanes; at a lane's end they continue into the
+next planned lane. Positions come from each lane's sampled centre line (samples
+<= 1 m apart, exact on the curve) by linear interpolation over arc length,
+vectorised over all vehicles at once.
+
+Car following is the Intelligent Driver Model (M. Treiber, A. Hennecke, D.
+Helbing, "Congested traffic states in empirical observations and microscopic
+simulations", Phys. Rev. E 62, 1805, 2000):
+
+    a = a_max [1 - (v / v0)^delta - (s* / s)^2],
+    s* = s0 + max(0, v T + v dv / (2 sqrt(a_max b))),
+
+with s the bumper-to-bumper gap to the leader found along the planned path (the
+same lane ahead or the next planned lanes, up to ``lookahead_m``) and dv the
+closing speed.
+
+Junctions. A *region* is one junction's connecting lanes, merged with other
+junctions joined to it by a non-junction lane shorter than the longest vehicle
+plus a margin (that short lane joins the region). Rules:
+
+1. A vehicle may enter a region only while it holds the region's reservation;
+   otherwise its path ends in a stop line at the region's entry (IDM sees a
+   standing obstacle there).
+2. One holder per region. A vehicle becomes a *candidate* when it is the first
+   vehicle on its path before the entry and within ``queue_window_m`` of it;
+   candidates are queued by the time they became one (ties: lower vehicle id).
+3. When a region is free it is granted to the first queued candidate that has
+   room beyond the region's exit: free road of its length + ``exit_margin_m`` on
+   the lanes after the region, so the holder never stops inside the region.
+4. The holder releases the region once its rear has left the region's last lane.
+
+Why there is no collision in a region: only the holder is in it. Why no vehicle
+stops in one: nothing stands in the holder's way inside (rule 2), and the room it
+needs beyond the exit stays free, because only a region's holder can enter the
+lanes that leave it (real maps: the successors of a junction's connecting lanes
+have no other predecessors; this is checked when the network is built) and the
+vehicles already there only move forward. Why there is no deadlock: a holder
+always leaves in finite time (free road, positive desired speed), so a region is
+free again; a free region is granted to any queued candidate with room, and a
+candidate without room waits only on vehicles ahead of it on ordinary lanes,
+which drive on unless they themselves queue at a region. A circular wait would
+need a closed loop of lanes completely filled with stopped vehicles (gridlock),
+which the traffic densities of the paper (<= 25 vehicles on a town) never reach;
+`TrafficSim.step` raises no error for it, and the tests run 20 agents for
+minutes on Town10HD and check every vehicle keeps moving.
+
+Frames and units: CARLA world (metres, yaw degrees, positive turning +x toward
++y); speeds m/s; time s.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import networkx as nx
+import numpy as np
+
+from dashtraj.errors import DashtrajError, NoRouteError
+from dashtraj.roads.types import LaneType
+
+ROLES: tuple[str, ...] = ("target", "observer", "agent")
+
+
+class TrafficError(DashtrajError):
+    """The traffic cannot be set up (map too small for the vehicles asked for, ...)."""
+
+
+@dataclass(frozen=True, slots=True)
+class IDMParams:
+    """Intelligent Driver Model parameters (Treiber et al. 2000), SI units."""
+
+    desired_speed_mps: float = 9.0
+    time_headway_s: float = 1.5
+    min_gap_m: float = 2.0
+    max_accel_mps2: float = 1.5
+    comfort_decel_mps2: float = 2.0
+    delta: float = 4.0
+    max_decel_mps2: float = 9.0
+
+
+@dataclass(frozen=True, slots=True)
+class TrafficConfig:
+    """Settings of the traffic model; JSON round-trip via `asdict` / `from_dict`.
+
+    Attributes:
+        step_s: simulation step, seconds (20 Hz default).
+        lookahead_m: how far along its path a vehicle looks for a leader, metres.
+        queue_window_m: distance to a junction region's entry within which the
+            first vehicle of a lane queues for it, metres.
+        exit_margin_m: room beyond the exit, in addition to the vehicle's length.
+        speed_spread: desired speeds are drawn uniformly in v0 * (1 +- spread).
+        target_wobble_m: amplitude of the target's lateral wobble, metres.
+        target_speed_variation: relative amplitude of the target's slow speed changes.
+        target_detour_prob: probability that the target's route goes via a random
+            intermediate lane instead of the shortest way.
+        target_trip_m: (min, max) length of a random target route, metres.
+        idm: car-following parameters.
+    """
+
+    step_s: float = 0.05
+    lookahead_m: float = 60.0
+    queue_window_m: float = 25.0
+    exit_margin_m: float = 3.0
+    speed_spread: float = 0.15
+    target_wobble_m: float = 0.3
+    target_speed_variation: float = 0.1
+    target_detour_prob: float = 0.3
+    target_trip_m: tuple[float, float] = (300.0, 700.0)
+    idm: IDMParams = field(default_factory=IDMParams)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> TrafficConfig:
+        d = dict(d)
+        d["idm"] = IDMParams(**d.get("idm", {}))
+        if "target_trip_m" in d:
+            d["target_trip_m"] = tuple(d["target_trip_m"])
+        return cls(**d)
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleSpec:
+    """A vehicle to simulate: id, role (one of `ROLES`) and box size (metres)."""
+
+    vehicle_id: int
+    role: str
+    length_m: float
+    width_m: float
+    height_m: float
+
+
+class LaneNetwork:
+    """The drivable lanes of a map (largest strongly connected set of Driving lanes,
+    lane-following links only), their sampled centre lines, and junction regions.
+
+    Lanes are numbered 0..n-1 (`keys[i]` is the CARLA lane key). Progress p along
+    lane i runs from 0 at its start to `length[i]` at its end, driving direction.
+    """
+
+    def __init__(self, road_map, max_vehicle_length_m: float = 12.5,
+                 max_vehicle_width_m: float = 2.6):
+        self.map = road_map
+        g = nx.DiGraph()
+        for ln in road_map.driving_lanes():
+            g.add_node(ln.key)
+            for s in ln.successors:
+                if road_map.lanes[s].type == LaneType.Driving:
+                    g.add_edge(ln.key, s)
+        if g.number_of_nodes() == 0:
+            raise TrafficError(f"{road_map.name}: the map has no driving lanes")
+        scc = max(nx.strongly_connected_components(g), key=lambda c: (len(c), min(c)))
+        self.keys: list[tuple[int, int, int]] = sorted(scc)
+        self.index = {k: i for i, k in enumerate(self.keys)}
+        n = len(self.keys)
+        self.successors: list[list[int]] = [
+            sorted(self.index[s] for s in g.successors(k) if s in self.index) for k in self.keys
+        ]
+        self.predecessors: list[list[int]] = [[] for _ in range(n)]
+        for i, ss in enumerate(self.successors):
+            for j in ss:
+                self.predecessors[j].append(i)
+        # sampled centre lines in driving order, concatenated; G is a global
+        # monotone arc coordinate: lane i spans [base[i], base[i] + length[i]].
+        xs, ys, zs, cs, sn, ss_, gs, ws = [], [], [], [], [], [], [], []
+        self.length = np.zeros(n)
+        self.base = np.zeros(n)
+        offset = 0.0
+        for i, key in enumerate(self.keys):
+            lane = road_map.lanes[key]
+            sl = slice(lane.v0, lane.v1)
+            x, y, z = road_map._vx[sl], road_map._vy[sl], road_map._vz[sl]
+            h, s, w = road_map._vh[sl], road_map._vs[sl], road_map._vw[sl]
+            if not lane.forward:
+                x, y, z, h, s, w = x[::-1], y[::-1], z[::-1], h[::-1] + math.pi, s[::-1], w[::-1]
+            arc = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(x), np.diff(y)))])
+            keep = np.concatenate([[True], np.diff(arc) > 1e-9])
+            x, y, z, h, s, w, arc = (a[keep] for a in (x, y, z, h, s, w, arc))
+            self.length[i] = arc[-1]
+            self.base[i] = offset
+            xs.append(x), ys.append(y), zs.append(z), cs.append(np.cos(h)), sn.append(np.sin(h))
+            ss_.append(s), ws.append(w), gs.append(offset + arc)
+            offset += arc[-1] + 10.0
+        self._g = np.concatenate(gs)
+        self._x, self._y, self._z = np.concatenate(xs), np.concatenate(ys), np.concatenate(zs)
+        self._c, self._s = np.concatenate(cs), np.concatenate(sn)
+        self._rs, self._w = np.concatenate(ss_), np.concatenate(ws)
+        self._road = np.array([k[0] for k in self.keys], dtype=np.int64)
+        self._section = np.array([k[1] for k in self.keys], dtype=np.int64)
+        self._lane_id = np.array([k[2] for k in self.keys], dtype=np.int64)
+        self._build_regions(max_vehicle_length_m)
+        self._build_conflicts(max_vehicle_width_m + 0.5)
+        self.graph = nx.DiGraph()
+        for i in range(n):
+            for j in self.successors[i]:
+                self.graph.add_edge(i, j, weight=float(self.length[i]))
+
+    def _build_regions(self, max_len: float) -> None:
+        """Group junction lanes into regions (see the module docstring)."""
+        m = self.map
+        n = len(self.keys)
+        junction = np.array([m.roads[k[0]].junction for k in self.keys])
+        is_j = junction != -1
+        short = max(15.0, max_len + 3.0)
+        parent = {int(j): int(j) for j in set(junction[is_j].tolist())}
+
+        def find(a):
+            while parent[a] != a:
+                parent[a] = parent[parent[a]]
+                a = parent[a]
+            return a
+
+        extra: dict[int, int] = {}
+        for i in range(n):
+            if is_j[i] or self.length[i] >= short:
+                continue
+            pj = {int(junction[p]) for p in self.predecessors[i] if is_j[p]}
+            sj = {int(junction[s]) for s in self.successors[i] if is_j[s]}
+            if pj and sj:
+                a = find(next(iter(pj)))
+                for b in pj | sj:
+                    parent[find(b)] = a
+                extra[i] = next(iter(pj))
+        roots = sorted({find(j) for j in parent})
+        rid = {r: k for k, r in enumerate(roots)}
+        self.region = np.full(n, -1, dtype=np.int64)
+        for i in range(n):
+            if is_j[i]:
+                self.region[i] = rid[find(int(junction[i]))]
+            elif i in extra:
+                self.region[i] = rid[find(extra[i])]
+        self.n_regions = len(roots)
+        for i in range(n):  # the exit lanes of a region must be entered only from it
+            if self.region[i] == -1:
+                preds = {int(self.region[p]) for p in self.predecessors[i]}
+                if len(preds) > 1 and any(r != -1 for r in preds):
+                    raise TrafficError(
+                        f"{m.name}: lane {self.keys[i]} is entered both from a junction and "
+                        "from an ordinary lane; junction reservations cannot protect it")
+
+    def _build_conflicts(self, clearance_m: float) -> None:
+        """Pairs of region lanes whose centre lines come closer than `clearance_m`."""
+        from scipy.spatial import cKDTree
+
+        self.conflicts: set[tuple[int, int]] = set()
+        lanes = np.searchsorted(self.base, self._g, side="right") - 1
+        for r in range(self.n_regions):
+            members = np.flatnonzero(self.region == r)
+            sel = np.flatnonzero(np.isin(lanes, members))
+            tree = cKDTree(np.column_stack([self._x[sel], self._y[sel]]))
+            for a, b in tree.query_pairs(clearance_m):
+                la, lb = int(lanes[sel[a]]), int(lanes[sel[b]])
+                if la != lb:
+                    self.conflicts.add((la, lb))
+                    self.conflicts.add((lb, la))
+
+    def paths_conflict(self, a: tuple[int, ...], b: tuple[int, ...]) -> bool:
+        """Do two passages through a region (tuples of its lanes) conflict?
+
+        The same passage does not (vehicles on it follow each other by IDM); two
+        different ones do when they share a lane or any of their lanes come closer
+        than the clearance.
+        """
+        if a == b:
+            return False
+        if set(a) & set(b):
+            return True
+        return any((x, y) in self.conflicts for x in a for y in b)
+
+    # ------------------------------------------------------------------ geometry
+    def pose(self, lane: np.ndarray, p: np.ndarray, lateral_m: np.ndarray | None = None):
+        """Pose on lane centres, vectorised.
+
+        Args:
+            lane: (N,) int lane indices; p: (N,) progress, metres (clipped to the lane).
+            lateral_m: (N,) offset to the right of the driving direction, metres, or None.
+
+        Returns:
+            x, y, z (metres, CARLA world), yaw (degrees, driving direction), road s (metres).
+        """
+        q = self.base[lane] + np.clip(p, 0.0, self.length[lane])
+        x = np.interp(q, self._g, self._x)
+        y = np.interp(q, self._g, self._y)
+        z = np.interp(q, self._g, self._z)
+        c = np.interp(q, self._g, self._c)
+        s = np.interp(q, self._g, self._s)
+        h = np.arctan2(s, c)
+        if lateral_m is not None:
+            x = x - lateral_m * np.sin(h)
+            y = y + lateral_m * np.cos(h)
+        return x, y, z, np.degrees(h), np.interp(q, self._g, self._rs)
+
+    def lane_keys(self, lane: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(road_id, section_id, lane_id) arrays of lane indices."""
+        return self._road[lane], self._section[lane], self._lane_id[lane]
+
+    # ------------------------------------------------------------------ routing
+    def shortest_lanes(self, a: int, b: int) -> list[int]:
+        """Lane indices from a to b inclusive along lane links (a != b), shortest first."""
+        try:
+            return nx.shortest_path(self.graph, a, b, weight="weight")
+        except nx.NetworkXNoPath as exc:  # pragma: no cover - the network is strongly connected
+            raise NoRouteError(f"no route from lane {self.keys[a]} to {self.keys[b]}") from exc
+
+
+def _wrap_deg(a):
+    return (np.asarray(a) + 180.0) % 360.0 - 180.0
+
+
+class TrafficSim:
+    """The traffic simulation; call `step()` and read `frame()`.
+
+    Args:
+        network: the lanes.
+        vehicles: one `VehicleSpec` per vehicle; at most one has role "target".
+        config: model settings.
+        rng: random generator (spawn places, speeds, routes, the target's style).
+        target_route: optional ((x, y) origin, (x, y) destination), CARLA world metres;
+            random when None.
+
+    Attributes after each step: `t` (s), `target_arrived_t` (s or None).
+    """
+
+    def __init__(self, network: LaneNetwork, vehicles: list[VehicleSpec],
+                 config: TrafficConfig, rng: np.random.Generator, target_route=None):
+        self.net = network
+        self.cfg = config
+        self.rng = rng
+        self.vehicles = list(vehicles)
+        n = len(self.vehicles)
+        self.n = n
+        self.ids = np.array([v.vehicle_id for v in vehicles], dtype=np.int64)
+        self.length = np.array([v.length_m for v in vehicles])
+        self.width = np.array([v.width_m for v in vehicles])
+        self.height = np.array([v.height_m for v in vehicles])
+        roles = [v.role for v in vehicles]
+        targets = [i for i, r in enumerate(roles) if r == "target"]
+        if len(targets) > 1:
+            raise TrafficError("at most one vehicle may have role 'target'")
+        self.target = targets[0] if targets else None
+        idm = config.idm
+        self.v0 = idm.desired_speed_mps * rng.uniform(1 - config.speed_spread,
+                                                      1 + config.speed_spread, n)
+        self.t = 0.0
+        self.target_arrived_t: float | None = None
+        self.lane = np.zeros(n, dtype=np.int64)
+        self.p = np.zeros(n)
+        self.v = np.zeros(n)
+        self.routes: list[list[int]] = [[] for _ in range(n)]
+        self._spawn()
+        # junction regions
+        # per region: {holder vehicle: (passage lanes, exit lane, entered)}
+        self.holds: list[dict[int, tuple]] = [{} for _ in range(network.n_regions)]
+        self.queue_since: dict[tuple[int, int], float] = {}  # (region, vehicle) -> t
+        # target style
+        self.dest: tuple[int, float] | None = None
+        if self.target is not None:
+            self._plan_target(target_route)
+            k = self.target
+            self._wob = (rng.uniform(6.0, 12.0), rng.uniform(3.0, 5.0),
+                         rng.uniform(0, 2 * np.pi), rng.uniform(0, 2 * np.pi))
+            self._spd = (rng.uniform(15.0, 30.0), rng.uniform(0, 2 * np.pi), self.v0[k])
+
+    # ------------------------------------------------------------------ set-up
+    def _spawn(self) -> None:
+        net, rng = self.net, self.rng
+        free = np.flatnonzero((net.region == -1) & (net.length > 12.0))
+        if len(free) == 0:
+            raise TrafficError(f"{net.map.name}: no lane long enough to place a vehicle on")
+        placed: dict[int, list[float]] = {}
+        for i in range(self.n):
+            for _attempt in range(500):
+                lane = int(rng.choice(free, p=net.length[free] / net.length[free].sum()))
+                half = 0.5 * self.length[i]
+                lo, hi = half + 1.0, net.length[lane] - half - 4.0
+                if hi <= lo:
+                    continue
+                p = float(rng.uniform(lo, hi))
+                if all(abs(p - q) > 12.0 + half for q in placed.get(lane, [])):
+                    break
+            else:
+                raise TrafficError(
+                    f"{net.map.name}: no room to place {self.n} vehicles; ask for fewer")
+            placed.setdefault(lane, []).append(p)
+            self.lane[i], self.p[i] = lane, p
+
+    def _plan_target(self, target_route) -> None:
+        net, rng, k = self.net, self.rng, self.target
+        if target_route is not None:
+            (ox, oy), (dx, dy) = target_route
+            lane, p = _nearest_lane(net, ox, oy, free_only=True)
+            self.lane[k], self.p[k] = lane, p
+            dest = _nearest_lane(net, dx, dy, free_only=True)
+        else:
+            dist = nx.single_source_dijkstra_path_length(net.graph, int(self.lane[k]))
+            lo, hi = self.cfg.target_trip_m
+            ok = [j for j, d in sorted(dist.items())
+                  if net.region[j] == -1 and lo <= d - self.p[k] <= hi and j != self.lane[k]]
+            if not ok:
+                ok = [j for j in sorted(dist) if net.region[j] == -1 and j != self.lane[k]]
+            j = int(rng.choice(ok))
+            dest = (j, float(rng.uniform(0.3, 0.7) * net.length[j]))
+        lanes = [int(self.lane[k])]
+        if rng.random() < self.cfg.target_detour_prob:
+            cand = [j for j in range(len(net.keys))
+                    if net.region[j] == -1 and j not in (lanes[0], dest[0])]
+            via = int(rng.choice(cand))
+            lanes = net.shortest_lanes(lanes[0], via)
+            lanes += net.shortest_lanes(via, dest[0])[1:]
+        else:
+            lanes = net.shortest_lanes(lanes[0], dest[0])
+        self.routes[k] = lanes[1:]
+        self.dest = dest
+        self.target_lanes = lanes
+
+    # ------------------------------------------------------------------ stepping
+    def _extend_routes(self, horizon_m: float) -> None:
+        net, rng = self.net, self.rng
+        for i in range(self.n):
+            r = self.routes[i]
+            ahead = net.length[self.lane[i]] - self.p[i] + sum(net.length[j] for j in r)
+            while ahead < horizon_m:
+                last = r[-1] if r else int(self.lane[i])
+                nxt = int(rng.choice(net.successors[last]))
+                r.append(nxt)
+                ahead += net.length[nxt]
+
+    def step(self) -> None:
+        """Advance the traffic by one step of `config.step_s` seconds."""
+        net, cfg, idm = self.net, self.cfg, self.cfg.idm
+        dt = cfg.step_s
+        n = self.n
+        self._extend_routes(cfg.lookahead_m + 150.0)
+        occ: dict[int, list[tuple[float, int]]] = {}
+        for i in range(n):
+            occ.setdefault(int(self.lane[i]), []).append((float(self.p[i]), i))
+        gap = np.full(n, np.inf)
+        lead_v = np.zeros(n)
+        candidates: list[tuple[int, int, int]] = []  # (region, vehicle, index in path of entry)
+        region = net.region
+        for i in range(n):
+            li = int(self.lane[i])
+            path = [li, *self.routes[i]]
+            off = -float(self.p[i])
+            half_i = 0.5 * self.length[i]
+            best, best_v = np.inf, 0.0
+            for k, lane in enumerate(path):
+                if off - half_i > min(best, cfg.lookahead_m):
+                    break
+                r = int(region[lane])
+                if k > 0 and r != -1 and region[path[k - 1]] != r and i not in self.holds[r]:
+                    # stop line at the entry of a region we do not hold
+                    g = off - half_i
+                    if g < best:
+                        best, best_v = g, 0.0
+                        if off <= cfg.queue_window_m:
+                            candidates.append((r, i, k))
+                    break
+                for pj, j in occ.get(lane, ()):
+                    if j == i or (k == 0 and pj <= self.p[i]):
+                        continue
+                    g = off + pj - half_i - 0.5 * self.length[j]
+                    if g < best:
+                        best, best_v = g, self.v[j]
+                off += net.length[lane]
+            gap[i], lead_v[i] = best, best_v
+        self._grant(candidates, occ)
+        # IDM (Treiber et al. 2000)
+        v = self.v
+        v0 = self.v0.copy()
+        if self.target is not None:
+            per, ph, base = self._spd
+            v0[self.target] = base * (1 + cfg.target_speed_variation
+                                      * math.sin(2 * math.pi * self.t / per + ph))
+        sqrt_ab = math.sqrt(idm.max_accel_mps2 * idm.comfort_decel_mps2)
+        s_star = idm.min_gap_m + np.maximum(
+            0.0, v * idm.time_headway_s + v * (v - lead_v) / (2 * sqrt_ab))
+        s = np.maximum(gap, 0.05)
+        acc = idm.max_accel_mps2 * (1 - (v / v0) ** idm.delta - (s_star / s) ** 2)
+        acc = np.clip(acc, -idm.max_decel_mps2, idm.max_accel_mps2)
+        v_new = v + acc * dt
+        dp = np.where(v_new >= 0, v * dt + 0.5 * acc * dt * dt,
+                      np.where(acc < 0, -v * v / (2 * np.minimum(acc, -1e-9)), 0.0))
+        dp = np.maximum(dp, 0.0)
+        # never drive past a stop line or into the leader
+        dp = np.minimum(dp, np.maximum(gap, 0.0))
+        self.v = np.maximum(v_new, 0.0)
+        self.p = self.p + dp
+        self.t = round(self.t + dt, 9)
+        self._advance_lanes()
+
+    def _grant(self, candidates, occ) -> None:
+        """Release regions left behind, queue candidates, grant what can be granted."""
+        net = self.net
+        for r, holders in enumerate(self.holds):
+            for i in list(holders):
+                in_r = net.region[self.lane[i]] == r
+                passage, exit_lane, entered = holders[i]
+                if in_r and not entered:
+                    holders[i] = (passage, exit_lane, True)
+                elif entered and not in_r and self.p[i] > 0.5 * self.length[i] + 0.5:
+                    del holders[i]
+        now = {(r, i) for r, i, _ in candidates}
+        for key in list(self.queue_since):
+            if key not in now:
+                del self.queue_since[key]
+        for r, i, _ in candidates:
+            self.queue_since.setdefault((r, i), self.t)
+        by_region: dict[int, list[tuple[float, int, int]]] = {}
+        for r, i, k in candidates:
+            by_region.setdefault(r, []).append((self.queue_since[(r, i)], i, k))
+        for r in sorted(by_region):
+            holders = self.holds[r]
+            waiting: list[tuple[int, ...]] = []  # passages of earlier candidates kept out
+            for _since, i, k in sorted(by_region[r]):
+                path = [int(self.lane[i]), *self.routes[i]]
+                k2 = k
+                while k2 < len(path) and net.region[path[k2]] == r:
+                    k2 += 1
+                passage = tuple(path[k:k2])
+                exit_lane = path[k2] if k2 < len(path) else -1
+                if any(net.paths_conflict(passage, h[0]) for h in holders.values()):
+                    waiting.append(passage)
+                    continue
+                if any(net.paths_conflict(passage, w) for w in waiting):
+                    continue
+                ahead = sum(self.length[j] + self.cfg.exit_margin_m
+                            for j, h in holders.items() if h[1] == exit_lane)
+                if self._room_after(i, k2, occ, ahead):
+                    holders[i] = (passage, exit_lane, False)
+                    del self.queue_since[(r, i)]
+
+    def _room_after(self, i: int, k2: int, occ, ahead_m: float) -> bool:
+        """Is there free road for vehicle i (its length + margin, after `ahead_m` metres
+        promised to earlier holders) on its path from index k2 (the region's exit) on?"""
+        net = self.net
+        path = [int(self.lane[i]), *self.routes[i]]
+        need = self.length[i] + self.cfg.exit_margin_m + ahead_m
+        off = 0.0
+        while k2 < len(path) and off < need:
+            lane = path[k2]
+            if net.region[lane] != -1:
+                return True  # a further region follows at once (not in the towns we know)
+            rears = [pj - 0.5 * self.length[j] for pj, j in occ.get(lane, ())]
+            if rears:
+                return off + min(rears) >= need
+            off += net.length[lane]
+            k2 += 1
+        return True
+
+    def _advance_lanes(self) -> None:
+        net = self.net
+        for i in np.flatnonzero(self.p >= net.length[self.lane]):
+            i = int(i)
+            while self.p[i] >= net.length[self.lane[i]]:
+                r = self.routes[i]
+                if not r:
+                    r.append(int(self.rng.choice(net.successors[self.lane[i]])))
+                nxt = r[0]
+                reg = net.region[nxt]
+                if reg != -1 and net.region[self.lane[i]] != reg and i not in self.holds[reg]:
+                    self.p[i] = net.length[self.lane[i]] - 1e-6  # hard stop at the line
+                    self.v[i] = 0.0
+                    break
+                self.p[i] -= net.length[self.lane[i]]
+                self.lane[i] = r.pop(0)
+        if self.target is not None and self.target_arrived_t is None:
+            k = self.target
+            dl, dp = self.dest
+            if self.lane[k] == dl and self.p[k] >= dp:
+                self.target_arrived_t = self.t
+
+    # ------------------------------------------------------------------ output
+    def lateral_offsets(self) -> np.ndarray:
+        """(N,) lateral offsets from the lane centre, metres (the target's wobble)."""
+        out = np.zeros(self.n)
+        if self.target is not None:
+            a = self.cfg.target_wobble_m
+            p1, p2, f1, f2 = self._wob
+            w = 0.7 * math.sin(2 * math.pi * self.t / p1 + f1) + 0.3 * math.sin(
+                2 * math.pi * self.t / p2 + f2)
+            out[self.target] = a * w
+        return out
+
+    def frame(self) -> dict[str, np.ndarray]:
+        """The current state of every vehicle, as columns (CARLA world, metres, degrees).
+
+        Keys: vehicle_id, x, y, z, yaw, speed, road_id, section_id, lane_id, s.
+        """
+        x, y, z, yaw, s = self.net.pose(self.lane, self.p, self.lateral_offsets())
+        road, sec, lid = self.net.lane_keys(self.lane)
+        return {"vehicle_id": self.ids, "x": x, "y": y, "z": z, "yaw": yaw,
+                "speed": self.v.copy(), "road_id": road, "section_id": sec,
+                "lane_id": lid, "s": s}
+
+
+def _nearest_lane(net: LaneNetwork, x: float, y: float, free_only: bool = False):
+    """(lane index, progress) of the nearest sample of a network lane to (x, y)."""
+    lanes = np.searchsorted(net.base, net._g, side="right") - 1
+    ok = np.ones(len(lanes), dtype=bool) if not free_only else net.region[lanes] == -1
+    d = np.hypot(net._x - x, net._y - y)
+    d[~ok] = np.inf
+    j = int(np.argmin(d))
+    lane = int(lanes[j])
+    p = float(net._g[j] - net.base[lane])
+    return lane, float(np.clip(p, 0.5, net.length[lane] - 0.5))
