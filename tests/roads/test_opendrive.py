@@ -107,16 +107,28 @@ def test_xml_with_another_root_raises_naming_file_and_root(tmp_path):
     assert str(p) in msg and "svg" in msg and "<OpenDRIVE>" in msg
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "opendrive.parse_opendrive compares root.tag to 'OpenDRIVE' and prints root.tag in the "
-    "error; for a namespaced root lxml gives '{http://www.w3.org/2000/svg}svg', so the "
-    "message reads '<{http://www.w3.org/2000/svg}svg>' instead of naming the root <svg>"))
 def test_namespaced_root_is_named_by_its_local_name(tmp_path):
     p = tmp_path / "drawing.xodr"
     p.write_text('<svg xmlns="http://www.w3.org/2000/svg"/>')
     with pytest.raises(OpenDriveError) as exc:
         read_opendrive(p)
     assert "<svg>" in str(exc.value)
+
+
+def test_namespaced_opendrive_reads_like_a_plain_one():
+    xodr = (
+        '<OpenDRIVE xmlns="http://code.asam.net/simulation/standard/opendrive_schema">'
+        '<header revMajor="1" revMinor="8"/>'
+        '<road id="1" length="10" junction="-1"><planView>'
+        '<geometry s="0" x="0" y="0" hdg="0" length="10"><line/></geometry></planView>'
+        '<lanes><laneSection s="0"><center><lane id="0" type="none"/></center>'
+        '<right><lane id="-1" type="driving"><width sOffset="0" a="3.5" b="0" c="0" d="0"/>'
+        "</lane></right></laneSection></lanes></road></OpenDRIVE>"
+    )
+    m = RoadMap.from_string(xodr)
+    wp = m.get_waypoint((5.0, 1.75))
+    assert (wp.road_id, wp.lane_id) == (1, -1)
+    assert wp.s == pytest.approx(5.0, abs=1e-6)
 
 
 def test_plain_svg_root_is_named(tmp_path):

@@ -190,6 +190,12 @@ def parse_opendrive(data: bytes | str, name: str = "<string>") -> OpenDrive:
         root = etree.fromstring(data, parser)
     except etree.XMLSyntaxError as exc:
         raise OpenDriveError(f"{name} is not OpenDRIVE: XML error: {exc}") from None
+    if isinstance(root.tag, str) and root.tag.startswith("{"):
+        # A namespaced document (ASAM OpenDRIVE 1.8 declares one): read it by local names.
+        for el in root.iter():
+            if isinstance(el.tag, str) and el.tag.startswith("{"):
+                el.tag = etree.QName(el).localname
+        etree.cleanup_namespaces(root)
     if root.tag != "OpenDRIVE":
         raise OpenDriveError(
             f"{name} is not OpenDRIVE: its root element is <{root.tag}>, expected <OpenDRIVE>"
