@@ -1,0 +1,443 @@
+"""Recordings of simulated drives: the run config, the simulation loop, the files.
+
+A recording is a directory:
+
+``meta.json``
+    format ("dashtraj-recording") and format_version (1); map (source as given,
+    "map.xodr", sha256 of the .xodr bytes); seed; step_s; duration_s asked for;
+    simulated_to_t (s); complete (false until the run ended normally);
+    target_arrived_t (s or null); camera (the `CameraSpec`); catalog_version;
+    config (the whole `RunConfig`, enough to repeat the run).
+``vehicles.csv``
+    vehicle_id, identity_id, blueprint_id, vehicle_class, body_type, color,
+    length_m, width_m, height_m, role (target / observer / agent).
+``states.parquet``
+    one row per vehicle and step: t (s), vehicle_id, x, y, z (box centre at road
+    level, CARLA world, m), yaw (deg), speed (m/s), road_id, section_id, lane_id,
+    s (m) — the lane the vehicle follows (the target's wobble moves it off the
+    centre by up to `TrafficConfig.target_wobble_m`).
+``truth.parquet``
+    one row per observer, camera frame and vehicle seen (see `dashtraj.world.camera`):
+    t, observer_id, vehicle_id, cam_x, cam_y, cam_z, cam_yaw (the camera),
+    box_x, box_y, box_z (3-D box centre), box_ext_x, box_ext_y, box_ext_z (half
+    length, width, height), box_yaw, u_min, v_min, u_max, v_max (pixels),
+    truncation, distance_m, bearing_deg, orientation, label.
+``target_route.csv``
+    the target's true trajectory, columns x, y, t (`dashtraj.trajectory.io`).
+``map.xodr``
+    a copy of the map.
+
+Both parquet files are written a row group at a time (every `RunConfig.chunk_s`
+simulated seconds) and closed in a ``finally``: a run stopped by Ctrl-C or an
+exception leaves a readable recording with ``complete: false``, and
+`Recording.open` warns that it is incomplete. Writing is deterministic: the same
+config gives byte-identical files (no wall-clock times are stored anywhere).
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import math
+import warnings
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from dashtraj.errors import DashtrajError, InputFormatError
+from dashtraj.world.camera import CameraSpec, visible_boxes
+from dashtraj.world.traffic import LaneNetwork, TrafficConfig, TrafficSim, VehicleSpec
+
+FORMAT = "dashtraj-recording"
+FORMAT_VERSION = 1
+
+VEHICLE_COLUMNS = ("vehicle_id", "identity_id", "blueprint_id", "vehicle_class", "body_type",
+                   "color", "length_m", "width_m", "height_m", "role")
+
+STATES_SCHEMA = pa.schema([
+    ("t", pa.float64()), ("vehicle_id", pa.int32()), ("x", pa.float64()), ("y", pa.float64()),
+    ("z", pa.float64()), ("yaw", pa.float64()), ("speed", pa.float64()),
+    ("road_id", pa.int32()), ("section_id", pa.int32()), ("lane_id", pa.int32()),
+    ("s", pa.float64()),
+])
+
+TRUTH_SCHEMA = pa.schema([
+    ("t", pa.float64()), ("observer_id", pa.int32()), ("vehicle_id", pa.int32()),
+    ("cam_x", pa.float64()), ("cam_y", pa.float64()), ("cam_z", pa.float64()),
+    ("cam_yaw", pa.float64()),
+    ("box_x", pa.float64()), ("box_y", pa.float64()), ("box_z", pa.float64()),
+    ("box_ext_x", pa.float64()), ("box_ext_y", pa.float64()), ("box_ext_z", pa.float64()),
+    ("box_yaw", pa.float64()),
+    ("u_min", pa.float64()), ("v_min", pa.float64()), ("u_max", pa.float64()),
+    ("v_max", pa.float64()), ("truncation", pa.float64()), ("distance_m", pa.float64()),
+    ("bearing_deg", pa.float64()), ("orientation", pa.string()), ("label", pa.string()),
+])
+
+
+class RecordingError(DashtrajError):
+    """A recording is missing a part or a part is corrupt; the message names the file."""
+
+
+class IncompleteRecordingWarning(UserWarning):
+    """The recording's run was interrupted; it holds the drive up to `simulated_to_t`."""
+
+
+@dataclass(frozen=True, slots=True)
+class RunConfig:
+    """Everything that defines a simulated drive; round-trips through JSON.
+
+    Attributes:
+        map: a built-in town name ("town01", "town10") or a path to an .xodr file.
+        seed: seed of every random choice.
+        duration_s: simulated time, seconds (the longest, with `until_target_arrives`).
+        n_observers, n_agents: vehicle counts (plus one target).
+        until_target_arrives: stop as soon as the target reaches its destination.
+        truth_step_s: camera frame period for the ground truth, seconds.
+        max_range_m: truth is kept for vehicles this close to a camera, metres.
+        chunk_s: simulated seconds per parquet row group.
+        vehicle_classes: classes drawn for every vehicle.
+        target_route: ((x, y), (x, y)) origin and destination, CARLA world metres, or None.
+        camera, traffic: the camera and the traffic model.
+    """
+
+    map: str = "town01"
+    seed: int = 0
+    duration_s: float = 180.0
+    n_observers: int = 4
+    n_agents: int = 20
+    until_target_arrives: bool = False
+    truth_step_s: float = 0.1
+    max_range_m: float = 60.0
+    chunk_s: float = 10.0
+    vehicle_classes: tuple[str, ...] = ("car", "truck", "bus", "motorcycle")
+    target_route: tuple[tuple[float, float], tuple[float, float]] | None = None
+    camera: CameraSpec = field(default_factory=CameraSpec)
+    traffic: TrafficConfig = field(default_factory=TrafficConfig)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["vehicle_classes"] = list(self.vehicle_classes)
+        return d
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), sort_keys=True)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> RunConfig:
+        d = dict(d)
+        d["camera"] = CameraSpec.from_dict(d.get("camera", {}))
+        d["traffic"] = TrafficConfig.from_dict(d.get("traffic", {}))
+        if "vehicle_classes" in d:
+            d["vehicle_classes"] = tuple(d["vehicle_classes"])
+        if d.get("target_route") is not None:
+            (a, b) = d["target_route"]
+            d["target_route"] = (tuple(a), tuple(b))
+        return cls(**d)
+
+    @classmethod
+    def from_json(cls, text: str) -> RunConfig:
+        return cls.from_dict(json.loads(text))
+
+
+@dataclass(frozen=True, slots=True)
+class RunSummary:
+    """What a run produced: vehicles, state frames, truth rows, simulated time (s)."""
+
+    path: Path
+    vehicles: int
+    frames: int
+    truth_rows: int
+    simulated_to_t: float
+    target_arrived_t: float | None
+    complete: bool
+
+
+def resolve_map(source: str) -> Path:
+    """The .xodr file of a built-in town name or a path. Raises RecordingError."""
+    p = Path(source)
+    if p.suffix.lower() == ".xodr" or p.exists():
+        if not p.is_file():
+            raise RecordingError(f"map file {p} does not exist")
+        return p
+    try:
+        from dashtraj.world.towns import town_path
+    except ImportError as exc:  # pragma: no cover - towns ship with the package
+        raise RecordingError(f"{source!r} is not an .xodr file and built-in towns are "
+                             "not available; pass a path") from exc
+    try:
+        return town_path(source)
+    except (DashtrajError, ValueError) as exc:
+        raise RecordingError(f"{source!r} is neither an .xodr file nor a built-in town: "
+                             f"{exc}") from exc
+
+
+def _identities(rng: np.random.Generator, n: int, classes):
+    """n distinct catalog identities as rows for vehicles.csv (without id/role)."""
+    from dashtraj.world.catalog import CATALOG_VERSION, sample_identities
+
+    out = []
+    for ident in sample_identities(rng, n, classes=classes):
+        m = ident.model
+        out.append({"identity_id": ident.identity_id, "blueprint_id": m.blueprint_id,
+                    "vehicle_class": m.vehicle_class, "body_type": m.body_type,
+                    "color": ident.color_name, "length_m": m.length_m, "width_m": m.width_m,
+                    "height_m": m.height_m})
+    return out, CATALOG_VERSION
+
+
+class _ChunkWriter:
+    """Buffers column chunks and writes them as parquet row groups."""
+
+    def __init__(self, path: Path, schema: pa.Schema):
+        self.path, self.schema = path, schema
+        self.buf: list[dict] = []
+        self.rows = 0
+        self.writer = pq.ParquetWriter(str(path), schema, compression="zstd",
+                                       store_schema=False)
+
+    def add(self, cols: dict) -> None:
+        self.buf.append(cols)
+
+    def flush(self) -> None:
+        if not self.buf:
+            return
+        cols = {f.name: np.concatenate([b[f.name] for b in self.buf]) for f in self.schema}
+        table = pa.table({f.name: pa.array(cols[f.name], type=f.type) for f in self.schema},
+                         schema=self.schema)
+        self.writer.write_table(table)
+        self.rows += table.num_rows
+        self.buf = []
+
+    def close(self) -> None:
+        try:
+            self.flush()
+        finally:
+            self.writer.close()
+
+
+def simulate(config: RunConfig, out_dir: str | Path,
+             progress: Callable[[float], None] | None = None) -> RunSummary:
+    """Simulate a drive and write it as a recording in `out_dir` (created; emptied parts
+    are overwritten).
+
+    Args:
+        config: the run.
+        out_dir: the recording directory.
+        progress: called with the simulated time (s) after every step, or None.
+
+    Returns:
+        A `RunSummary`. On KeyboardInterrupt or an exception the recording is closed
+        with ``complete: false`` and the exception propagates.
+    """
+    from dashtraj.roads import RoadMap
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    map_path = resolve_map(config.map)
+    xodr = map_path.read_bytes()
+    (out / "map.xodr").write_bytes(xodr)
+    road_map = RoadMap.from_string(xodr, name=map_path.stem)
+    seeds = np.random.SeedSequence(config.seed).spawn(2)
+    rng_ids, rng_traffic = (np.random.default_rng(s) for s in seeds)
+    n = 1 + config.n_observers + config.n_agents
+    rows, catalog_version = _identities(rng_ids, n, config.vehicle_classes)
+    roles = ["target"] + ["observer"] * config.n_observers + ["agent"] * config.n_agents
+    for vid, (row, role) in enumerate(zip(rows, roles, strict=True)):
+        row["vehicle_id"] = vid
+        row["role"] = role
+    with open(out / "vehicles.csv", "w", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=VEHICLE_COLUMNS, lineterminator="\n")
+        w.writeheader()
+        w.writerows(rows)
+    specs = [VehicleSpec(r["vehicle_id"], r["role"], r["length_m"], r["width_m"], r["height_m"])
+             for r in rows]
+    length = np.array([r["length_m"] for r in rows])
+    width = np.array([r["width_m"] for r in rows])
+    height = np.array([r["height_m"] for r in rows])
+    classes = np.array([r["vehicle_class"] for r in rows])
+    net = LaneNetwork(road_map, max_vehicle_length_m=max(12.5, float(length.max())),
+                      max_vehicle_width_m=max(2.6, float(width.max())))
+    sim = TrafficSim(net, specs, config.traffic, rng_traffic, target_route=config.target_route)
+    obs_idx = np.array([i for i, r in enumerate(roles) if r == "observer"], dtype=np.int64)
+    step = config.traffic.step_s
+    n_steps = round(config.duration_s / step)
+    truth_every = max(1, round(config.truth_step_s / step))
+    chunk_every = max(1, round(config.chunk_s / step))
+    meta = {
+        "format": FORMAT, "format_version": FORMAT_VERSION,
+        "map": {"source": config.map, "file": "map.xodr",
+                "sha256": hashlib.sha256(xodr).hexdigest()},
+        "seed": config.seed, "step_s": step, "duration_s": config.duration_s,
+        "simulated_to_t": 0.0, "complete": False, "target_arrived_t": None,
+        "target_vehicle_id": 0, "observer_ids": obs_idx.tolist(),
+        "camera": config.camera.to_dict(), "catalog_version": catalog_version,
+        "config": config.to_dict(),
+    }
+    _write_meta(out, meta)
+    states_w = _ChunkWriter(out / "states.parquet", STATES_SCHEMA)
+    truth_w = _ChunkWriter(out / "truth.parquet", TRUTH_SCHEMA)
+    route_xy: list[tuple[float, float, float]] = []
+    frames = 0
+    truth_rows = 0
+    complete = False
+    t = 0.0
+    try:
+        for k in range(n_steps + 1):
+            if k > 0:
+                sim.step()
+            t = round(k * step, 9)
+            f = sim.frame()
+            states_w.add({"t": np.full(n, t), **f})
+            frames += 1
+            route_xy.append((float(f["x"][0]), float(f["y"][0]), t))
+            if k % truth_every == 0 and len(obs_idx):
+                g = visible_boxes(config.camera, f["x"][obs_idx], f["y"][obs_idx],
+                                  f["z"][obs_idx], f["yaw"][obs_idx], f["x"], f["y"], f["z"],
+                                  f["yaw"], length, width, height, obs_index=obs_idx,
+                                  max_range_m=config.max_range_m)
+                m = len(g["obs"])
+                if m:
+                    veh = g["veh"]
+                    truth_w.add({
+                        "t": np.full(m, t), "observer_id": obs_idx[g["obs"]], "vehicle_id": veh,
+                        "cam_x": g["cam_x"], "cam_y": g["cam_y"], "cam_z": g["cam_z"],
+                        "cam_yaw": g["cam_yaw"], "box_x": g["cx"], "box_y": g["cy"],
+                        "box_z": g["cz"], "box_ext_x": 0.5 * length[veh],
+                        "box_ext_y": 0.5 * width[veh], "box_ext_z": 0.5 * height[veh],
+                        "box_yaw": f["yaw"][veh], "u_min": g["u_min"], "v_min": g["v_min"],
+                        "u_max": g["u_max"], "v_max": g["v_max"],
+                        "truncation": g["truncation"], "distance_m": g["distance_m"],
+                        "bearing_deg": g["bearing_deg"], "orientation": g["orientation"],
+                        "label": np.char.add(np.char.add(classes[veh], "_"), g["orientation"]),
+                    })
+                    truth_rows += m
+            if progress is not None:
+                progress(t)
+            if k % chunk_every == 0:
+                states_w.flush()
+                truth_w.flush()
+                meta["simulated_to_t"] = t
+                _write_meta(out, meta)
+            if config.until_target_arrives and sim.target_arrived_t is not None:
+                break
+        complete = True
+    finally:
+        try:
+            states_w.close()
+        finally:
+            truth_w.close()
+        _write_route(out / "target_route.csv", route_xy)
+        meta.update(simulated_to_t=t, complete=complete, target_arrived_t=sim.target_arrived_t)
+        _write_meta(out, meta)
+    return RunSummary(out, n, frames, truth_rows, t, sim.target_arrived_t, complete)
+
+
+def _write_meta(out: Path, meta: dict) -> None:
+    tmp = out / ".meta.json.tmp"
+    tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+    tmp.replace(out / "meta.json")
+
+
+def _write_route(path: Path, rows) -> None:
+    from dashtraj.trajectory.io import write_trajectory
+    from dashtraj.trajectory.records import Trajectory
+
+    if not rows:
+        return
+    a = np.array(rows, dtype=float)
+    write_trajectory(path, Trajectory(a[:, :2], a[:, 2]))
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Recording:
+    """A recording read back; open with `Recording.open(path)`.
+
+    Attributes:
+        path: the directory. meta: meta.json as a dict. config: the `RunConfig`.
+        vehicles: rows of vehicles.csv (dicts, numbers parsed).
+        states, truth: pyarrow Tables (columns in the module docstring).
+        target_route: the target's true `Trajectory` (x, y, t).
+    """
+
+    path: Path
+    meta: dict
+    config: RunConfig
+    vehicles: tuple[dict, ...]
+    states: pa.Table
+    truth: pa.Table
+    target_route: object
+
+    @property
+    def complete(self) -> bool:
+        return bool(self.meta.get("complete"))
+
+    @property
+    def map_path(self) -> Path:
+        return self.path / self.meta["map"]["file"]
+
+    def vehicle(self, vehicle_id: int) -> dict:
+        for v in self.vehicles:
+            if v["vehicle_id"] == vehicle_id:
+                return v
+        raise RecordingError(f"{self.path / 'vehicles.csv'}: no vehicle {vehicle_id}")
+
+    @classmethod
+    def open(cls, path: str | Path) -> Recording:
+        """Read a recording directory. Raises RecordingError naming a missing or
+        corrupt file; warns `IncompleteRecordingWarning` for an interrupted run."""
+        from dashtraj.trajectory.io import read_trajectory
+
+        root = Path(path)
+        if not root.is_dir():
+            raise RecordingError(f"recording {root} is not a directory")
+
+        def need(name: str) -> Path:
+            p = root / name
+            if not p.is_file():
+                raise RecordingError(f"recording {root} has no {name} ({p} is missing)")
+            return p
+
+        try:
+            meta = json.loads(need("meta.json").read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise RecordingError(f"{root / 'meta.json'} is not valid JSON: {exc}") from exc
+        if meta.get("format") != FORMAT:
+            raise RecordingError(f"{root / 'meta.json'} is not a {FORMAT} meta file")
+        if meta.get("format_version", 0) > FORMAT_VERSION:
+            raise RecordingError(f"{root / 'meta.json'}: format version "
+                                 f"{meta['format_version']} is newer than this dashtraj reads "
+                                 f"({FORMAT_VERSION}); upgrade dashtraj")
+        try:
+            config = RunConfig.from_dict(meta["config"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise RecordingError(f"{root / 'meta.json'}: bad config: {exc}") from exc
+        vehicles = []
+        with open(need("vehicles.csv"), newline="", encoding="utf-8") as fh:
+            for line, row in enumerate(csv.DictReader(fh), start=2):
+                try:
+                    for k in ("vehicle_id", "identity_id"):
+                        row[k] = int(row[k])
+                    for k in ("length_m", "width_m", "height_m"):
+                        row[k] = float(row[k])
+                except (KeyError, TypeError, ValueError) as exc:
+                    raise InputFormatError(f"{root / 'vehicles.csv'} line {line}: {exc}") from exc
+                vehicles.append(row)
+        tables = {}
+        for name in ("states.parquet", "truth.parquet"):
+            p = need(name)
+            try:
+                tables[name] = pq.read_table(p)
+            except (pa.ArrowInvalid, OSError) as exc:
+                raise RecordingError(f"{p} is corrupt or not parquet: {exc}") from exc
+        route = read_trajectory(need("target_route.csv"))
+        if not meta.get("complete"):
+            warnings.warn(f"recording {root} is incomplete: simulated to "
+                          f"t={meta.get('simulated_to_t', math.nan):g} s",
+                          IncompleteRecordingWarning, stacklevel=2)
+        return cls(root, meta, config, tuple(vehicles), tables["states.parquet"],
+                   tables["truth.parquet"], route)
