@@ -72,6 +72,19 @@ class Cubic:
         c, ds = self._piece(s)
         return c[..., 1] + ds * (2.0 * c[..., 2] + 3.0 * ds * c[..., 3])
 
+    def value_and_derivative(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(f(s), f'(s)) with one piece lookup."""
+        s = np.asarray(s, dtype=float)
+        if len(self.starts) == 1:
+            a, b, c, d = self.coeffs[0]
+            if not (b or c or d):
+                return np.full(s.shape, a), np.zeros(s.shape)
+            ds = s - self.starts[0]
+            return (a + ds * (b + ds * (c + ds * d)), b + ds * (2.0 * c + 3.0 * ds * d))
+        co, ds = self._piece(s)
+        a, b, c, d = co[..., 0], co[..., 1], co[..., 2], co[..., 3]
+        return a + ds * (b + ds * (c + ds * d)), b + ds * (2.0 * c + 3.0 * ds * d)
+
     @property
     def is_zero(self) -> bool:
         return not self.coeffs.any()
