@@ -81,10 +81,7 @@ def test_sideways_offset_projects_back_to_the_same_lane_and_s(town):
                    strict=True))
     wrong = [(k, g, s) for k, g, s in zip(keys2, got, s2, strict=True) if k != g]
     assert wrong == []
-    # s within 1 cm, away from plan-view geometry joints (see the xfail below); 10 cm there.
-    near_joint = np.array([_near_joint(m, k[0], s) for k, s in zip(keys2, s2, strict=True)])
-    np.testing.assert_allclose(proj.s[~near_joint], s2[~near_joint], atol=0.01)
-    np.testing.assert_allclose(proj.s, s2, atol=0.1)
+    np.testing.assert_allclose(proj.s, s2, atol=0.01)
     np.testing.assert_allclose(proj.lateral_m, widths, atol=0.01)
     assert proj.inside.all()
     # The scalar query agrees with the vectorised one.
@@ -93,20 +90,12 @@ def test_sideways_offset_projects_back_to_the_same_lane_and_s(town):
         assert (wp.key, wp.s) == (got[i], pytest.approx(proj.s[i], abs=1e-9))
 
 
-def _near_joint(m: RoadMap, rid: int, s: float, margin_m: float = 1.0) -> bool:
-    return any(abs(g.s - s) < margin_m for g in m.roads[rid].plan_view.geometries[1:])
-
-
-@pytest.mark.xfail(strict=True, reason=(
-    "map.RoadMap._refine maps the Hermite parameter linearly to s "
-    "(s = vs[i] + t*(vs[i+1]-vs[i])); where a 1 m sample segment straddles a plan-view joint "
-    "with a curvature jump (line/arc), the lane-centre speed 1 - t_lat*k changes inside the "
-    "segment and project/get_waypoint return s off by up to 7 cm: Town01 road 83 lane 1 "
-    "s=4.1331 -> 4.2053, Town10HD road 6 lane -2 s=82.0252 -> 81.9866"))
 @pytest.mark.parametrize("name,key,s", [("Town01", (83, 0, 1), 4.133119036546119),
                                         ("Town10HD", (6, 0, -2), 82.02521688159437),
                                         ("Town10HD", (10, 0, 2), 62.433306054343404)])
 def test_projection_s_is_exact_at_geometry_joints(name, key, s):
+    """Regression: lane samples straddling a line/arc joint gave s off by up to 7 cm
+    (fixed in 9eb54f7 by sampling on every breakpoint)."""
     m = load_carla_map(name)[0]
     wp = m.get_waypoint(m.waypoint(*key, s).transform.location)
     assert wp.key == key
