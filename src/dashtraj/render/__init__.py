@@ -1,0 +1,13 @@
+"""render: a headless CPU renderer of towns and vehicles with exact labels.
+
+moderngl on Mesa's software rasterizer (llvmpipe) through a headless EGL context;
+no GPU, no display. Modules (import them directly; nothing is built on import):
+
+- ``dashtraj.render.gl``: context creation (``create_context``, ``RenderUnavailableError``).
+- ``dashtraj.render.meshes``: static town meshes from a ``RoadMap`` and parametric
+  vehicle meshes from catalog models.
+- ``dashtraj.render.scene``: ``Renderer(road_map, width, height, fov_deg, msaa)``,
+  ``Renderer.render(camera_pose, vehicles) -> Frame`` (rgb, instance, depth, labels).
+- ``dashtraj.render.labels``: exact per-vehicle boxes, visibility, truncation and the
+  class × orientation label (``DETECTION_CLASSES``).
+"""

@@ -1,0 +1,261 @@
+"""Exact per-frame vehicle labels from the renderer's instance and silhouette passes.
+
+Per vehicle and frame (boxes are (x0, y0, x1, y1) in image pixels, continuous
+coordinates with the top-left image corner at (0, 0): a box of whole pixels spans
+from the first pixel's left/top edge to the last pixel's right/bottom edge):
+
+- ``visible_box``: tight bound of the vehicle's pixels in ``Frame.instance`` (None if
+  no pixel is visible).
+- ``silhouette_box``: tight bound of the vehicle's pixels when it is drawn alone,
+  without occluders (pass 3 of the renderer), inside the image (None if it covers no
+  pixel). ``projected_box``: bound of the projection of its mesh vertices (after
+  clipping at the near plane), not clipped to the image.
+- ``visible_fraction`` = visible pixels / silhouette pixels (0 if no silhouette).
+- ``truncation``: fraction of the area of the projected silhouette (convex hull of the
+  projected mesh vertices, unclipped) that lies outside the image; 0 inside, 1 fully
+  outside or behind the camera.
+- ``orientation``: from the angle between the vehicle's heading and the ground-plane
+  ray from the camera to the vehicle: |angle| ≤ 45° → ``back`` (we see its rear),
+  ≥ 135° → ``front``, else ``side``. ``detection_class`` = class × orientation, index
+  into ``DETECTION_CLASSES`` (vans count as car, trucks as truck, buses as bus).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+from scipy.spatial import ConvexHull, QhullError
+
+try:  # the list may be defined by the camera module of the world layer
+    from dashtraj.world.camera import DETECTION_CLASSES  # type: ignore[attr-defined]
+except ImportError:
+    DETECTION_CLASSES = [
+        "car_front",
+        "car_back",
+        "car_side",
+        "truck_front",
+        "truck_back",
+        "truck_side",
+        "bus_front",
+        "bus_back",
+        "bus_side",
+        "motorcycle_front",
+        "motorcycle_back",
+        "motorcycle_side",
+        "bicycle_front",
+        "bicycle_back",
+        "bicycle_side",
+    ]
+
+_CLASS_OF_BODY = {
+    "sedan": "car",
+    "hatchback": "car",
+    "suv": "car",
+    "coupe": "car",
+    "van": "car",
+    "pickup": "car",
+    "truck": "truck",
+    "bus": "bus",
+    "motorcycle": "motorcycle",
+    "bicycle": "bicycle",
+}
+_CLASSES = ("car", "truck", "bus", "motorcycle", "bicycle")
+
+
+@dataclass(frozen=True)
+class VehicleLabel:
+    """Ground-truth label of one vehicle in one frame (see the module docstring)."""
+
+    instance_id: int
+    class_name: str  # car, truck, bus, motorcycle, bicycle
+    orientation: str  # front, back, side
+    detection_class: str  # e.g. "car_back"
+    detection_class_id: int  # index into DETECTION_CLASSES
+    relative_yaw_deg: float  # vehicle yaw − bearing of the camera→vehicle ray, (−180, 180]
+    distance_m: float  # ground-plane distance camera → vehicle origin
+    visible_box: tuple[int, int, int, int] | None
+    silhouette_box: tuple[int, int, int, int] | None
+    projected_box: tuple[float, float, float, float] | None
+    visible_pixels: int
+    silhouette_pixels: int
+    visible_fraction: float
+    truncation: float
+
+    @property
+    def in_view(self) -> bool:
+        """True when at least one pixel of the vehicle is visible."""
+        return self.visible_pixels > 0
+
+
+def class_name(model) -> str:
+    """Detection class of a catalog model: car, truck, bus, motorcycle or bicycle."""
+    vc = str(getattr(model, "vehicle_class", "")).lower()
+    if vc in _CLASSES:
+        return vc
+    if vc == "van":
+        return "car"
+    body = str(getattr(model, "body_type", "")).lower()
+    if body in _CLASS_OF_BODY:
+        return _CLASS_OF_BODY[body]
+    raise ValueError(
+        f"vehicle model {getattr(model, 'blueprint_id', model)!r} has unknown "
+        f"class {vc!r} / body type {body!r}; expected one of {_CLASSES}"
+    )
+
+
+def orientation(relative_yaw_deg: float) -> str:
+    """back if |angle| ≤ 45°, front if ≥ 135°, else side (angle in degrees)."""
+    a = abs(relative_yaw_deg)
+    return "back" if a <= 45.0 else ("front" if a >= 135.0 else "side")
+
+
+def relative_yaw(camera_xy, vehicle_xy, vehicle_yaw_deg: float) -> float:
+    """Vehicle heading minus the bearing of the ray camera → vehicle, degrees in (−180, 180]."""
+    bearing = math.degrees(math.atan2(vehicle_xy[1] - camera_xy[1], vehicle_xy[0] - camera_xy[0]))
+    d = (vehicle_yaw_deg - bearing) % 360.0
+    return d - 360.0 if d > 180.0 else d
+
+
+def _clipped_projection(world_pts: np.ndarray, m: np.ndarray, k: np.ndarray, near: float):
+    """Project a triangle list's vertices after clipping at z_cam = near: (P, 2) u, v."""
+    c = world_pts @ m[:3, :3].T + m[:3, 3]
+    front = c[c[:, 2] >= near]
+    tri = c.reshape(-1, 3, 3)
+    a = tri.reshape(-1, 3)
+    b = tri[:, [1, 2, 0]].reshape(-1, 3)
+    cross = (a[:, 2] - near) * (b[:, 2] - near) < 0
+    if np.any(cross):
+        a, b = a[cross], b[cross]
+        t = (near - a[:, 2]) / (b[:, 2] - a[:, 2])
+        front = np.concatenate([front, a + t[:, None] * (b - a)])
+    if len(front) == 0:
+        return np.zeros((0, 2))
+    return np.column_stack(
+        [
+            k[0, 0] * front[:, 0] / front[:, 2] + k[0, 2],
+            k[1, 1] * front[:, 1] / front[:, 2] + k[1, 2],
+        ]
+    )
+
+
+def _poly_area(p: np.ndarray) -> float:
+    if len(p) < 3:
+        return 0.0
+    x, y = p[:, 0], p[:, 1]
+    return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+
+
+def _clip_polygon(poly: np.ndarray, w: float, h: float) -> np.ndarray:
+    """Sutherland–Hodgman clip of a convex polygon (P, 2) to [0, w] × [0, h]."""
+    for axis, bound, keep_less in ((0, 0.0, False), (0, w, True), (1, 0.0, False), (1, h, True)):
+        if len(poly) == 0:
+            break
+        cur = poly
+        nxt = np.roll(cur, -1, axis=0)
+        ins_a = (cur[:, axis] <= bound) if keep_less else (cur[:, axis] >= bound)
+        ins_b = (nxt[:, axis] <= bound) if keep_less else (nxt[:, axis] >= bound)
+        out = []
+        for p, q, ia, ib in zip(cur, nxt, ins_a, ins_b, strict=True):
+            if ia:
+                out.append(p)
+            if ia != ib:
+                t = (bound - p[axis]) / (q[axis] - p[axis])
+                out.append(p + t * (q - p))
+        poly = np.array(out).reshape(-1, 2)
+    return poly
+
+
+def truncation(uv: np.ndarray, width: int, height: int) -> float:
+    """Fraction of the convex hull of projected points (P, 2) outside the image."""
+    if len(uv) == 0:
+        return 1.0
+    lo, hi = uv.min(axis=0), uv.max(axis=0)
+    if lo[0] >= 0 and lo[1] >= 0 and hi[0] <= width and hi[1] <= height:
+        return 0.0
+    if hi[0] <= 0 or hi[1] <= 0 or lo[0] >= width or lo[1] >= height:
+        return 1.0
+    try:
+        hull = uv[ConvexHull(uv).vertices]
+    except (QhullError, ValueError):  # degenerate (a line or a point)
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] <= width) & (uv[:, 1] >= 0) & (uv[:, 1] <= height)
+        return float(1.0 - inside.mean())
+    area = _poly_area(hull)
+    if area <= 0.0:
+        return 1.0
+    return float(min(1.0, max(0.0, 1.0 - _poly_area(_clip_polygon(hull, width, height)) / area)))
+
+
+def compute_labels(
+    renderer, frame, vehicles, world_vertices, idx: np.ndarray, ranges, mvp: bytes
+) -> list[VehicleLabel]:
+    """Labels of every vehicle of a frame (called by ``Renderer.render``).
+
+    Args:
+        renderer: the ``Renderer`` that drew the frame (runs the silhouette pass).
+        frame: the ``Frame`` with rgb/instance/depth.
+        vehicles: the ``VehicleInstance`` list, in draw order (compact id = index + 1).
+        world_vertices: per vehicle, (N, 3) mesh vertices in the CARLA world frame.
+        idx: (H, W) int32 compact ids (0 = none) of the instance pass.
+        ranges: (first vertex, count) of each vehicle in the vehicle buffer.
+        mvp: the frame's world → clip matrix bytes.
+    """
+    from dashtraj.render.scene import NEAR_M, world_to_opencv
+
+    n = len(vehicles)
+    if n == 0:
+        return []
+    w, h = renderer.width, renderer.height
+    k = renderer.k
+    m = world_to_opencv(frame.camera_pose)
+    vis_counts = np.bincount(idx.ravel(), minlength=n + 1)[1 : n + 1]
+    slices = ndimage.find_objects(idx, max_label=n)
+    proj = [_clipped_projection(p, m, k, NEAR_M) for p in world_vertices]
+    boxes = np.zeros((n, 4), np.int64)
+    pboxes = []
+    for i, uv in enumerate(proj):
+        if len(uv) == 0:
+            pboxes.append(None)
+            continue
+        u0, v0 = uv.min(axis=0)
+        u1, v1 = uv.max(axis=0)
+        pboxes.append((float(u0), float(v0), float(u1), float(v1)))
+        boxes[i] = (
+            np.clip(math.floor(u0) - 1, 0, w),
+            np.clip(math.floor(v0) - 1, 0, h),
+            np.clip(math.ceil(u1) + 1, 0, w),
+            np.clip(math.ceil(v1) + 1, 0, h),
+        )
+    sil_counts, sil_boxes = renderer.silhouette_counts(boxes, ranges, mvp)
+    cam_xy = frame.camera_pose[:2]
+    out = []
+    for i, v in enumerate(vehicles):
+        cls = class_name(v.model)
+        rel = relative_yaw(cam_xy, (v.x, v.y), v.yaw_deg)
+        ori = orientation(rel)
+        det = f"{cls}_{ori}"
+        sl = slices[i] if i < len(slices) else None
+        vbox = None if sl is None else (sl[1].start, sl[0].start, sl[1].stop, sl[0].stop)
+        sbox = None if sil_boxes[i, 0] < 0 else tuple(int(c) for c in sil_boxes[i])
+        nv, ns = int(vis_counts[i]), int(sil_counts[i])
+        out.append(
+            VehicleLabel(
+                instance_id=v.instance_id,
+                class_name=cls,
+                orientation=ori,
+                detection_class=det,
+                detection_class_id=DETECTION_CLASSES.index(det),
+                relative_yaw_deg=rel,
+                distance_m=math.hypot(v.x - cam_xy[0], v.y - cam_xy[1]),
+                visible_box=vbox,
+                silhouette_box=sbox,
+                projected_box=pboxes[i],
+                visible_pixels=nv,
+                silhouette_pixels=ns,
+                visible_fraction=(nv / ns) if ns else 0.0,
+                truncation=truncation(proj[i], w, h),
+            )
+        )
+    return out

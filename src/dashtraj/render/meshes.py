@@ -1,0 +1,671 @@
+"""Triangle meshes for the CPU renderer: the static town scene and parametric vehicles.
+
+A :class:`Mesh` is a flat list of triangles (no index buffer) with one normal and
+one colour per vertex, so faces are flat-shaded. Every mesh is built with numpy,
+deterministically (buildings from a seeded generator).
+
+Frames:
+    scene meshes are in the CARLA world frame (metres, x forward/east, y right/south,
+    z up; left-handed). Vehicle meshes are in the vehicle frame: x forward, y right,
+    z up, origin on the ground at the centre of the vehicle's footprint (CARLA's
+    bounding box centre dropped to the ground). Triangle winding is not relied on
+    (the renderer does not cull faces); normals point outward, fixed per part.
+"""
+
+from __future__ import annotations
+
+import math
+import weakref
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Protocol
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from dashtraj.roads.types import LaneType
+
+# --------------------------------------------------------------------------- colours (linear 0..1)
+ASPHALT = (0.20, 0.20, 0.21)
+ASPHALT_JUNCTION = (0.21, 0.21, 0.22)
+SIDEWALK = (0.55, 0.54, 0.52)
+CURB = (0.62, 0.61, 0.59)
+GRASS = (0.30, 0.42, 0.22)
+MARK_WHITE = (0.92, 0.92, 0.90)
+MARK_YELLOW = (0.90, 0.72, 0.12)
+GLASS = (0.08, 0.10, 0.13)
+TYRE = (0.05, 0.05, 0.05)
+HEADLIGHT = (1.00, 0.97, 0.80)
+TAILLIGHT = (0.85, 0.05, 0.04)
+GRILLE = (0.12, 0.12, 0.12)
+RIDER_BODY = (0.15, 0.22, 0.45)
+RIDER_HEAD = (0.80, 0.62, 0.50)
+FACADES = np.array(
+    [
+        (0.62, 0.58, 0.52),
+        (0.70, 0.66, 0.60),
+        (0.55, 0.45, 0.38),
+        (0.48, 0.50, 0.54),
+        (0.74, 0.72, 0.68),
+        (0.60, 0.42, 0.33),
+        (0.42, 0.44, 0.47),
+        (0.66, 0.60, 0.46),
+    ]
+)
+
+SIDEWALK_HEIGHT_M = 0.15
+MARK_LIFT_M = 0.005  # road marks float this high above the asphalt (tyres: ≥ 1 cm)
+BROKEN_ON_M, BROKEN_OFF_M = 3.0, 6.0
+GROUND_Z_M = -0.03
+
+_ASPHALT_TYPES = (
+    LaneType.Driving
+    | LaneType.Bidirectional
+    | LaneType.Parking
+    | LaneType.Shoulder
+    | LaneType.Stop
+    | LaneType.Entry
+    | LaneType.Exit
+    | LaneType.OnRamp
+    | LaneType.OffRamp
+    | LaneType.Biking
+    | LaneType.RoadWorks
+    | LaneType.Tram
+    | LaneType.Rail
+    | LaneType.Restricted
+)
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """Flat-shaded triangles.
+
+    Attributes:
+        positions: (3T, 3) float32, metres (frame stated by the builder).
+        normals: (3T, 3) float32 unit normals, same frame.
+        colors: (3T, 4) float32: linear RGB in 0..1 and an emissive flag (1 = unlit,
+            e.g. lamps).
+    """
+
+    positions: np.ndarray
+    normals: np.ndarray
+    colors: np.ndarray
+
+    @property
+    def n_vertices(self) -> int:
+        return len(self.positions)
+
+    @staticmethod
+    def concat(meshes: list[Mesh]) -> Mesh:
+        meshes = [m for m in meshes if m.n_vertices]
+        if not meshes:
+            z = np.zeros((0, 3), np.float32)
+            return Mesh(z, z.copy(), np.zeros((0, 4), np.float32))
+        return Mesh(
+            *(
+                np.concatenate([getattr(m, f) for m in meshes]).astype(np.float32)
+                for f in ("positions", "normals", "colors")
+            )
+        )
+
+    def interleaved(self, ids: np.ndarray | float = 0.0) -> np.ndarray:
+        """(3T, 11) float32 rows: position, normal, colour+emissive, id (the GL layout)."""
+        idcol = np.broadcast_to(np.asarray(ids, np.float32).reshape(-1, 1), (self.n_vertices, 1))
+        return np.hstack([self.positions, self.normals, self.colors, idcol]).astype(np.float32)
+
+
+# --------------------------------------------------------------------------- primitives
+def _mesh(tris: np.ndarray, color, emissive: float = 0.0, centre=None, up: bool = False) -> Mesh:
+    """Mesh from (T, 3, 3) triangles; normals face away from ``centre`` (or +z if ``up``)."""
+    tris = np.asarray(tris, np.float64).reshape(-1, 3, 3)
+    n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    n = n / np.where(length > 0, length, 1.0)
+    if up:
+        n = np.where(n[:, 2:3] < 0, -n, n)
+    elif centre is not None:
+        out = tris.mean(axis=1) - np.asarray(centre, np.float64)
+        n = np.where((n * out).sum(axis=1, keepdims=True) < 0, -n, n)
+    # wind every triangle counter-clockwise seen from its normal side (for face culling)
+    flip = (np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]) * n).sum(axis=1) < 0
+    tris = tris.copy()
+    tris[flip] = tris[flip][:, [0, 2, 1]]
+    t = len(tris)
+    col = np.asarray(color, np.float64)
+    col = np.broadcast_to(col.reshape(-1, 3) if col.ndim > 1 else col, (t, 3))
+    rgba = np.concatenate([col, np.full((t, 1), float(emissive))], axis=1)
+    return Mesh(
+        tris.reshape(-1, 3).astype(np.float32),
+        np.repeat(n, 3, axis=0).astype(np.float32),
+        np.repeat(rgba, 3, axis=0).astype(np.float32),
+    )
+
+
+_HEXA_FACES = np.array(
+    [[0, 1, 2, 3], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
+)
+
+
+def hexahedron(corners: np.ndarray, color, emissive: float = 0.0) -> Mesh:
+    """A convex six-faced solid from 8 corners (bottom ring then top ring, same order)."""
+    c = np.asarray(corners, np.float64).reshape(8, 3)
+    q = c[_HEXA_FACES]  # (6, 4, 3)
+    tris = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
+    return _mesh(tris, color, emissive, centre=c.mean(axis=0))
+
+
+def box(lo, hi, color, emissive: float = 0.0) -> Mesh:
+    """Axis-aligned box between corners ``lo`` and ``hi`` (x, y, z), metres."""
+    (x0, y0, z0), (x1, y1, z1) = lo, hi
+    c = np.array(
+        [
+            [x0, y0, z0],
+            [x1, y0, z0],
+            [x1, y1, z0],
+            [x0, y1, z0],
+            [x0, y0, z1],
+            [x1, y0, z1],
+            [x1, y1, z1],
+            [x0, y1, z1],
+        ]
+    )
+    return hexahedron(c, color, emissive)
+
+
+def wheel(cx: float, cy: float, radius: float, width: float, sides: int = 10) -> Mesh:
+    """A tyre: a ``sides``-gon prism with its axis along y, centred at (cx, cy, radius)."""
+    # a flat edge at the bottom, r (1 - cos(π/sides)) above the ground: no z-fight with the road
+    a = np.arange(sides) * (2 * np.pi / sides) + 1.5 * np.pi + np.pi / sides
+    ring = np.column_stack([cx + radius * np.cos(a), radius + radius * np.sin(a)])  # x, z
+    i, j = np.arange(sides), (np.arange(sides) + 1) % sides
+    y0, y1 = cy - width / 2, cy + width / 2
+
+    def p(k, y):
+        return np.column_stack([ring[k, 0], np.full(len(k), y), ring[k, 1]])
+
+    side = np.concatenate(
+        [np.stack([p(i, y0), p(j, y0), p(j, y1)], 1), np.stack([p(i, y0), p(j, y1), p(i, y1)], 1)]
+    )
+    c0 = np.tile([[cx, y0, radius]], (sides, 1))
+    c1 = np.tile([[cx, y1, radius]], (sides, 1))
+    caps = np.concatenate(
+        [np.stack([c0, p(i, y0), p(j, y0)], 1), np.stack([c1, p(i, y1), p(j, y1)], 1)]
+    )
+    return _mesh(np.concatenate([side, caps]), TYRE, centre=(cx, cy, radius))
+
+
+# --------------------------------------------------------------------------- vehicles
+class VehicleModelLike(Protocol):
+    """The catalog fields the renderer reads (``dashtraj.world.catalog.VehicleModel``)."""
+
+    vehicle_class: str
+    body_type: str
+    length_m: float
+    width_m: float
+    height_m: float
+    wheelbase_m: float
+    wheel_radius_m: float
+
+
+def _params(model) -> tuple:
+    g = getattr
+    return (
+        str(g(model, "body_type", "sedan")),
+        float(model.length_m),
+        float(model.width_m),
+        float(model.height_m),
+        float(g(model, "wheelbase_m", 0.6 * model.length_m)),
+        float(g(model, "wheel_radius_m", 0.33)),
+        float(g(model, "ground_clearance_m", 0.15)),
+        float(g(model, "hood_fraction", 0.3)),
+        float(g(model, "cabin_start_fraction", 0.3)),
+        float(g(model, "cabin_end_fraction", 0.85)),
+        float(g(model, "beltline_fraction", 0.55)),
+    )
+
+
+def vehicle_mesh(model, rgb) -> Mesh:
+    """A parametric vehicle in the vehicle frame (x forward, y right, z up, metres).
+
+    Args:
+        model: a catalog ``VehicleModel`` (or anything with its attribute names:
+            body_type, length_m, width_m, height_m, wheelbase_m, wheel_radius_m, and
+            optionally ground_clearance_m, hood_fraction, cabin_start_fraction,
+            cabin_end_fraction, beltline_fraction; fractions of the length from the
+            front, of the height from the ground).
+        rgb: paint colour, 3 ints 0..255.
+
+    Returns:
+        a cached :class:`Mesh`; the front carries white head lamps and a dark
+        grille, the back red tail lamps, so the two ends look different.
+    """
+    paint = tuple(round(float(c)) for c in rgb)
+    return _vehicle_mesh_cached(_params(model), paint)
+
+
+@lru_cache(maxsize=512)
+def _vehicle_mesh_cached(p: tuple, paint255: tuple) -> Mesh:
+    body, length, width, height, wb, r, clear, hood, c0, c1, belt = p
+    paint = np.array(paint255, np.float64) / 255.0
+    if body in ("motorcycle", "bicycle"):
+        return _two_wheeler(body, length, width, height, wb, r, paint)
+    if body in ("truck", "bus"):
+        return _big_vehicle(body, length, width, height, wb, r, clear, paint)
+    return _car(body, length, width, height, wb, r, clear, hood, c0, c1, belt, paint)
+
+
+def _lamps(length, width, z0, z1, inset, front: bool, size=0.28) -> list[Mesh]:
+    """Two lamps on the front (white) or back (red) face, protruding 3 cm."""
+    x = length / 2 if front else -length / 2
+    xa, xb = (x - 0.02, x + 0.03) if front else (x - 0.03, x + 0.02)
+    col = HEADLIGHT if front else TAILLIGHT
+    yo = width / 2 - inset
+    return [
+        box((xa, s * yo - size / 2, z0), (xb, s * yo + size / 2, z1), col, 1.0) for s in (-1.0, 1.0)
+    ]
+
+
+def _wheels(length, width, wb, r, axles=2, tyre_w=0.24) -> list[Mesh]:
+    xs = [wb / 2, -wb / 2] if axles == 2 else [wb / 2, -wb / 2, -wb / 2 + 2.2 * r]
+    yo = width / 2 - tyre_w / 2 + 0.01
+    return [wheel(x, s * yo, r, tyre_w) for x in xs for s in (-1.0, 1.0)]
+
+
+def _car(body, length, width, height, wb, r, clear, hood, c0, c1, belt, paint) -> Mesh:
+    L, W, H = length, width, height
+    zb = clear
+    zbelt = max(zb + 0.2, belt * H)
+    # cabin footprint along x (front of cabin at the end of the hood)
+    xf = L / 2 - max(hood, 0.05) * L
+    tail = {"hatchback": 0.02, "suv": 0.02, "van": 0.01, "pickup": 0.01}.get(body, 0.12)
+    xr = -L / 2 + tail * L if body != "pickup" else xf - 0.28 * L
+    if body == "van":
+        xf = L / 2 - max(hood, 0.12) * L
+    # windscreen rake and side taper of the cabin's roof
+    rake_f = {"van": 0.35, "suv": 0.45}.get(body, 0.6) * (H - zbelt)
+    rake_r = {"sedan": 0.5, "coupe": 0.7}.get(body, 0.12) * (H - zbelt)
+    taper = 0.1 * W
+    roof_t = 0.06
+    parts = [box((-L / 2, -W / 2, zb), (L / 2, W / 2, zbelt), paint)]
+    cab = np.array(
+        [
+            [xr, -W / 2 + 0.03, zbelt],
+            [xf, -W / 2 + 0.03, zbelt],
+            [xf, W / 2 - 0.03, zbelt],
+            [xr, W / 2 - 0.03, zbelt],
+            [xr + rake_r, -W / 2 + taper, H - roof_t],
+            [xf - rake_f, -W / 2 + taper, H - roof_t],
+            [xf - rake_f, W / 2 - taper, H - roof_t],
+            [xr + rake_r, W / 2 - taper, H - roof_t],
+        ]
+    )
+    parts.append(hexahedron(cab, GLASS))
+    roof = cab[4:].copy()
+    parts.append(hexahedron(np.vstack([roof, _lift(roof, roof_t)]), paint))
+    # pillars between windows: B pillar as a thin painted slab across the cabin
+    xm = 0.5 * (cab[0, 0] + cab[1, 0] + 0.5 * (rake_r - rake_f))
+    parts.append(
+        box((xm - 0.07, -W / 2 + 0.02, zbelt), (xm + 0.07, W / 2 - 0.02, H - roof_t), paint)
+    )
+    if body == "pickup":  # open bed walls behind the cab
+        parts.append(box((-L / 2, -W / 2, zbelt), (xr, -W / 2 + 0.08, zbelt + 0.3), paint))
+        parts.append(box((-L / 2, W / 2 - 0.08, zbelt), (xr, W / 2, zbelt + 0.3), paint))
+    zl0 = zbelt - 0.22
+    parts += _lamps(L, W, zl0, zbelt - 0.06, 0.3, front=True)
+    parts += _lamps(L, W, zl0, zbelt - 0.04, 0.22, front=False, size=0.34)
+    parts.append(
+        box((L / 2 - 0.01, -0.3 * W, zb + 0.1), (L / 2 + 0.02, 0.3 * W, zl0 - 0.02), GRILLE)
+    )
+    parts += _wheels(L, W, wb, r)
+    return Mesh.concat(parts)
+
+
+def _big_vehicle(body, length, width, height, wb, r, clear, paint) -> Mesh:
+    L, W, H = length, width, height
+    zb = max(clear, 0.3)
+    parts: list[Mesh] = []
+    if body == "bus":
+        zwin0, zwin1 = 0.45 * H, 0.85 * H
+        parts.append(box((-L / 2, -W / 2, zb), (L / 2, W / 2, H), paint))
+        # window bands on both sides and the back, windscreen at the front
+        parts.append(
+            box((-L / 2 + 0.4, -W / 2 - 0.02, zwin0), (L / 2 - 0.9, W / 2 + 0.02, zwin1), GLASS)
+        )
+        parts.append(
+            box((L / 2 - 0.02, -W / 2 + 0.1, 0.35 * H), (L / 2 + 0.02, W / 2 - 0.1, 0.9 * H), GLASS)
+        )
+        parts.append(
+            box(
+                (-L / 2 - 0.02, -W / 2 + 0.3, 0.6 * H),
+                (-L / 2 + 0.02, W / 2 - 0.3, 0.85 * H),
+                GLASS,
+            )
+        )
+        zl = zb + 0.25
+        axles = 2
+    else:  # truck: cab at the front, cargo box behind
+        cab_l = min(2.3, 0.35 * L)
+        zcab = min(H, max(2.4, 0.8 * H))
+        parts.append(box((L / 2 - cab_l, -W / 2, zb), (L / 2, W / 2, zcab), paint))
+        parts.append(
+            box(
+                (L / 2 - 0.02, -W / 2 + 0.1, 0.55 * zcab),
+                (L / 2 + 0.02, W / 2 - 0.1, 0.9 * zcab),
+                GLASS,
+            )
+        )
+        parts.append(
+            box(
+                (L / 2 - cab_l + 0.3, -W / 2 - 0.02, 0.55 * zcab),
+                (L / 2 - 0.2, W / 2 + 0.02, 0.88 * zcab),
+                GLASS,
+            )
+        )
+        cargo = 0.55 * paint + 0.45 * np.array([0.9, 0.9, 0.88])
+        parts.append(box((-L / 2, -W / 2, zb + 0.25), (L / 2 - cab_l - 0.1, W / 2, H), cargo))
+        parts.append(
+            box((-L / 2 + 0.3, -W / 2 + 0.1, zb), (L / 2 - 0.3, W / 2 - 0.1, zb + 0.3), GRILLE)
+        )
+        zl = zb + 0.3
+        axles = 3 if L > 8.0 else 2
+    parts += _lamps(L, W, zl, zl + 0.25, 0.35, front=True, size=0.35)
+    parts += _lamps(L, W, zl, zl + 0.35, 0.25, front=False, size=0.3)
+    parts.append(
+        box((L / 2 - 0.01, -0.3 * W, zl - 0.05), (L / 2 + 0.03, 0.3 * W, zl + 0.3), GRILLE)
+    )
+    parts += _wheels(L, W, wb, r, axles=axles, tyre_w=0.32)
+    return Mesh.concat(parts)
+
+
+def _two_wheeler(body, length, width, height, wb, r, paint) -> Mesh:
+    L, H = length, height
+    tw = 0.12 if body == "motorcycle" else 0.05
+    r = min(r, 0.45 * H)
+    xw = min(wb / 2, L / 2 - r)
+    parts = [wheel(xw, 0.0, r, tw, 12), wheel(-xw, 0.0, r, tw, 12)]
+    zf = r + 0.05
+    if body == "motorcycle":
+        parts.append(box((-xw + 0.1, -0.17, zf), (xw - 0.05, 0.17, zf + 0.4), paint))  # tank/engine
+        parts.append(box((xw - 0.2, -0.05, r), (xw + 0.05, 0.05, zf + 0.55), GRILLE))  # fork
+        parts.append(
+            box((xw + 0.02, -0.09, zf + 0.35), (xw + 0.08, 0.09, zf + 0.5), HEADLIGHT, 1.0)
+        )
+        parts.append(
+            box((-L / 2 + 0.05, -0.08, zf + 0.35), (-L / 2 + 0.12, 0.08, zf + 0.45), TAILLIGHT, 1.0)
+        )
+        seat = zf + 0.4
+    else:
+        parts.append(box((-xw, -0.03, r), (xw, 0.03, r + 0.06), paint))  # chain stay
+        parts.append(box((-0.1, -0.03, r), (xw - 0.05, 0.03, zf + 0.35), paint))  # down tube
+        parts.append(box((xw - 0.08, -0.03, r), (xw - 0.02, 0.03, zf + 0.45), paint))  # fork
+        parts.append(
+            box((xw - 0.12, -0.25, zf + 0.42), (xw - 0.04, 0.25, zf + 0.47), GRILLE)
+        )  # bar
+        parts.append(
+            box((-xw - 0.02, -0.05, r + 0.15), (-xw + 0.04, 0.05, r + 0.25), TAILLIGHT, 1.0)
+        )
+        seat = zf + 0.4
+    # rider: legs, torso leaning forward, head, arms to the bars
+    hip_x = -0.15
+    parts.append(
+        box((hip_x - 0.12, -0.2, seat - 0.35), (hip_x + 0.25, 0.2, seat + 0.05), RIDER_BODY)
+    )
+    top = max(H + 0.45, seat + 0.75)
+    torso = np.array(
+        [
+            [hip_x - 0.15, -0.2, seat],
+            [hip_x + 0.15, -0.2, seat],
+            [hip_x + 0.15, 0.2, seat],
+            [hip_x - 0.15, 0.2, seat],
+            [hip_x + 0.0, -0.2, top - 0.25],
+            [hip_x + 0.3, -0.2, top - 0.25],
+            [hip_x + 0.3, 0.2, top - 0.25],
+            [hip_x + 0.0, 0.2, top - 0.25],
+        ]
+    )
+    parts.append(hexahedron(torso, RIDER_BODY))
+    parts.append(box((hip_x + 0.05, -0.11, top - 0.25), (hip_x + 0.27, 0.11, top), RIDER_HEAD))
+    parts.append(box((hip_x + 0.2, -0.25, top - 0.45), (xw - 0.05, -0.17, top - 0.37), RIDER_BODY))
+    parts.append(box((hip_x + 0.2, 0.17, top - 0.45), (xw - 0.05, 0.25, top - 0.37), RIDER_BODY))
+    return Mesh.concat(parts)
+
+
+# --------------------------------------------------------------------------- road scene
+def _strip(left: np.ndarray, right: np.ndarray, color, z_left=None, z_right=None) -> Mesh:
+    """Quads between two (M, 3) polylines sampled at the same stations; normals up."""
+    a0, a1, b0, b1 = left[:-1], left[1:], right[:-1], right[1:]
+    tris = np.concatenate([np.stack([a0, b0, b1], 1), np.stack([a0, b1, a1], 1)])
+    return _mesh(tris, color, up=True)
+
+
+def _wall(base: np.ndarray, height: float, color) -> Mesh:
+    """Vertical quads of ``height`` metres above a (M, 3) polyline (curb faces), two-sided."""
+    top = _lift(base, height)
+    a0, a1, b0, b1 = base[:-1], base[1:], top[:-1], top[1:]
+    tris = np.concatenate([np.stack([a0, a1, b1], 1), np.stack([a0, b1, b0], 1)])
+    if not len(tris):
+        return Mesh.concat([])
+    both = np.concatenate([tris, tris[:, [0, 2, 1]]])  # two-sided: seen from road and kerb
+    return _mesh(both, color)
+
+
+def _lift(points: np.ndarray, dz: float) -> np.ndarray:
+    """Copy of (M, 3) points raised by ``dz`` metres."""
+    out = np.array(points, np.float64)
+    out[:, 2] += dz
+    return out
+
+
+def _offset(line: np.ndarray, d: float) -> np.ndarray:
+    """Offset a (M, 3) polyline by ``d`` metres to its right (CARLA frame: (-sin, cos))."""
+    if len(line) < 2:
+        return line
+    t = np.gradient(line[:, :2], axis=0)
+    t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-9)
+    out = line.copy()
+    out[:, 0] += -t[:, 1] * d
+    out[:, 1] += t[:, 0] * d
+    return out
+
+
+def _resample(line: np.ndarray, s: np.ndarray, s_new: np.ndarray) -> np.ndarray:
+    return np.column_stack([np.interp(s_new, s, line[:, k]) for k in range(3)])
+
+
+def _mark_pieces(line: np.ndarray, s: np.ndarray, s_a: float, s_b: float, broken: bool):
+    """Sub-polylines of ``line`` (stations ``s``) covering [s_a, s_b], dashed if broken."""
+    if s_b - s_a < 0.05:
+        return []
+    if broken:
+        starts = np.arange(s_a, s_b, BROKEN_ON_M + BROKEN_OFF_M)
+        spans = [(a, min(a + BROKEN_ON_M, s_b)) for a in starts]
+    else:
+        spans = [(s_a, s_b)]
+    out = []
+    for a, b in spans:
+        inner = s[(s > a) & (s < b)]
+        st = np.concatenate([[a], inner, [b]])
+        out.append(_resample(line, s, st))
+    return out
+
+
+def _marks_mesh(border: np.ndarray, s: np.ndarray, s_end: float, marks) -> list[Mesh]:
+    parts = []
+    for i, mk in enumerate(marks):
+        kinds = mk.type.lower().split()
+        if not kinds or kinds[0] in ("none", "curb", "grass", "botts", "botts dots"):
+            continue
+        a = s[0] + mk.s_offset
+        b = (s[0] + marks[i + 1].s_offset) if i + 1 < len(marks) else s_end
+        col = MARK_YELLOW if mk.color.lower() == "yellow" else MARK_WHITE
+        w = max(0.1, min(float(mk.width or 0.12), 0.3))
+        offsets = [0.0] if len(kinds) == 1 else [-(w / 2 + 0.06), w / 2 + 0.06]
+        for kind, off in zip(kinds, offsets, strict=False):
+            for piece in _mark_pieces(border, s, a, b, kind == "broken"):
+                if len(piece) < 2:
+                    continue
+                c = _lift(_offset(piece, off), MARK_LIFT_M)
+                parts.append(_strip(_offset(c, -w / 2), _offset(c, w / 2), col))
+    return parts
+
+
+@dataclass(frozen=True)
+class SceneMeshes:
+    """The static scene of one map, CARLA world frame.
+
+    Attributes:
+        ground: grass plane and road/sidewalk surfaces.
+        buildings: box buildings.
+        marks: lane markings (drawn with a depth offset on top of the asphalt).
+        extent: (x_min, y_min, x_max, y_max) of the map, metres.
+    """
+
+    ground: Mesh
+    buildings: Mesh
+    marks: Mesh
+    extent: tuple[float, float, float, float]
+
+
+_SCENE_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def scene_meshes(road_map, seed: int = 0) -> SceneMeshes:
+    """Static meshes of a map (built once per map and seed, cached weakly on the map).
+
+    Args:
+        road_map: a ``dashtraj.roads.RoadMap``.
+        seed: seed of the building placement.
+    """
+    per_map = _SCENE_CACHE.setdefault(road_map, {})
+    if seed not in per_map:
+        per_map[seed] = build_scene_meshes(road_map, seed)
+    return per_map[seed]
+
+
+def build_scene_meshes(road_map, seed: int = 0) -> SceneMeshes:
+    """Build (uncached) the static scene: ground, lanes, sidewalks, marks, buildings."""
+    m = road_map
+    surf: list[Mesh] = []
+    marks: list[Mesh] = []
+    border_pts = []
+    for lane in m.lane_list:
+        key = lane.key
+        left2, right2 = m.lane_border_polylines(key)
+        if len(left2) < 2:
+            continue
+        z = m.lane_polyline(key, driving_order=False)[:, 2]
+        s = np.linspace(lane.s0, lane.s1, len(left2))
+        left = np.column_stack([left2, z])
+        right = np.column_stack([right2, z])
+        border_pts += [left2, right2]
+        t = lane.type
+        if t & LaneType.Sidewalk:
+            h = SIDEWALK_HEIGHT_M
+            surf.append(_strip(_lift(left, h), _lift(right, h), SIDEWALK))
+            surf.append(_wall(left, h, CURB))
+            surf.append(_wall(right, h, CURB))
+        elif t & _ASPHALT_TYPES:
+            surf.append(_strip(left, right, ASPHALT_JUNCTION if lane.junction >= 0 else ASPHALT))
+        else:  # border, median, none: low grass verge at road level
+            surf.append(_strip(_lift(left, 0.005), _lift(right, 0.005), GRASS))
+        road = m.opendrive.roads[key[0]]
+        sec = road.sections[key[1]]
+        rec = sec.lanes.get(key[2])
+        if rec is not None and rec.road_marks and not (t & LaneType.Sidewalk):
+            outer = right if key[2] < 0 else left
+            marks += _marks_mesh(outer, s, lane.s1, rec.road_marks)
+        innermost = key[2] == -1 or (key[2] == 1 and -1 not in sec.lanes)
+        if innermost and sec.center_marks:
+            centre = left if key[2] == -1 else right
+            marks += _marks_mesh(centre, s, lane.s1, sec.center_marks)
+    x0, y0, x1, y1 = m.extent
+    pad = 250.0
+    g = np.array(
+        [[x0 - pad, y0 - pad], [x1 + pad, y0 - pad], [x1 + pad, y1 + pad], [x0 - pad, y1 + pad]]
+    )
+    g = np.column_stack([g, np.full(4, GROUND_Z_M)])
+    surf.append(_mesh(np.stack([g[[0, 1, 2]], g[[0, 2, 3]]]), GRASS, up=True))
+    pts = np.concatenate(border_pts) if border_pts else np.zeros((1, 2))
+    buildings = _buildings(m, pts, np.random.default_rng(seed))
+    return SceneMeshes(Mesh.concat(surf), buildings, Mesh.concat(marks), (x0, y0, x1, y1))
+
+
+def _buildings(
+    m,
+    lane_pts: np.ndarray,
+    rng: np.random.Generator,
+    spacing_m: float = 22.0,
+    clearance_m: float = 3.0,
+) -> Mesh:
+    """Box buildings beside the roads, at least ``clearance_m`` from every lane border.
+
+    Candidates are taken every ``spacing_m`` along each non-junction road on both
+    sides, beyond its outermost lanes; a footprint is kept if a 1 m grid over it
+    stays ``clearance_m`` from all lane border samples and it does not overlap an
+    accepted building. Deterministic for a given generator state.
+    """
+    tree = cKDTree(lane_pts)
+    placed: list[tuple[float, float, float]] = []  # centre x, y, radius
+    boxes = []
+    for rid in sorted(m.roads):
+        road = m.roads[rid]
+        if road.junction >= 0 or road.length < 10.0:
+            continue
+        for k, sec in enumerate(road.sections):
+            for side in (-1, 1):
+                ids = [i for i in sec.lanes if i * side > 0]
+                if not ids:
+                    continue
+                key = (rid, k, max(ids, key=abs))
+                if key not in m.lanes:
+                    continue
+                left, right = m.lane_border_polylines(key)
+                outer = right if side < 0 else left
+                if len(outer) < 2:
+                    continue
+                seg = np.linalg.norm(np.diff(outer, axis=0), axis=1)
+                st = np.concatenate([[0.0], np.cumsum(seg)])
+                for d in np.arange(spacing_m / 2, st[-1] - 4.0, spacing_m):
+                    i = min(np.searchsorted(st, d), len(outer) - 1)
+                    j = max(i - 1, 0) if i == len(outer) - 1 else i + 1
+                    tvec = outer[max(i, j)] - outer[min(i, j)]
+                    tvec = tvec / max(np.linalg.norm(tvec), 1e-9)
+                    nvec = np.array([-tvec[1], tvec[0]]) * (-1.0 if side > 0 else 1.0)
+                    # nvec points away from the road: right of +s for negative lanes
+                    depth = rng.uniform(8.0, 18.0)
+                    width = rng.uniform(8.0, 16.0)
+                    height = rng.choice([rng.uniform(5.0, 12.0), rng.uniform(12.0, 35.0)])
+                    gap = rng.uniform(2.0, 6.0) + clearance_m
+                    c = outer[i] + nvec * (gap + depth / 2)
+                    rad = 0.5 * math.hypot(depth, width)
+                    if any(
+                        math.hypot(c[0] - px, c[1] - py) < (rad + pr) * 0.75
+                        for px, py, pr in placed
+                    ):
+                        continue
+                    u = np.linspace(-0.5, 0.5, max(2, int(width) + 1))
+                    v = np.linspace(-0.5, 0.5, max(2, int(depth) + 1))
+                    uu, vv = np.meshgrid(u, v)
+                    grid = c + uu.reshape(-1, 1) * width * tvec + vv.reshape(-1, 1) * depth * nvec
+                    if np.min(tree.query(grid)[0]) < clearance_m:
+                        continue
+                    placed.append((c[0], c[1], rad))
+                    corners = np.array(
+                        [
+                            c + a * width / 2 * tvec + b * depth / 2 * nvec
+                            for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))
+                        ]
+                    )
+                    col = FACADES[rng.integers(len(FACADES))]
+                    boxes.append(
+                        hexahedron(
+                            np.vstack(
+                                [
+                                    np.column_stack([corners, np.full(4, GROUND_Z_M)]),
+                                    np.column_stack([corners, np.full(4, height)]),
+                                ]
+                            ),
+                            col,
+                        )
+                    )
+    return Mesh.concat(boxes)
