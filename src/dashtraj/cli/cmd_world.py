@@ -112,6 +112,10 @@ def run_sightings(args: argparse.Namespace) -> int:
     write_sightings(args.output, sightings)
     observers = len({s.observer_id for s in sightings})
     tracks = len({s.track_id for s in sightings})
+    if not sightings:
+        print(f"dashtraj: warning: no sightings of vehicle {args.vehicle} within "
+              f"{args.max_distance:g} m of a camera; {args.output} has only its header",
+              file=sys.stderr)
     print(f"{args.output}: {len(sightings)} sightings of vehicle {args.vehicle} by "
           f"{observers} observers in {tracks} tracks (noise {args.noise})")
     return 0

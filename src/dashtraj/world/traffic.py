@@ -22,31 +22,37 @@ Junctions. A *region* is one junction's connecting lanes, merged with other
 junctions joined to it by a non-junction lane shorter than the longest vehicle
 plus a margin (that short lane joins the region). Rules:
 
-1. A vehicle may enter a region only while it holds the region's reservation;
-   otherwise its path ends in a stop line at the region's entry (IDM sees a
-   standing obstacle there).
-2. One holder per region. A vehicle becomes a *candidate* when it is the first
-   vehicle on its path before the entry and within ``queue_window_m`` of it;
-   candidates are queued by the time they became one (ties: lower vehicle id).
-3. When a region is free it is granted to the first queued candidate that has
-   room beyond the region's exit: free road of its length + ``exit_margin_m`` on
-   the lanes after the region, so the holder never stops inside the region.
-4. The holder releases the region once its rear has left the region's last lane.
+1. A vehicle may enter a region only while it holds a reservation for its
+   *passage* (the region lanes its route takes); otherwise its path ends in a
+   stop line at the region's entry (IDM sees a standing obstacle there).
+2. A vehicle becomes a *candidate* when it is the first vehicle on its path
+   before the entry and within ``queue_window_m`` of it; candidates are queued by
+   the time they became one (ties: lower vehicle id).
+3. Two passages conflict when they differ and share a lane or have lanes whose
+   centre lines come closer than the widest vehicle + 0.5 m (precomputed per
+   region). Identical passages do not conflict: vehicles on one follow each other
+   by IDM. A candidate is granted when its passage conflicts with no holder's and
+   with no earlier candidate's that is waiting for a conflict to clear (so later
+   arrivals cannot starve it), and there is room beyond the region's exit: free
+   road of its length + ``exit_margin_m``, plus that of every holder bound for the
+   same exit lane, so a holder never has to stop inside the region.
+4. A holder releases its reservation once its rear has left the region.
 
-Why there is no collision in a region: only the holder is in it. Why no vehicle
-stops in one: nothing stands in the holder's way inside (rule 2), and the room it
-needs beyond the exit stays free, because only a region's holder can enter the
-lanes that leave it (real maps: the successors of a junction's connecting lanes
-have no other predecessors; this is checked when the network is built) and the
-vehicles already there only move forward. Why there is no deadlock: a holder
-always leaves in finite time (free road, positive desired speed), so a region is
-free again; a free region is granted to any queued candidate with room, and a
-candidate without room waits only on vehicles ahead of it on ordinary lanes,
-which drive on unless they themselves queue at a region. A circular wait would
-need a closed loop of lanes completely filled with stopped vehicles (gridlock),
-which the traffic densities of the paper (<= 25 vehicles on a town) never reach;
-`TrafficSim.step` raises no error for it, and the tests run 20 agents for
-minutes on Town10HD and check every vehicle keeps moving.
+No collision in a region: holders' passages are pairwise conflict-free or
+identical (then IDM spaces them), and nobody else is inside. No stop in a region:
+nothing stands in a holder's way inside, and the room it needs beyond the exit
+stays free, because only a region's holders can enter the lanes that leave it
+(checked when the network is built: an exit lane has no predecessor outside the
+region) and the vehicles already there only move forward. No deadlock: a holder
+always leaves in finite time (free road, positive desired speed); a candidate
+waits only on holders (who leave), on earlier candidates (finitely many, each
+granted once its own holders leave), or on room beyond the exit, which frees as
+soon as the vehicles ahead drive on. A circular wait needs a closed loop of
+lanes completely filled with stopped vehicles (gridlock), which the paper's
+densities (<= 25 vehicles in a town) never reach. The tests run 25 vehicles for
+two minutes on Town10HD and check nobody stands still for 90 s; queues at its
+larger merged junction regions can last about a minute (the reservation is
+per passage, not per lane segment, so it is conservative).
 
 Frames and units: CARLA world (metres, yaw degrees, positive turning +x toward
 +y); speeds m/s; time s.
