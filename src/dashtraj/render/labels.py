@@ -15,8 +15,8 @@ from the first pixel's left/top edge to the last pixel's right/bottom edge):
   projected mesh vertices, unclipped) that lies outside the image; 0 inside, 1 fully
   outside or behind the camera.
 - ``orientation``: from the angle between the vehicle's heading and the ground-plane
-  ray from the camera to the vehicle: |angle| ≤ 45° → ``back`` (we see its rear),
-  ≥ 135° → ``front``, else ``side``. ``detection_class`` = class × orientation, index
+  ray from the camera to the vehicle: |angle| < 45° → ``back`` (we see its rear),
+  > 135° → ``front``, else ``side``. ``detection_class`` = class × orientation, index
   into ``DETECTION_CLASSES`` (vans count as car, trucks as truck, buses as bus).
 """
 
@@ -29,26 +29,16 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError
 
-try:  # the list may be defined by the camera module of the world layer
-    from dashtraj.world.camera import DETECTION_CLASSES  # type: ignore[attr-defined]
-except ImportError:
-    DETECTION_CLASSES = [
-        "car_front",
-        "car_back",
-        "car_side",
-        "truck_front",
-        "truck_back",
-        "truck_side",
-        "bus_front",
-        "bus_back",
-        "bus_side",
-        "motorcycle_front",
-        "motorcycle_back",
-        "motorcycle_side",
-        "bicycle_front",
-        "bicycle_back",
-        "bicycle_side",
-    ]
+try:  # the camera model of the world layer owns the list and the orientation rule
+    from dashtraj.world.camera import DETECTION_CLASSES
+except ImportError:  # pragma: no cover - standalone use of the renderer
+    DETECTION_CLASSES = (
+        "car_front", "car_back", "car_side",
+        "truck_front", "truck_back", "truck_side",
+        "bus_front", "bus_back", "bus_side",
+        "motorcycle_front", "motorcycle_back", "motorcycle_side",
+        "bicycle_front", "bicycle_back", "bicycle_side",
+    )  # fmt: skip
 
 _CLASS_OF_BODY = {
     "sedan": "car",
@@ -107,9 +97,12 @@ def class_name(model) -> str:
 
 
 def orientation(relative_yaw_deg: float) -> str:
-    """back if |angle| ≤ 45°, front if ≥ 135°, else side (angle in degrees)."""
-    a = abs(relative_yaw_deg)
-    return "back" if a <= 45.0 else ("front" if a >= 135.0 else "side")
+    """back if |angle| < 45°, front if > 135°, else side (angle in degrees).
+
+    The same rule as ``dashtraj.world.camera.orientation_of`` (strict at 45°/135°).
+    """
+    a = abs((relative_yaw_deg + 180.0) % 360.0 - 180.0)
+    return "back" if a < 45.0 else ("front" if a > 135.0 else "side")
 
 
 def relative_yaw(camera_xy, vehicle_xy, vehicle_yaw_deg: float) -> float:

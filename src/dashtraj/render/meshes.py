@@ -250,7 +250,7 @@ def _vehicle_mesh_cached(p: tuple, paint255: tuple) -> Mesh:
     if body in ("motorcycle", "bicycle"):
         return _two_wheeler(body, length, width, height, wb, r, paint)
     if body in ("truck", "bus"):
-        return _big_vehicle(body, length, width, height, wb, r, clear, paint)
+        return _big_vehicle(body, length, width, height, wb, r, clear, c1, paint)
     return _car(body, length, width, height, wb, r, clear, hood, c0, c1, belt, paint)
 
 
@@ -275,12 +275,9 @@ def _car(body, length, width, height, wb, r, clear, hood, c0, c1, belt, paint) -
     L, W, H = length, width, height
     zb = clear
     zbelt = max(zb + 0.2, belt * H)
-    # cabin footprint along x (front of cabin at the end of the hood)
-    xf = L / 2 - max(hood, 0.05) * L
-    tail = {"hatchback": 0.02, "suv": 0.02, "van": 0.01, "pickup": 0.01}.get(body, 0.12)
-    xr = -L / 2 + tail * L if body != "pickup" else xf - 0.28 * L
-    if body == "van":
-        xf = L / 2 - max(hood, 0.12) * L
+    # greenhouse from cabin_start to cabin_end (fractions of the length from the front)
+    xf = L / 2 - min(max(c0, hood, 0.03), 0.6) * L
+    xr = L / 2 - min(max(c1, c0 + 0.25), 0.99) * L
     # windscreen rake and side taper of the cabin's roof
     rake_f = {"van": 0.35, "suv": 0.45}.get(body, 0.6) * (H - zbelt)
     rake_r = {"sedan": 0.5, "coupe": 0.7}.get(body, 0.12) * (H - zbelt)
@@ -307,7 +304,7 @@ def _car(body, length, width, height, wb, r, clear, hood, c0, c1, belt, paint) -
     parts.append(
         box((xm - 0.07, -W / 2 + 0.02, zbelt), (xm + 0.07, W / 2 - 0.02, H - roof_t), paint)
     )
-    if body == "pickup":  # open bed walls behind the cab
+    if body == "pickup" and xr > -L / 2 + 0.5:  # open bed walls behind the cab
         parts.append(box((-L / 2, -W / 2, zbelt), (xr, -W / 2 + 0.08, zbelt + 0.3), paint))
         parts.append(box((-L / 2, W / 2 - 0.08, zbelt), (xr, W / 2, zbelt + 0.3), paint))
     zl0 = zbelt - 0.22
@@ -320,7 +317,7 @@ def _car(body, length, width, height, wb, r, clear, hood, c0, c1, belt, paint) -
     return Mesh.concat(parts)
 
 
-def _big_vehicle(body, length, width, height, wb, r, clear, paint) -> Mesh:
+def _big_vehicle(body, length, width, height, wb, r, clear, c1, paint) -> Mesh:
     L, W, H = length, width, height
     zb = max(clear, 0.3)
     parts: list[Mesh] = []
@@ -344,7 +341,7 @@ def _big_vehicle(body, length, width, height, wb, r, clear, paint) -> Mesh:
         zl = zb + 0.25
         axles = 2
     else:  # truck: cab at the front, cargo box behind
-        cab_l = min(2.3, 0.35 * L)
+        cab_l = c1 * L if 0.1 < c1 < 0.6 else min(2.3, 0.35 * L)
         zcab = min(H, max(2.4, 0.8 * H))
         parts.append(box((L / 2 - cab_l, -W / 2, zb), (L / 2, W / 2, zcab), paint))
         parts.append(

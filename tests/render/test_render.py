@@ -1,0 +1,235 @@
+"""Renderer: pinhole agreement with K, exact instance labels, occlusion, orientation,
+determinism and image sizes, on a synthetic straight road (tests/render/conftest.py).
+
+The camera stands on the +x-driving lane (y = 1.75) at x = -95, 1.6 m up, looking
+along +x unless a test says otherwise."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from conftest import BIKE, BUS, MOTO, SEDAN, SUV, TRUCK, VAN, identity
+
+from dashtraj.render.labels import DETECTION_CLASSES, relative_yaw, truncation
+from dashtraj.render.meshes import scene_meshes, vehicle_mesh
+from dashtraj.render.scene import Renderer, intrinsics, project_points
+
+CAM = (-95.0, 1.75, 1.6, 0.0, 0.0, 0.0)
+
+
+@pytest.fixture(scope="module")
+def renderer(gl_ctx, straight_map):
+    r = Renderer(straight_map, 640, 360, 90.0, msaa=4, ctx=gl_ctx)
+    yield r
+    r.release()
+
+
+def _label(frame, instance_id):
+    return next(lb for lb in frame.labels if lb.instance_id == instance_id)
+
+
+def test_intrinsics_follow_carla():
+    k = intrinsics(1280, 720, 90.0)
+    assert k[0, 0] == pytest.approx(640.0) and k[1, 1] == pytest.approx(640.0)
+    assert (k[0, 2], k[1, 2]) == (640.0, 360.0)
+
+
+def test_known_point_projects_to_the_k_pixel(gl_ctx, straight_map, monkeypatch):
+    """A 20 cm marker cube centred on a known 3-D point lands where K says (< 0.5 px)."""
+    from dashtraj.render import scene
+    from dashtraj.render.meshes import box
+
+    cube = box((-0.1, -0.1, 0.0), (0.1, 0.1, 0.2), (1.0, 1.0, 1.0))
+    monkeypatch.setattr(scene, "vehicle_mesh", lambda model, rgb: cube)
+    w, h, fov = 800, 600, 70.0
+    r = Renderer(straight_map, w, h, fov, msaa=0, ctx=gl_ctx)
+    cam = (-90.0, 0.5, 1.7, 10.0, -3.0, 2.0)
+    rng = np.random.default_rng(1)
+    for _ in range(6):
+        p = np.array([-90.0 + rng.uniform(8, 15), 0.5 + rng.uniform(-4, 4), rng.uniform(0.5, 3)])
+        uv, z = project_points(p, cam, r.k)
+        assert z[0] > 0
+        f = r.render(cam, [(7, identity(SEDAN), p[0], p[1], p[2] - 0.1, 0.0)])
+        rows, cols = np.nonzero(f.instance == 7)
+        assert len(rows) > 20
+        centre = np.array([cols.mean() + 0.5, rows.mean() + 0.5])  # pixel centres
+        assert np.abs(centre - uv[0]).max() < 0.5, (centre, uv[0])
+    r.release()
+
+
+def test_visible_box_tightly_bounds_instance_pixels(renderer):
+    vs = [
+        (3, identity(SEDAN), -80.0, 1.75, 0.0, 0.0),
+        (9, identity(SUV), -70.0, -1.75, 0.0, 180.0),
+        (4, identity(VAN), -75.0, 5.25, 0.0, 10.0),
+    ]
+    f = renderer.render(CAM, vs)
+    assert f.rgb.shape == (360, 640, 3) and f.rgb.dtype == np.uint8
+    assert f.instance.shape == (360, 640) and f.instance.dtype == np.int32
+    assert f.depth.shape == (360, 640) and f.depth.dtype == np.float32
+    assert set(np.unique(f.instance)) == {0, 3, 4, 9}
+    for lb in f.labels:
+        rows, cols = np.nonzero(f.instance == lb.instance_id)
+        assert lb.visible_box == (cols.min(), rows.min(), cols.max() + 1, rows.max() + 1)
+        assert lb.visible_pixels == len(rows)
+        sb = lb.silhouette_box
+        assert sb[0] <= lb.visible_box[0] and sb[1] <= lb.visible_box[1]
+        assert sb[2] >= lb.visible_box[2] and sb[3] >= lb.visible_box[3]
+        pb = lb.projected_box
+        assert pb[0] <= sb[0] + 1 and pb[2] >= sb[2] - 1  # vertex bound contains the pixels
+    unoccluded = _label(f, 3)
+    assert unoccluded.visible_fraction == 1.0 and unoccluded.truncation == 0.0
+    # depth at the sedan's pixels: between its rear (12.7 m) and front (17.3 m)
+    d = f.depth[f.instance == 3]
+    assert d.min() > 12.6 and d.max() < 17.4
+    assert np.isinf(f.depth[0, 320])  # sky straight up the road
+
+
+def test_vehicle_hidden_behind_a_truck_has_no_visible_box(renderer):
+    truck = (1, identity(TRUCK), -84.0, 1.75, 0.0, 0.0)
+    hidden = (2, identity(SEDAN), -70.0, 1.75, 0.0, 0.0)
+    f = renderer.render(CAM, [truck, hidden])
+    lb = _label(f, 2)
+    assert lb.visible_box is None and lb.visible_pixels == 0 and lb.visible_fraction == 0.0
+    assert lb.silhouette_box is not None and lb.silhouette_pixels > 100
+    assert not lb.in_view
+    assert _label(f, 1).visible_fraction == 1.0
+    assert not np.any(f.instance == 2)
+
+
+def test_partly_hidden_vehicle_fraction(renderer):
+    bus = (1, identity(BUS), -80.0, 5.25, 0.0, 0.0)
+    car = (2, identity(SEDAN), -70.0, 3.5, 0.0, 0.0)
+    f = renderer.render(CAM, [bus, car])
+    lb = _label(f, 2)
+    assert 0.0 < lb.visible_fraction < 1.0
+    assert lb.visible_fraction == lb.visible_pixels / lb.silhouette_pixels
+
+
+@pytest.mark.parametrize(
+    ("yaw", "x", "y", "expected"),
+    [
+        (0.0, -80.0, 1.75, "car_back"),  # ahead, driving away
+        (180.0, -75.0, -1.75, "car_front"),  # oncoming
+        (90.0, -80.0, 1.0, "car_side"),  # crossing
+        (-90.0, -80.0, 1.0, "car_side"),
+    ],
+)
+def test_orientation_labels(renderer, yaw, x, y, expected):
+    f = renderer.render(CAM, [(5, identity(SEDAN), x, y, 0.0, yaw)])
+    lb = f.labels[0]
+    assert lb.detection_class == expected
+    assert DETECTION_CLASSES[lb.detection_class_id] == expected
+    assert lb.in_view
+
+
+@pytest.mark.parametrize(
+    ("model", "cls"),
+    [(VAN, "car"), (TRUCK, "truck"), (BUS, "bus"), (MOTO, "motorcycle"), (BIKE, "bicycle")],
+)
+def test_classes(renderer, model, cls):
+    f = renderer.render(CAM, [(1, identity(model), -75.0, 1.75, 0.0, 0.0)])
+    assert f.labels[0].detection_class == f"{cls}_back"
+    assert f.labels[0].visible_fraction == 1.0
+
+
+def test_front_and_back_look_different(renderer):
+    """Head lamps (white) at the front, tail lamps (red) at the back."""
+    back = renderer.render(CAM, [(1, identity(SEDAN, (40, 40, 40)), -85.0, 1.75, 0.0, 0.0)])
+    front = renderer.render(CAM, [(1, identity(SEDAN, (40, 40, 40)), -85.0, 1.75, 0.0, 180.0)])
+
+    def lamp_pixels(f, pred):
+        px = f.rgb[f.instance == 1].astype(int)
+        return int(pred(px).sum())
+
+    def red(px):
+        return (px[:, 0] > 150) & (px[:, 1] < 60)
+
+    def white(px):
+        return (px > 200).all(axis=1)
+
+    assert lamp_pixels(back, red) > 20 and lamp_pixels(back, white) == 0
+    assert lamp_pixels(front, white) > 20 and lamp_pixels(front, red) == 0
+
+
+def test_renders_are_byte_identical(gl_ctx, straight_map):
+    vs = [
+        (1, identity(BUS), -75.0, -5.25, 0.0, 180.0),
+        (2, identity(SEDAN), -82.0, 1.75, 0.0, 3.0),
+        (3, identity(MOTO), -78.0, 5.0, 0.0, 20.0),
+    ]
+    a = Renderer(straight_map, 320, 200, 75.0, msaa=4, ctx=gl_ctx)
+    f1 = a.render(CAM, vs)
+    f2 = a.render(CAM, vs)
+    b = Renderer(straight_map, 320, 200, 75.0, msaa=4, ctx=gl_ctx)
+    f3 = b.render(CAM, vs)
+    for g in (f2, f3):
+        assert f1.rgb.tobytes() == g.rgb.tobytes()
+        assert f1.instance.tobytes() == g.instance.tobytes()
+        assert f1.depth.tobytes() == g.depth.tobytes()
+        assert f1.labels == g.labels
+    a.release()
+    b.release()
+
+
+@pytest.mark.parametrize(
+    ("w", "h", "fov"), [(1280, 720, 90.0), (333, 217, 60.0), (200, 400, 110.0)]
+)
+def test_sizes_and_fovs(gl_ctx, straight_map, w, h, fov):
+    r = Renderer(straight_map, w, h, fov, msaa=2, ctx=gl_ctx)
+    f = r.render(CAM, [(1, identity(SEDAN), -80.0, 1.75, 0.0, 0.0)])
+    assert f.rgb.shape == (h, w, 3) and f.instance.shape == (h, w)
+    lb = f.labels[0]
+    uv, _ = project_points(np.array([[-80.0, 1.75, 0.7]]), CAM, r.k)
+    x0, y0, x1, y1 = lb.visible_box
+    assert x0 <= uv[0, 0] <= x1 and y0 <= uv[0, 1] <= y1
+    assert lb.visible_fraction == 1.0
+    r.release()
+
+
+def test_truncated_vehicle_at_the_border(renderer):
+    f = renderer.render(CAM, [(1, identity(SEDAN), -89.0, -2.5, 0.0, 0.0)])
+    lb = f.labels[0]
+    assert 0.0 < lb.truncation < 1.0
+    assert lb.visible_box[0] == 0  # cut by the left border
+    assert lb.projected_box[0] < 0
+    behind = renderer.render(CAM, [(1, identity(SEDAN), -105.0, 1.75, 0.0, 0.0)]).labels[0]
+    assert behind.truncation == 1.0 and behind.silhouette_box is None and not behind.in_view
+
+
+def test_truncation_of_polygons():
+    sq = np.array([[-10.0, 0.0], [10.0, 0.0], [10.0, 10.0], [-10.0, 10.0]])
+    assert truncation(sq, 100, 100) == pytest.approx(0.5)
+    assert truncation(sq + 20.0, 100, 100) == 0.0
+    assert truncation(sq - 50.0, 100, 100) == 1.0
+
+
+def test_relative_yaw_sign_and_wrap():
+    assert relative_yaw((0, 0), (10, 0), 0.0) == pytest.approx(0.0)
+    assert relative_yaw((0, 0), (0, 10), 0.0) == pytest.approx(-90.0)
+    assert abs(relative_yaw((0, 0), (10, 0), 179.0 + 2.0)) == pytest.approx(179.0)
+
+
+def test_scene_meshes_cached_and_deterministic(straight_map):
+    a = scene_meshes(straight_map, seed=0)
+    assert scene_meshes(straight_map, seed=0) is a
+    from dashtraj.render.meshes import build_scene_meshes
+
+    b = build_scene_meshes(straight_map, seed=0)
+    assert a.buildings.positions.tobytes() == b.buildings.positions.tobytes()
+    assert a.buildings.n_vertices > 0 and a.marks.n_vertices > 0
+    # buildings keep clear of the road: |y| > 6.5 m (road) + 3 m (sidewalk) on this map
+    y = a.buildings.positions[:, 1]
+    assert np.all(np.abs(y) > 9.5 + 2.9)
+
+
+def test_vehicle_meshes_fit_their_dimensions():
+    for model in (SEDAN, SUV, VAN, TRUCK, BUS):
+        p = vehicle_mesh(model, (10, 20, 30)).positions
+        assert p[:, 0].min() >= -model.length_m / 2 - 0.05
+        assert p[:, 0].max() <= model.length_m / 2 + 0.05
+        assert np.abs(p[:, 1]).max() <= model.width_m / 2 + 0.05
+        assert p[:, 2].min() >= 0.0 and p[:, 2].max() <= model.height_m + 1e-6
+        assert math.isclose(p[:, 2].max(), model.height_m, abs_tol=0.02)
