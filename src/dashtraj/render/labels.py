@@ -112,26 +112,41 @@ def relative_yaw(camera_xy, vehicle_xy, vehicle_yaw_deg: float) -> float:
     return d - 360.0 if d > 180.0 else d
 
 
-def _clipped_projection(world_pts: np.ndarray, m: np.ndarray, k: np.ndarray, near: float):
-    """Project a triangle list's vertices after clipping at z_cam = near: (P, 2) u, v."""
+def clipped_projection(
+    world_pts: np.ndarray, owner: np.ndarray, n: int, m: np.ndarray, k: np.ndarray, near: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Project the triangles of ``n`` meshes after clipping them at z_cam = ``near``.
+
+    Args:
+        world_pts: (3T, 3) triangle-list vertices of all meshes, CARLA world, metres.
+        owner: (3T,) int mesh index of each vertex (triangles never straddle meshes).
+        n: number of meshes.
+        m: (4, 4) world → OpenCV camera matrix; k: (3, 3) intrinsics.
+        near: clipping plane distance, metres.
+
+    Returns:
+        (P, 2) projected (u, v) pixels of the vertices in front of the plane plus the
+        points where triangle edges cross it, sorted by mesh, and (n + 1,) offsets:
+        mesh i owns rows offsets[i]:offsets[i + 1].
+    """
     c = world_pts @ m[:3, :3].T + m[:3, 3]
-    front = c[c[:, 2] >= near]
-    tri = c.reshape(-1, 3, 3)
-    a = tri.reshape(-1, 3)
-    b = tri[:, [1, 2, 0]].reshape(-1, 3)
+    keep = c[:, 2] >= near
+    pts, own = c[keep], owner[keep]
+    a = c
+    b = c.reshape(-1, 3, 3)[:, [1, 2, 0]].reshape(-1, 3)
     cross = (a[:, 2] - near) * (b[:, 2] - near) < 0
     if np.any(cross):
         a, b = a[cross], b[cross]
         t = (near - a[:, 2]) / (b[:, 2] - a[:, 2])
-        front = np.concatenate([front, a + t[:, None] * (b - a)])
-    if len(front) == 0:
-        return np.zeros((0, 2))
-    return np.column_stack(
-        [
-            k[0, 0] * front[:, 0] / front[:, 2] + k[0, 2],
-            k[1, 1] * front[:, 1] / front[:, 2] + k[1, 2],
-        ]
+        pts = np.concatenate([pts, a + t[:, None] * (b - a)])
+        own = np.concatenate([own, owner[cross]])
+        order = np.argsort(own, kind="stable")
+        pts, own = pts[order], own[order]
+    uv = np.column_stack(
+        [k[0, 0] * pts[:, 0] / pts[:, 2] + k[0, 2], k[1, 1] * pts[:, 1] / pts[:, 2] + k[1, 2]]
     )
+    offsets = np.searchsorted(own, np.arange(n + 1))
+    return uv, offsets
 
 
 def _poly_area(p: np.ndarray) -> float:
@@ -205,22 +220,28 @@ def compute_labels(
     m = world_to_opencv(frame.camera_pose)
     vis_counts = np.bincount(idx.ravel(), minlength=n + 1)[1 : n + 1]
     slices = ndimage.find_objects(idx, max_label=n)
-    proj = [_clipped_projection(p, m, k, NEAR_M) for p in world_vertices]
+    owner = np.repeat(np.arange(n), [len(p) for p in world_vertices])
+    uv, off = clipped_projection(np.concatenate(world_vertices), owner, n, m, k, NEAR_M)
+    has = off[1:] > off[:-1]
+    lo = np.full((n, 2), np.nan)
+    hi = np.full((n, 2), np.nan)
+    if len(uv):
+        starts = np.minimum(off[:-1], len(uv) - 1)
+        lo[has] = np.minimum.reduceat(uv, starts, axis=0)[has]
+        hi[has] = np.maximum.reduceat(uv, starts, axis=0)[has]
     boxes = np.zeros((n, 4), np.int64)
-    pboxes = []
-    for i, uv in enumerate(proj):
-        if len(uv) == 0:
-            pboxes.append(None)
-            continue
-        u0, v0 = uv.min(axis=0)
-        u1, v1 = uv.max(axis=0)
-        pboxes.append((float(u0), float(v0), float(u1), float(v1)))
-        boxes[i] = (
-            np.clip(math.floor(u0) - 1, 0, w),
-            np.clip(math.floor(v0) - 1, 0, h),
-            np.clip(math.ceil(u1) + 1, 0, w),
-            np.clip(math.ceil(v1) + 1, 0, h),
-        )
+    boxes[has] = np.column_stack(
+        [
+            np.clip(np.floor(lo[has, 0]) - 1, 0, w),
+            np.clip(np.floor(lo[has, 1]) - 1, 0, h),
+            np.clip(np.ceil(hi[has, 0]) + 1, 0, w),
+            np.clip(np.ceil(hi[has, 1]) + 1, 0, h),
+        ]
+    )
+    pboxes = [
+        (float(lo[i, 0]), float(lo[i, 1]), float(hi[i, 0]), float(hi[i, 1])) if has[i] else None
+        for i in range(n)
+    ]
     sil_counts, sil_boxes = renderer.silhouette_counts(boxes, ranges, mvp)
     cam_xy = frame.camera_pose[:2]
     out = []
@@ -248,7 +269,7 @@ def compute_labels(
                 visible_pixels=nv,
                 silhouette_pixels=ns,
                 visible_fraction=(nv / ns) if ns else 0.0,
-                truncation=truncation(proj[i], w, h),
+                truncation=truncation(uv[off[i] : off[i + 1]], w, h),
             )
         )
     return out

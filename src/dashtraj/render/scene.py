@@ -284,8 +284,9 @@ class Renderer:
         # drawn after the vehicles, near to far, so hidden fragments fail the depth test early
         for mesh, offset in ((scene.buildings, False), (scene.ground, False), (scene.marks, True)):
             if mesh.n_vertices:
-                buf = ctx.buffer(mesh.interleaved(0.0).tobytes())
-                self._static.append((self._vaos(buf), offset, mesh.n_vertices))
+                data, tiles = _tiled(mesh.interleaved(0.0))
+                buf = ctx.buffer(data.tobytes())
+                self._static.append((self._vaos(buf), offset, tiles))
         self._vbuf = None
         self._vbuf_bytes = 0
         self._moderngl = moderngl
@@ -319,10 +320,11 @@ class Renderer:
         prog["mvp"].write(mvp)
         if n_vehicle_vertices:
             self._vveh[which].render(mgl.TRIANGLES, vertices=n_vehicle_vertices)
-        for vaos, offset, n in self._static:
+        for (vaos, offset, _tiles), runs in zip(self._static, self._runs, strict=True):
             if offset:
                 self.ctx.polygon_offset = (0.0, -2.0)  # units only: no slope term
-            vaos[which].render(mgl.TRIANGLES, vertices=n)
+            for first, count in runs:
+                vaos[which].render(mgl.TRIANGLES, first=first, vertices=count)
             if offset:
                 self.ctx.polygon_offset = (0.0, 0.0)
 
@@ -365,7 +367,9 @@ class Renderer:
             first += mesh.n_vertices
         data = np.concatenate(rows) if rows else np.zeros((0, 11), np.float32)
         self._upload_vehicles(data)
-        mvp = self.mvp(camera_pose).T.astype("f4").tobytes()  # column-major for GLSL
+        mvp64 = self.mvp(camera_pose)
+        self._runs = [_visible_runs(tiles, mvp64) for _, _, tiles in self._static]
+        mvp = mvp64.T.astype("f4").tobytes()  # column-major for GLSL
 
         ctx.enable(mgl.DEPTH_TEST)
         ctx.disable(mgl.BLEND)
@@ -376,8 +380,8 @@ class Renderer:
         self._fbo_ms.clear(*SKY_RGB, 1.0, depth=1.0)
         self._draw_scene(0, mvp, first)
         ctx.copy_framebuffer(self._fbo_rgb, self._fbo_ms)
-        rgb = np.frombuffer(self._fbo_rgb.read(components=3, alignment=1), np.uint8)
-        rgb = rgb.reshape(self.height, self.width, 3)[::-1].copy()
+        rgb = np.frombuffer(self._fbo_rgb.read(components=4, alignment=1), np.uint8)
+        rgb = rgb.reshape(self.height, self.width, 4)[::-1, :, :3].copy()
         # pass 2: instance ids + depth, one sample per pixel
         self._fbo_id.use()
         self._fbo_id.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
@@ -474,6 +478,62 @@ class Renderer:
             self._vbuf.release()
         self._prog_color.release()
         self._prog_id.release()
+
+
+TILE_M = 40.0
+
+
+def _tiled(data: np.ndarray, tile_m: float = TILE_M):
+    """Sort a triangle list (3T, 11) by ground tile of its triangles' centroids.
+
+    Returns the sorted rows and a tile table: (first vertex, vertex count, lo (3,),
+    hi (3,)) arrays, one row per non-empty tile, lo/hi the tile's bounding box in the
+    CARLA world frame. Triangles larger than a tile (the grass plane) get their own
+    always-tested tile; culling whole tiles never changes which pixels are drawn.
+    """
+    tri = data[:, :3].reshape(-1, 3, 3).astype(np.float64)
+    c = tri.mean(axis=1)
+    key = np.floor(c[:, :2] / tile_m).astype(np.int64)
+    big = (np.ptp(tri[:, :, :2], axis=1) > tile_m).any(axis=1)
+    key[big] = np.iinfo(np.int64).min // 4 + np.arange(big.sum())[:, None]
+    _, inv = np.unique(key, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    order = np.argsort(inv, kind="stable")
+    tri_sorted = inv[order]
+    rows = (order[:, None] * 3 + np.arange(3)).ravel()
+    data = np.ascontiguousarray(data[rows])
+    starts = np.flatnonzero(np.r_[True, tri_sorted[1:] != tri_sorted[:-1]])
+    counts = np.diff(np.r_[starts, len(tri_sorted)])
+    pts = tri[order]
+    lo = np.minimum.reduceat(pts.min(axis=1), starts)
+    hi = np.maximum.reduceat(pts.max(axis=1), starts)
+    return data, (starts * 3, counts * 3, lo, hi)
+
+
+def _visible_runs(tiles, mvp: np.ndarray) -> list[tuple[int, int]]:
+    """(first, count) vertex runs of the tiles whose boxes touch the view frustum."""
+    first, count, lo, hi = tiles
+    corners = np.stack(
+        [np.where(np.array(b)[None, :], hi, lo) for b in np.ndindex(2, 2, 2)], axis=1
+    )  # (T, 8, 3)
+    clip = corners @ mvp[:, :3].T + mvp[:, 3]  # (T, 8, 4)
+    w = clip[..., 3]
+    out = (
+        (clip[..., 0] < -w).all(1)
+        | (clip[..., 0] > w).all(1)
+        | (clip[..., 1] < -w).all(1)
+        | (clip[..., 1] > w).all(1)
+        | (w < NEAR_M).all(1)
+        | (clip[..., 2] > w).all(1)
+    )
+    runs: list[tuple[int, int]] = []
+    for f, n in zip(first[~out].tolist(), count[~out].tolist(), strict=True):
+        if runs and runs[-1][0] + runs[-1][1] == f:
+            runs[-1] = (runs[-1][0], runs[-1][1] + n)
+        else:
+            runs.append((f, n))
+    return runs
+
 
 def _overlap(a, b) -> bool:
     return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
