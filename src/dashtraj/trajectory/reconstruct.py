@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from dashtraj.errors import DashtrajError, NoRouteError
-from dashtraj.roads import RoadMap, Waypoint
+from dashtraj.roads import LaneProjection, RoadMap, Waypoint
 from dashtraj.trajectory.correction import correct_position
 from dashtraj.trajectory.records import Sighting, Trajectory
 
@@ -210,23 +210,19 @@ class _Candidates:
 
 
 def _candidates(road_map: RoadMap, x: float, y: float, radius_m: float,
-                max_candidates: int) -> _Candidates:
-    """Lanes within `radius_m`, nearest first, at most `max_candidates`, plus the nearest lane."""
+                max_candidates: int, nearest: LaneProjection, k: int) -> _Candidates:
+    """Lanes within `radius_m`, nearest first, at most `max_candidates`.
+
+    `candidates` sorts by distance, so its first row is the nearest lane; when no
+    lane is that close, the nearest lane (row `k` of the batch projection
+    `nearest`) is the only candidate.
+    """
     c = road_map.candidates((x, y), radius_m)
-    near = road_map.project(np.array([[x, y]]))
-    rows = list(range(min(len(c), max_candidates)))
-    parts = [(c, rows)]
-    if not len(c) or int(near.lane_index[0]) not in set(c.lane_index[rows].tolist()):
-        parts.append((near, [0]))
-    wps, cols = [], {k: [] for k in ("x", "y", "yaw", "distance_m", "road_id", "lane_id", "s")}
-    for proj, idx in parts:
-        for i in idx:
-            wps.append(proj.waypoint(i))
-            for k in cols:
-                cols[k].append(float(getattr(proj, k)[i]))
-    return _Candidates(wps, np.column_stack([cols["x"], cols["y"]]), np.array(cols["yaw"]),
-                       np.array(cols["distance_m"]), np.array(cols["road_id"], dtype=np.int64),
-                       np.array(cols["lane_id"], dtype=np.int64), np.array(cols["s"]))
+    proj, rows = (c, np.arange(min(len(c), max_candidates))) if len(c) else (nearest, np.array([k]))
+    wps = [proj.waypoint(int(i)) for i in rows]
+    return _Candidates(wps, np.column_stack([proj.x[rows], proj.y[rows]]), proj.yaw[rows],
+                       proj.distance_m[rows], proj.road_id[rows].astype(np.int64),
+                       proj.lane_id[rows].astype(np.int64), proj.s[rows])
 
 
 _LABELS = {"front": 0, "back": 1, "side": 2}
@@ -301,14 +297,16 @@ def _behind_on_same_way(a_road, a_lane, a_s, b_road, b_lane, b_s, backtrack_m):
 
 
 def reconstruct_hmm(road_map: RoadMap, sightings: Sequence[Sighting], *,
-                    radius_m: float = 12.0,
+                    radius_m: float = 16.0,
                     max_candidates: int = 8,
                     sigma_base_m: float = 1.0,
                     sigma_per_m: float = 0.12,
                     sigma_max_m: float = 6.0,
+                    outlier_prob: float = 0.05,
                     orientation_probs: tuple[float, float, float] = (0.8, 0.15, 0.05),
                     orientation_soft_deg: float = 10.0,
                     beta_m: float = 10.0,
+                    beta_per_m: float = 0.3,
                     max_speed_mps: float = 25.0,
                     speed_slack_m: float = 20.0,
                     infeasible_logp: float = -50.0,
@@ -318,17 +316,23 @@ def reconstruct_hmm(road_map: RoadMap, sightings: Sequence[Sighting], *,
     """Lane-level HMM map matching (Newson & Krumm 2009) and routing between matches.
 
     States at step k are the lanes within `radius_m` of sighting k's estimated
-    position (at most `max_candidates`, nearest first, plus always the nearest
-    lane), each at its foot point.
+    position (at most `max_candidates`, nearest first; the nearest
+    lane when none is that close), each at its foot point.
 
-    Emission (log): Gaussian in the distance d from the estimated position to
+    Emission (log): 2-D Gaussian in the distance d from the estimated position to
     the candidate, σ = min(sigma_base_m + sigma_per_m · D, sigma_max_m) where D is
     the estimated camera distance (or the observer-to-estimate distance when
-    unknown), plus the soft orientation term of `_orientation_loglik`.
+    unknown), mixed with a uniform density over the search disc of weight
+    `outlier_prob` (departure from N&K's pure Gaussian: ~5 % of dashcam positions
+    are gross errors, e.g. on the wrong side of the road, and must not drag the
+    route), plus the soft orientation term of `_orientation_loglik`.
 
     Transition (log) from i at t_k to j at t_{k+1}: with c the route cost on the
     lane graph and d the straight distance between the two *estimated*
-    positions, N&K's exponential ``−log β − |c − d| / β``; a route faster than
+    positions, N&K's exponential ``−log β − |c − d| / β`` with β = beta_m +
+    beta_per_m · d (departure from N&K's constant β: between sightings hundreds of
+    metres apart a driver's route may well be longer than the shortest one, and a
+    constant β would let that gap overrule the emissions); a route faster than
     ``max_speed_mps · Δt + speed_slack_m`` adds `infeasible_logp`. A candidate at
     most `backtrack_m` behind the previous one on the same road and direction
     counts as standing still (noise, not a loop around the block).
@@ -358,8 +362,10 @@ def reconstruct_hmm(road_map: RoadMap, sightings: Sequence[Sighting], *,
     ordered, merged = _merge_close(_sorted(sightings), merge_dt_s)
     router = _Router(road_map, lane_change_cost_m)
     n = len(ordered)
-    cands = [_candidates(road_map, s.x, s.y, radius_m, max_candidates) for s in ordered]
     z = np.array([[s.x, s.y] for s in ordered])
+    nearest = road_map.project(z)
+    cands = [_candidates(road_map, s.x, s.y, radius_m, max_candidates, nearest, k)
+             for k, s in enumerate(ordered)]
     t = np.array([s.t for s in ordered])
 
     # Emissions.
@@ -368,7 +374,10 @@ def reconstruct_hmm(road_map: RoadMap, sightings: Sequence[Sighting], *,
         dist = s.distance if s.distance is not None else math.hypot(s.x - s.observer_x,
                                                                     s.y - s.observer_y)
         sigma = min(sigma_base_m + sigma_per_m * dist, sigma_max_m)
-        e = -0.5 * (c.dist / sigma) ** 2 - math.log(sigma)
+        # 2-D Gaussian density of the position error, mixed with a uniform outlier
+        # density over the search disc (wrong-side and gross distance errors).
+        gauss = np.exp(-0.5 * (c.dist / sigma) ** 2) / (2.0 * math.pi * sigma**2)
+        e = np.log((1.0 - outlier_prob) * gauss + outlier_prob / (math.pi * radius_m**2))
         emis.append(e + _orientation_loglik(c, s, orientation_probs, orientation_soft_deg))
 
     # Viterbi, restarting the chain where no transition is finite.
@@ -376,7 +385,6 @@ def reconstruct_hmm(road_map: RoadMap, sightings: Sequence[Sighting], *,
     back: list[np.ndarray | None] = [None]
     starts = [0]
     piece_deltas: list[np.ndarray] = []
-    log_beta = math.log(beta_m)
     for k in range(n - 1):
         a, b = cands[k], cands[k + 1]
         dt = max(t[k + 1] - t[k], 0.0)
@@ -391,7 +399,8 @@ def reconstruct_hmm(road_map: RoadMap, sightings: Sequence[Sighting], *,
                                      b.road[None, :], b.lane[None, :], b.s[None, :], backtrack_m)
         hold = np.isfinite(behind) & ~(cost <= behind)
         cost = np.where(hold, behind, cost)
-        trans = -log_beta - np.abs(cost - d) / beta_m
+        beta = beta_m + beta_per_m * d
+        trans = -math.log(beta) - np.abs(cost - d) / beta
         trans = np.where(cost > speed_cap, trans + infeasible_logp, trans)
         trans[~np.isfinite(cost)] = -np.inf
         score = delta[:, None] + trans
