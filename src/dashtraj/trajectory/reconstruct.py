@@ -140,20 +140,58 @@ def _sorted(sightings: Sequence[Sighting]) -> list[Sighting]:
 
 
 # ---------------------------------------------------------------------- shortest path
+PASS_GAP_S = 2.0
+"""Sightings of one observer further apart than this belong to different passes."""
+
+
+def one_per_pass(sightings: Sequence[Sighting], gap_s: float = PASS_GAP_S) -> list[Sighting]:
+    """The closest sighting of each pass of an observer by the vehicle.
+
+    A pass is one (observer, track) when the tracker's id is known, else a run
+    of one observer's sightings with no gap longer than `gap_s` seconds. The
+    closest sighting (smallest estimated `distance`; the middle one when
+    distances are unknown) is kept: it is the best localised (the paper, §IV,
+    reports 2.33 m RMSE under 20 m against 3.95 m up to 60 m).
+    """
+    passes: dict[tuple, list[Sighting]] = {}
+    last_t: dict[int, float] = {}
+    run: dict[int, int] = {}
+    for s in sorted(sightings, key=lambda s: (s.observer_id, s.t)):
+        if s.track_id is not None:
+            key = (s.observer_id, "track", s.track_id)
+        else:
+            if s.observer_id in last_t and s.t - last_t[s.observer_id] > gap_s:
+                run[s.observer_id] = run.get(s.observer_id, 0) + 1
+            last_t[s.observer_id] = s.t
+            key = (s.observer_id, "run", run.get(s.observer_id, 0))
+        passes.setdefault(key, []).append(s)
+    out = []
+    for group in passes.values():
+        if all(g.distance is not None for g in group):
+            out.append(min(group, key=lambda g: (g.distance, g.t)))
+        else:
+            out.append(group[len(group) // 2])
+    return sorted(out, key=lambda s: s.t)
+
+
 def reconstruct_shortest_path(road_map: RoadMap, sightings: Sequence[Sighting], *,
-                              lane_change_cost_m: float = 15.0) -> Reconstruction:
+                              lane_change_cost_m: float = 15.0,
+                              per_pass: str = "nearest") -> Reconstruction:
     """The paper's reconstruction (§II.F, Algorithm 1 `calc_traj`), faithfully.
 
-    Sort by time, lane-correct every sighting (`correct_position`), and join
-    consecutive corrected positions by the shortest route on the lane graph
-    (A*, metres). When the later sighting of a pair cannot be reached, it is
-    skipped with a `ReconstructionWarning` and the next one is tried from the
-    same place.
+    Keep one position per pass of an observer (``per_pass="nearest"``, as the
+    paper re-identifies a vehicle once per observer: its Fig. 6 shows one point
+    per observer; ``"all"`` keeps every sighting), sort by time, lane-correct
+    each (`correct_position`), and join consecutive corrected positions by the
+    shortest route on the lane graph (A*, metres). When the later sighting of a
+    pair cannot be reached, it is skipped with a `ReconstructionWarning` and the
+    next one is tried from the same place.
 
     Args:
         road_map: the map, CARLA world, metres.
         sightings: the sightings of ONE vehicle, any order.
         lane_change_cost_m: lane-change penalty of the lane graph, metres.
+        per_pass: "nearest" (the closest sighting of each pass) or "all".
 
     Returns:
         `Reconstruction`; details: ``sightings_used``, ``skipped``, ``moved``.
@@ -165,7 +203,11 @@ def reconstruct_shortest_path(road_map: RoadMap, sightings: Sequence[Sighting], 
         >>> r = reconstruct_shortest_path(town10, sightings)  # doctest: +SKIP
         >>> r.trajectory.length_m  # doctest: +SKIP
     """
+    if per_pass not in ("nearest", "all"):
+        raise ReconstructionError(f"per_pass must be 'nearest' or 'all', got {per_pass!r}")
     ordered = _sorted(sightings)
+    if per_pass == "nearest":
+        ordered = one_per_pass(ordered)
     router = _Router(road_map, lane_change_cost_m)
     corrected = [correct_position(road_map, s) for s in ordered]
     anchor = corrected[0]
@@ -187,7 +229,8 @@ def reconstruct_shortest_path(road_map: RoadMap, sightings: Sequence[Sighting], 
     first_xy = legs[0][0][0] if legs else _xy(corrected[0].after)
     traj = _stitch(first_xy, corrected[0].sighting.t, legs)
     details = {
-        "sightings": len(ordered),
+        "sightings": len(sightings),
+        "per_pass": per_pass,
         "sightings_used": len(matched),
         "skipped": skipped,
         "moved": int(sum(c.moved for c in corrected)),
