@@ -237,6 +237,18 @@ class LaneProjection:
         return [self.waypoint(i) for i in range(len(self))]
 
 
+@dataclass(frozen=True, slots=True)
+class LaneSamples:
+    """Centre-line samples of one lane; see `RoadMap.lane_samples`."""
+
+    s: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    heading: np.ndarray
+    width: np.ndarray
+
+
 class RoadMap:
     """A road network read from OpenDRIVE, queried like `carla.Map`.
 
@@ -727,6 +739,22 @@ class RoadMap:
         sl = slice(lane.v0, lane.v1)
         pts = np.column_stack([self._vx[sl], self._vy[sl], self._vz[sl]])
         return pts[::-1] if (driving_order and not lane.forward) else pts
+
+    def lane_samples(self, key: LaneKey) -> LaneSamples:
+        """A lane's exact centre-line samples (≤ 1 m apart, on every breakpoint).
+
+        Arrays in increasing road s (not driving order): `s` (m), `x`, `y`, `z`
+        (CARLA world, m), `heading` (rad, CARLA frame, tangent along +s), `width`
+        (m). Read-only views into the map's sample store.
+        """
+        lane = self.lanes[key]
+        sl = slice(lane.v0, lane.v1)
+        views = []
+        for arr in (self._vs, self._vx, self._vy, self._vz, self._vh, self._vw):
+            v = arr[sl]
+            v.flags.writeable = False
+            views.append(v)
+        return LaneSamples(*views)
 
     def lane_centres(self, lane_type: LaneType = LaneType.Driving):
         """Yield (lane, (M, 3) centre polyline in driving order) for lanes of a type."""
