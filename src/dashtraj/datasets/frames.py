@@ -1,0 +1,323 @@
+"""A recording's observer frames, rendered, and the ``dashtraj render`` export.
+
+For each observer of a recording and each sampled time t (every ``every_s`` seconds
+on the recording's state grid, 20 Hz by default), the camera stands where
+``dashtraj.world.camera.camera_poses`` mounts it on the observer (the recording's
+``CameraSpec``: x_m forward, y_m right, z_m up from the observer's ground point,
+pitched by ``pitch_deg``), so the rendered labels agree with the simulator's truth
+(``truth.parquet``). Every other vehicle stands at its state (x, y, z, yaw; CARLA
+world, metres, degrees) with the look of its identity (``vehicles.csv`` → catalog).
+
+Instance ids in the rendered ``Frame`` are ``vehicle_id + 1`` (the renderer needs ids
+≥ 1); ``RecordingFrame.vehicle_ids`` lists the vehicle id of each label in order.
+
+Export (``export_frames``): ``DIR/<observer_id>/<frame:06d>.jpg`` (frame = state step
+index, round(t / step_s)), JPEG quality 95, and ``DIR/labels.parquet`` with one row per
+vehicle whose silhouette covers at least one pixel of the image (columns in
+``LABEL_COLUMNS``; boxes in pixels, (x0, y0, x1, y1), exclusive ends; -1 where a
+vehicle has no visible pixel).
+"""
+
+from __future__ import annotations
+
+import io
+import itertools
+import math
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dashtraj.errors import DashtrajError
+
+LABEL_COLUMNS = (
+    "observer_id", "t", "frame", "image", "vehicle_id", "identity_id", "label", "class_id",
+    "vis_x0", "vis_y0", "vis_x1", "vis_y1", "sil_x0", "sil_y0", "sil_x1", "sil_y1",
+    "visible_fraction", "truncation", "distance_m",
+)  # fmt: skip
+"""Columns of the labels table written by ``export_frames``."""
+
+JPEG_QUALITY = 95
+
+
+class DatasetError(DashtrajError):
+    """A dataset cannot be built from its inputs; the message names the file or element."""
+
+
+@dataclass(frozen=True)
+class RecordingFrame:
+    """One rendered observer frame.
+
+    Attributes:
+        observer_id: the observer's vehicle id. t: seconds. frame: state step index.
+        frame_data: the renderer's ``Frame`` (rgb, instance, depth, k, labels).
+        vehicle_ids: (N,) vehicle id of each entry of ``frame_data.labels``.
+        identity_ids: (N,) catalog identity id of each entry of ``frame_data.labels``.
+    """
+
+    observer_id: int
+    t: float
+    frame: int
+    frame_data: object
+    vehicle_ids: tuple[int, ...]
+    identity_ids: tuple[int, ...]
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """``"640x360"`` → (640, 360) pixels. Raises DatasetError naming the bad value."""
+    try:
+        w, h = (int(v) for v in str(text).lower().split("x"))
+    except ValueError as e:
+        raise DatasetError(f"bad image size {text!r}; expected WxH, e.g. 640x360") from e
+    if w < 8 or h < 8:
+        raise DatasetError(f"image size {text!r} is too small (at least 8x8 pixels)")
+    return w, h
+
+
+def vehicle_identity(row: dict, source: str = "vehicles.csv"):
+    """The catalog look (``VehicleIdentity``) of a ``vehicles.csv`` row.
+
+    Uses ``catalog.identities()[identity_id]`` when its blueprint and colour match the
+    row; otherwise builds the identity from the row's blueprint_id and color.
+    Raises DatasetError naming ``source`` and the vehicle for an unknown blueprint/colour.
+    """
+    from dashtraj.world import catalog
+
+    pool = catalog.identities()
+    iid = int(row["identity_id"])
+    if 0 <= iid < len(pool):
+        ident = pool[iid]
+        if ident.model.blueprint_id == row["blueprint_id"] and ident.color_name == row["color"]:
+            return ident
+    try:
+        model = catalog.get_model(row["blueprint_id"])
+        rgb = catalog.COLORS[row["color"]]
+    except (catalog.UnknownBlueprintError, KeyError) as e:
+        raise DatasetError(f"{source}: vehicle {row['vehicle_id']}: {e}") from e
+    return catalog.VehicleIdentity(iid, model, row["color"], rgb)
+
+
+def sample_steps(recording, every_s: float) -> np.ndarray:
+    """State step indices (sorted, int) on the ``every_s`` grid that the states cover.
+
+    Raises DatasetError if ``every_s`` is not a positive multiple of the state step.
+    """
+    step = float(recording.meta.get("step_s", recording.config.traffic.step_s))
+    k = round(every_s / step)
+    if every_s <= 0 or k < 1 or abs(k * step - every_s) > 1e-6:
+        raise DatasetError(f"--every {every_s:g} s is not a positive multiple of the "
+                           f"recording's state step {step:g} s ({recording.path})")
+    t = np.unique(recording.states.column("t").to_numpy())
+    steps = np.round(t / step).astype(np.int64)
+    return steps[steps % k == 0]
+
+
+def observer_ids(recording) -> list[int]:
+    """Vehicle ids with role ``observer`` in ``vehicles.csv``, ascending."""
+    return sorted(int(v["vehicle_id"]) for v in recording.vehicles if v["role"] == "observer")
+
+
+def open_renderer(map_path, width: int, height: int, fov_deg: float, msaa: int = 4,
+                  threads: int | None = 0, ctx=None):
+    """A ``Renderer`` of the OpenDRIVE map at ``map_path`` (image W x H pixels, FOV deg).
+
+    ``threads=0`` rasterizes on the calling thread (one core; bytes do not depend on it).
+    Raises ``RenderUnavailableError`` when no GL context can be created.
+    """
+    from dashtraj.render.scene import Renderer
+    from dashtraj.roads import RoadMap
+
+    road_map = RoadMap.from_file(map_path)
+    return Renderer(road_map, width, height, fov_deg, msaa=msaa, threads=threads, ctx=ctx)
+
+
+def recording_frames(recording, every_s: float = 0.5, size: tuple[int, int] | None = None,
+                     observers: Iterable[int] | None = None, msaa: int = 4,
+                     renderer=None) -> Iterator[RecordingFrame]:
+    """Render a recording's observer frames, observer by observer, time ascending.
+
+    Args:
+        recording: a ``dashtraj.world.recording.Recording``.
+        every_s: sampling period, seconds (a multiple of the state step).
+        size: (W, H) pixels, or None for the recording's ``CameraSpec`` size. The FOV
+            stays the recording's, so boxes scale with the image.
+        observers: observer vehicle ids, or None for all (role ``observer``).
+        msaa: colour-pass samples.
+        renderer: a ``Renderer`` of this map with the right size and FOV to reuse;
+            None opens one (and releases it when the iterator is exhausted).
+
+    Yields:
+        ``RecordingFrame`` per (observer, sampled time) at which the observer has a state.
+
+    Raises:
+        DatasetError: an observer id that is not an observer of the recording.
+    """
+    from dashtraj.world.camera import camera_poses
+
+    spec = recording.config.camera
+    w, h = size if size is not None else (spec.width_px, spec.height_px)
+    obs_all = observer_ids(recording)
+    obs = obs_all if observers is None else [int(o) for o in observers]
+    bad = [o for o in obs if o not in obs_all]
+    if bad:
+        raise DatasetError(f"{recording.path / 'vehicles.csv'}: vehicles {bad} are not "
+                           f"observers; observers are {obs_all}")
+    idents = {int(v["vehicle_id"]): vehicle_identity(v, str(recording.path / "vehicles.csv"))
+              for v in recording.vehicles}
+    step = float(recording.meta.get("step_s", recording.config.traffic.step_s))
+    steps = sample_steps(recording, every_s)
+    st = recording.states
+    t_all = st.column("t").to_numpy()
+    k_all = np.round(t_all / step).astype(np.int64)
+    keep = np.isin(k_all, steps)
+    cols = {c: st.column(c).to_numpy()[keep] for c in ("vehicle_id", "x", "y", "z", "yaw")}
+    k_all = k_all[keep]
+    order = np.lexsort((cols["vehicle_id"], k_all))
+    k_all = k_all[order]
+    cols = {c: v[order] for c, v in cols.items()}
+    bounds = np.flatnonzero(np.r_[True, k_all[1:] != k_all[:-1], True])
+    own = renderer is None
+    if own:
+        renderer = open_renderer(recording.map_path, w, h, spec.fov_deg, msaa=msaa)
+    elif (renderer.width, renderer.height) != (w, h) or abs(renderer.fov_deg - spec.fov_deg) > 1e-9:
+        raise DatasetError(f"renderer is {renderer.width}x{renderer.height} FOV "
+                           f"{renderer.fov_deg:g}, frames need {w}x{h} FOV {spec.fov_deg:g}")
+    try:
+        for o in obs:
+            for a, b in itertools.pairwise(bounds.tolist()):
+                vid = cols["vehicle_id"][a:b].astype(np.int64)
+                hit = np.flatnonzero(vid == o)
+                if len(hit) == 0:
+                    continue
+                i = a + int(hit[0])
+                cx, cy, cz, cyaw = camera_poses(spec, cols["x"][i], cols["y"][i], cols["z"][i],
+                                                cols["yaw"][i])
+                pose = (float(cx), float(cy), float(cz), float(cyaw), spec.pitch_deg, 0.0)
+                others = [j for j in range(a, b) if int(cols["vehicle_id"][j]) != o]
+                vehicles = [(int(cols["vehicle_id"][j]) + 1, idents[int(cols["vehicle_id"][j])],
+                             float(cols["x"][j]), float(cols["y"][j]), float(cols["z"][j]),
+                             float(cols["yaw"][j])) for j in others]
+                frame = renderer.render(pose, vehicles, labels=True)
+                ids = tuple(v[0] - 1 for v in vehicles)
+                k = int(k_all[a])
+                yield RecordingFrame(o, round(k * step, 9), k, frame, ids,
+                                     tuple(idents[v].identity_id for v in ids))
+    finally:
+        if own:
+            renderer.release()
+
+
+def encode_jpeg(rgb: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
+    """JPEG bytes of an (H, W, 3) uint8 image (Pillow, no EXIF; deterministic)."""
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(rgb)).save(buf, format="JPEG", quality=int(quality))
+    return buf.getvalue()
+
+
+def crop_vehicle(rgb: np.ndarray, box, margin: float = 0.1, long_side_px: int | None = None):
+    """Crop a box (x0, y0, x1, y1; pixels, exclusive ends) out of an (H, W, 3) image.
+
+    The box grows by ``margin`` × its width/height on each side, clipped to the image;
+    with ``long_side_px`` the crop is resized (bicubic) so its longer side is that many
+    pixels, keeping the aspect ratio. Returns a Pillow ``Image``.
+    """
+    from PIL import Image
+
+    x0, y0, x1, y1 = (float(v) for v in box)
+    mw, mh = margin * (x1 - x0), margin * (y1 - y0)
+    h, w = rgb.shape[:2]
+    a0, b0 = max(0, math.floor(x0 - mw)), max(0, math.floor(y0 - mh))
+    a1, b1 = min(w, math.ceil(x1 + mw)), min(h, math.ceil(y1 + mh))
+    img = Image.fromarray(np.ascontiguousarray(rgb[b0:b1, a0:a1]))
+    if long_side_px:
+        s = long_side_px / max(img.width, img.height)
+        size = (max(1, round(img.width * s)), max(1, round(img.height * s)))
+        img = img.resize(size, Image.Resampling.BICUBIC)
+    return img
+
+
+def label_rows(rf: RecordingFrame, image: str) -> list[dict]:
+    """Label-table rows (``LABEL_COLUMNS``) of the vehicles whose silhouettes touch the image."""
+    rows = []
+    for lab, vid, iid in zip(rf.frame_data.labels, rf.vehicle_ids, rf.identity_ids, strict=True):
+        if lab.silhouette_box is None:
+            continue
+        vb = lab.visible_box if lab.visible_box is not None else (-1, -1, -1, -1)
+        sb = lab.silhouette_box
+        rows.append({
+            "observer_id": rf.observer_id, "t": rf.t, "frame": rf.frame, "image": image,
+            "vehicle_id": int(vid), "identity_id": int(iid), "label": lab.detection_class,
+            "class_id": int(lab.detection_class_id),
+            "vis_x0": int(vb[0]), "vis_y0": int(vb[1]), "vis_x1": int(vb[2]), "vis_y1": int(vb[3]),
+            "sil_x0": int(sb[0]), "sil_y0": int(sb[1]), "sil_x1": int(sb[2]), "sil_y1": int(sb[3]),
+            "visible_fraction": float(lab.visible_fraction), "truncation": float(lab.truncation),
+            "distance_m": float(lab.distance_m),
+        })
+    return rows
+
+
+@dataclass(frozen=True)
+class ExportSummary:
+    """What ``export_frames`` wrote: frame and label counts per observer, the paths."""
+
+    out_dir: Path
+    frames: int
+    labels: int
+    in_view: int
+    per_observer: dict
+    labels_path: Path
+    preview_dir: Path | None
+
+
+def export_frames(recording, out_dir, every_s: float = 0.5, size: tuple[int, int] | None = None,
+                  observers: Iterable[int] | None = None, preview: bool = False,
+                  progress=None) -> ExportSummary:
+    """Write a recording's observer frames as JPEGs and their labels as Parquet.
+
+    Files: ``out_dir/<observer_id>/<frame:06d>.jpg`` and ``out_dir/labels.parquet``
+    (``LABEL_COLUMNS``); with ``preview`` also ``out_dir/preview/<observer>/<frame>.png``
+    (boxes drawn) and ``out_dir/preview/contact_sheet.jpg`` (crops per vehicle).
+    Deterministic: the same inputs give byte-identical files.
+
+    Args:
+        progress: called with no argument after each frame, or None.
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from dashtraj.datasets import preview as pv
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rows: list[dict] = []
+    per_obs: dict[int, int] = {}
+    sheet = pv.ContactSheet() if preview else None
+    for rf in recording_frames(recording, every_s, size, observers):
+        rel = f"{rf.observer_id}/{rf.frame:06d}.jpg"
+        p = out / rel
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_bytes(encode_jpeg(rf.frame_data.rgb))
+        rows.extend(label_rows(rf, rel))
+        per_obs[rf.observer_id] = per_obs.get(rf.observer_id, 0) + 1
+        if preview:
+            pp = out / "preview" / str(rf.observer_id) / f"{rf.frame:06d}.png"
+            pp.parent.mkdir(parents=True, exist_ok=True)
+            pv.draw_labels(rf.frame_data.rgb, rf.frame_data.labels).save(pp, format="PNG")
+            sheet.add_frame(rf)
+        if progress is not None:
+            progress()
+    table = pa.table({c: [r[c] for r in rows] for c in LABEL_COLUMNS}) if rows else pa.table(
+        {c: pa.array([], type=pa.float64()) for c in LABEL_COLUMNS})
+    labels_path = out / "labels.parquet"
+    pq.write_table(table, labels_path)
+    preview_dir = None
+    if preview:
+        preview_dir = out / "preview"
+        preview_dir.mkdir(parents=True, exist_ok=True)
+        sheet.render().save(preview_dir / "contact_sheet.jpg", format="JPEG", quality=90)
+    return ExportSummary(out, sum(per_obs.values()), len(rows),
+                         sum(1 for r in rows if r["vis_x1"] > r["vis_x0"]), per_obs,
+                         labels_path, preview_dir)
