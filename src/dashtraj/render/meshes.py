@@ -428,8 +428,58 @@ def _two_wheeler(body, length, width, height, wb, r, paint) -> Mesh:
 
 
 # --------------------------------------------------------------------------- road scene
+SIMPLIFY_TOL_M = 0.002  # static polylines: samples within 2 mm of a chord are dropped
+SIMPLIFY_MAX_M = 30.0  # ... but no chord longer than this (keeps tile culling useful)
+
+
+def _dist_to_chord(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distances of (K, 3) points to the segment a–b."""
+    ab = b - a
+    den = float(ab @ ab)
+    t = np.clip(((p - a) @ ab) / den, 0.0, 1.0) if den > 0 else np.zeros(len(p))
+    return np.linalg.norm(p - (a + t[:, None] * ab), axis=1)
+
+
+def simplify_stations(
+    lines: list[np.ndarray], tol: float = SIMPLIFY_TOL_M, max_len: float = SIMPLIFY_MAX_M
+) -> np.ndarray:
+    """Indices of the samples to keep of polylines sampled at common stations.
+
+    Douglas–Peucker on all ``lines`` (each (M, 3)) at once: a sample is dropped only if
+    it lies within ``tol`` metres of the chord of every line, and no kept chord is
+    longer than ``max_len``. Straight, flat roads collapse to a few quads.
+    """
+    m = len(lines[0])
+    if m <= 2:
+        return np.arange(m)
+    keep = np.zeros(m, bool)
+    keep[[0, m - 1]] = True
+    stack = [(0, m - 1)]
+    while stack:
+        i, j = stack.pop()
+        if j - i < 2:
+            continue
+        worst, at = 0.0, -1
+        for ln in lines:
+            d = _dist_to_chord(ln[i + 1 : j], ln[i], ln[j])
+            k = int(np.argmax(d))
+            if d[k] > worst:
+                worst, at = float(d[k]), i + 1 + k
+        too_long = any(float(np.linalg.norm(ln[j] - ln[i])) > max_len for ln in lines)
+        if worst > tol or too_long:
+            if worst <= tol:
+                at = (i + j) // 2
+            keep[at] = True
+            stack += [(i, at), (at, j)]
+    return np.flatnonzero(keep)
+
+
 def _strip(left: np.ndarray, right: np.ndarray, color, z_left=None, z_right=None) -> Mesh:
-    """Quads between two (M, 3) polylines sampled at the same stations; normals up."""
+    """Quads between two (M, 3) polylines sampled at the same stations; normals up.
+
+    Samples that add nothing (within ``SIMPLIFY_TOL_M`` of both chords) are dropped."""
+    keep = simplify_stations([np.asarray(left, float), np.asarray(right, float)])
+    left, right = left[keep], right[keep]
     a0, a1, b0, b1 = left[:-1], left[1:], right[:-1], right[1:]
     tris = np.concatenate([np.stack([a0, b0, b1], 1), np.stack([a0, b1, a1], 1)])
     return _mesh(tris, color, up=True)
@@ -437,6 +487,7 @@ def _strip(left: np.ndarray, right: np.ndarray, color, z_left=None, z_right=None
 
 def _wall(base: np.ndarray, height: float, color) -> Mesh:
     """Vertical quads of ``height`` metres above a (M, 3) polyline (curb faces), two-sided."""
+    base = base[simplify_stations([np.asarray(base, float)])]
     top = _lift(base, height)
     a0, a1, b0, b1 = base[:-1], base[1:], top[:-1], top[1:]
     tris = np.concatenate([np.stack([a0, a1, b1], 1), np.stack([a0, b1, b0], 1)])
