@@ -29,6 +29,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="stop when the target reaches its destination")
     p.add_argument("--step", type=float, default=0.05, metavar="S",
                    help="simulation step, seconds (default 0.05 = 20 Hz)")
+    p.add_argument("--observer-placement", choices=("meet", "random"), default="meet",
+                   help="meet: observers start where the target will pass (oncoming, "
+                        "following, waiting at a crossing); random: anywhere (default meet)")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="recording directory")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -67,7 +70,8 @@ def run_simulate(args: argparse.Namespace) -> int:
     config = RunConfig(map=args.town, seed=args.seed, duration_s=args.duration,
                        n_observers=args.observers, n_agents=args.agents,
                        until_target_arrives=args.until_target_arrives,
-                       traffic=replace(TrafficConfig(), step_s=args.step))
+                       traffic=replace(TrafficConfig(), step_s=args.step,
+                                       observer_placement=args.observer_placement))
     bar = None
     progress = None
     if not args.quiet and sys.stderr.isatty():

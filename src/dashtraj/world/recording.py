@@ -7,7 +7,9 @@ A recording is a directory:
     "map.xodr", sha256 of the .xodr bytes); seed; step_s; duration_s asked for;
     simulated_to_t (s); complete (false until the run ended normally);
     target_arrived_t (s or null); camera (the `CameraSpec`); catalog_version;
-    config (the whole `RunConfig`, enough to repeat the run).
+    observer_roles ({vehicle id: "oncoming" | "following" | "crossing"} with
+    "meet" placement, empty otherwise); config (the whole `RunConfig`, enough to
+    repeat the run).
 ``vehicles.csv``
     vehicle_id, identity_id, blueprint_id, vehicle_class, body_type, color,
     length_m, width_m, height_m, role (target / observer / agent).
@@ -102,7 +104,9 @@ class RunConfig:
         chunk_s: simulated seconds per parquet row group.
         vehicle_classes: classes drawn for every vehicle.
         target_route: ((x, y), (x, y)) origin and destination, CARLA world metres, or None.
-        camera, traffic: the camera and the traffic model.
+        camera, traffic: the camera and the traffic model (``traffic.observer_placement``:
+            "meet", the default, places the observers where the target passes;
+            "random" anywhere).
     """
 
     map: str = "town01"
@@ -275,6 +279,8 @@ def simulate(config: RunConfig, out_dir: str | Path,
         "seed": config.seed, "step_s": step, "duration_s": config.duration_s,
         "simulated_to_t": 0.0, "complete": False, "target_arrived_t": None,
         "target_vehicle_id": 0, "observer_ids": obs_idx.tolist(),
+        "observer_roles": {str(int(sim.ids[i])): role
+                           for i, role in sorted(sim.meet_roles.items())},
         "camera": config.camera.to_dict(), "catalog_version": catalog_version,
         "config": config.to_dict(),
     }

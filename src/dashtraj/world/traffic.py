@@ -71,6 +71,14 @@ from dashtraj.roads.types import LaneType
 
 ROLES: tuple[str, ...] = ("target", "observer", "agent")
 
+OBSERVER_PLACEMENTS: tuple[str, ...] = ("meet", "random")
+"""How observers are placed: "meet" (around the target's path, see
+`TrafficSim._place_observers`) or "random" (anywhere, like agents)."""
+
+MEET_ROLES: tuple[str, ...] = ("oncoming", "following", "crossing")
+"""Observer roles of "meet" placement, and the side of the target each one sees:
+oncoming → its front, following → its back, crossing → its side."""
+
 
 class TrafficError(DashtrajError):
     """The traffic cannot be set up (map too small for the vehicles asked for, ...)."""
@@ -105,6 +113,10 @@ class TrafficConfig:
         target_detour_prob: probability that the target's route goes via a random
             intermediate lane instead of the shortest way.
         target_trip_m: (min, max) length of a random target route, metres.
+        observer_placement: one of `OBSERVER_PLACEMENTS`; "meet" places observers
+            where the target will pass (see `TrafficSim._place_observers`).
+        crossing_max_wait_s: longest a "crossing" observer waits at its junction
+            for the target, seconds.
         idm: car-following parameters.
     """
 
@@ -116,15 +128,25 @@ class TrafficConfig:
     target_wobble_m: float = 0.3
     target_speed_variation: float = 0.1
     target_detour_prob: float = 0.3
-    target_trip_m: tuple[float, float] = (300.0, 700.0)
+    target_trip_m: tuple[float, float] = (400.0, 900.0)
+    observer_placement: str = "meet"
+    crossing_max_wait_s: float = 75.0
     idm: IDMParams = field(default_factory=IDMParams)
+
+    def __post_init__(self) -> None:
+        if self.observer_placement not in OBSERVER_PLACEMENTS:
+            raise TrafficError(f"unknown observer placement {self.observer_placement!r}; "
+                               f"valid: {', '.join(OBSERVER_PLACEMENTS)}")
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     @classmethod
     def from_dict(cls, d: dict) -> TrafficConfig:
+        """Read `to_dict` output; a dict without ``observer_placement`` was written
+        before "meet" existed and means "random"."""
         d = dict(d)
+        d.setdefault("observer_placement", "random")
         d["idm"] = IDMParams(**d.get("idm", {}))
         if "target_trip_m" in d:
             d["target_trip_m"] = tuple(d["target_trip_m"])
@@ -359,6 +381,13 @@ class TrafficSim:
         self.p = np.zeros(n)
         self.v = np.zeros(n)
         self.routes: list[list[int]] = [[] for _ in range(n)]
+        self.headway = np.full(n, idm.time_headway_s)  # IDM time headway T per vehicle, s
+        # observers waiting for the target ("meet"): vehicle -> (release when the target
+        # has driven this far along its path (m), latest release time (s), stand still
+        # where it is (True) or wait at the next junction's stop line (False))
+        self.hold: dict[int, tuple[float, float, bool]] = {}
+        self.meet_roles: dict[int, str] = {}  # observer index -> role in MEET_ROLES
+        self._target_hops = 0  # lanes the target has left behind (index in target_lanes)
         self._spawn()
         # junction regions
         # per region: {holder vehicle: (passage lanes, exit lane, entered)}
@@ -372,6 +401,8 @@ class TrafficSim:
             self._wob = (rng.uniform(6.0, 12.0), rng.uniform(3.0, 5.0),
                          rng.uniform(0, 2 * np.pi), rng.uniform(0, 2 * np.pi))
             self._spd = (rng.uniform(15.0, 30.0), rng.uniform(0, 2 * np.pi), self.v0[k])
+            if config.observer_placement == "meet":
+                self._place_observers()
 
     # ------------------------------------------------------------------ set-up
     def _spawn(self) -> None:
@@ -408,8 +439,10 @@ class TrafficSim:
             lo, hi = self.cfg.target_trip_m
             ok = [j for j, d in sorted(dist.items())
                   if net.region[j] == -1 and lo <= d - self.p[k] <= hi and j != self.lane[k]]
-            if not ok:
-                ok = [j for j in sorted(dist) if net.region[j] == -1 and j != self.lane[k]]
+            if not ok:  # a small town: one of the farthest lanes
+                far = 0.6 * max(dist.values())
+                ok = [j for j in sorted(dist) if net.region[j] == -1 and j != self.lane[k]
+                      and dist[j] >= far]
             j = int(rng.choice(ok))
             dest = (j, float(rng.uniform(0.3, 0.7) * net.length[j]))
         lanes = [int(self.lane[k])]
@@ -424,6 +457,249 @@ class TrafficSim:
         self.routes[k] = lanes[1:]
         self.dest = dest
         self.target_lanes = lanes
+
+    # ------------------------------------------------------------------ meet placement
+    def _place_observers(self) -> None:
+        """Place the observers where the target will pass ("meet" placement).
+
+        The target's planned path (`target_lanes`, distance measured from the
+        target's start) is split evenly: observer m gets the point at fraction
+        (m + u) / n_observers of its length, u ~ U(0.25, 0.75), and the role
+        ``MEET_ROLES[m % 3]``:
+
+        - oncoming: on the opposite-direction lane (same road and section, the
+          driving lane nearest the centre) at that point, at least 40 m ahead of
+          the target; its route is the target's path reversed on opposite lanes
+          (consecutive ones joined by `LaneNetwork.shortest_lanes`, one-way roads
+          skipped), so the two pass each other a lane apart: it sees the front.
+        - following (at most one): 20-50 m behind the target on the lanes leading
+          into its first lane, on the target's path, 25 % faster with a 0.8 s
+          headway: it sees the back.
+        - crossing: on a side road entering the junction region of the target's
+          path nearest that point (heading as close to perpendicular as found),
+          10-25 m before the entry, with a route across the region; it drives up
+          to the stop line and waits there (without queueing) until the target has
+          left the region or `crossing_max_wait_s` passed: it sees the side.
+
+        A role that finds no room falls back to the others, then to a random
+        place. Agents left overlapping an observer (same lane, closer than the
+        `_spawn` spacing) or standing between a crossing observer and its stop
+        line are placed again at random.
+        """
+        net, rng, k = self.net, self.rng, self.target
+        obs = [i for i, v in enumerate(self.vehicles) if v.role == "observer"]
+        if not obs:
+            return
+        path = self.target_lanes
+        start = np.concatenate([[0.0], np.cumsum(net.length[path])])[:-1] - self.p[k]
+        self._path_start = start
+        total = max(float(start[-1] + self.dest[1]), 1.0)
+        placed: dict[int, list[tuple[float, float]]] = {}
+        reserved: dict[int, list[tuple[float, float]]] = {}
+        placed.setdefault(int(self.lane[k]), []).append((float(self.p[k]), 0.5 * self.length[k]))
+        n = len(obs)
+        used_following = False
+        for m, i in enumerate(obs):
+            role = MEET_ROLES[m % len(MEET_ROLES)]
+            d = (m + rng.uniform(0.25, 0.75)) / n * total
+            done = None
+            for r in [role, *[x for x in MEET_ROLES if x != role]]:
+                if r == "following" and used_following:
+                    continue
+                if getattr(self, f"_meet_{r}")(i, d, start, placed, reserved):
+                    done = r
+                    break
+            if done is None:
+                self._place_random(i, placed, reserved)
+                continue
+            used_following |= done == "following"
+            self.meet_roles[i] = done
+            placed.setdefault(int(self.lane[i]), []).append((float(self.p[i]),
+                                                             0.5 * self.length[i]))
+        for i, v in enumerate(self.vehicles):
+            if v.role == "agent":
+                if not self._spot_free(int(self.lane[i]), float(self.p[i]),
+                                       0.5 * self.length[i], placed, reserved):
+                    self._place_random(i, placed, reserved)
+                placed.setdefault(int(self.lane[i]), []).append(
+                    (float(self.p[i]), 0.5 * self.length[i]))
+
+    def _spot_free(self, lane: int, p: float, half: float, placed, reserved) -> bool:
+        """Is (lane, p) inside a non-junction lane and `_spawn`'s spacing away from
+        every placed vehicle and outside the reserved stretches?"""
+        net = self.net
+        if net.region[lane] != -1 or not half + 1.0 <= p <= net.length[lane] - half - 4.0:
+            return False
+        if any(abs(p - q) <= 12.0 + max(half, h) for q, h in placed.get(lane, ())):
+            return False
+        return not any(a - half - 12.0 <= p <= b for a, b in reserved.get(lane, ()))
+
+    def _place_random(self, i: int, placed, reserved) -> None:
+        net, rng = self.net, self.rng
+        free = np.flatnonzero((net.region == -1) & (net.length > 12.0))
+        half = 0.5 * self.length[i]
+        for _attempt in range(500):
+            lane = int(rng.choice(free, p=net.length[free] / net.length[free].sum()))
+            lo, hi = half + 1.0, net.length[lane] - half - 4.0
+            if hi <= lo:
+                continue
+            p = float(rng.uniform(lo, hi))
+            if self._spot_free(lane, p, half, placed, reserved):
+                self.lane[i], self.p[i] = lane, p
+                self.routes[i] = []
+                return
+        raise TrafficError(f"{net.map.name}: no room to place {self.n} vehicles; ask for fewer")
+
+    def _opposite(self, lane: int) -> int | None:
+        """The opposite-direction driving lane of the same road section nearest the
+        centre, or None (one-way road, or that lane is not in the network)."""
+        net = self.net
+        road, sec, lid = net.keys[lane]
+        opp = [j for j in self._section_lanes(road, sec) if net.keys[j][2] * lid < 0]
+        return min(opp, key=lambda j: (abs(net.keys[j][2]), j)) if opp else None
+
+    def _meet_oncoming(self, i, d, start, placed, reserved) -> bool:
+        net, path = self.net, self.target_lanes
+        half = 0.5 * self.length[i]
+        d = max(d, 40.0)
+        ends = start + net.length[path]
+        order = sorted(range(len(path)), key=lambda j: (abs(min(max(d, start[j]), ends[j]) - d), j))
+        for j in order:
+            lane = path[j]
+            o = self._opposite(lane) if net.region[lane] == -1 else None
+            if o is None:
+                continue
+            q = min(max(d - start[j], 0.0), net.length[lane])
+            po = (1.0 - q / net.length[lane]) * net.length[o]
+            for shift in (0.0, 8.0, -8.0, 16.0, -16.0, 24.0, -24.0):
+                p = po + shift
+                ahead = start[j] + (1.0 - p / net.length[o]) * net.length[lane]
+                if ahead >= 30.0 and self._spot_free(o, p, half, placed, reserved):
+                    self.lane[i], self.p[i] = o, p
+                    self.routes[i] = self._reverse_route(o, j)
+                    if ahead > 60.0:  # wait until the target is 50 m away, then drive
+                        self.hold[i] = (float(ahead) - 50.0, self.cfg.crossing_max_wait_s, True)
+                    return True
+        return False
+
+    def _reverse_route(self, o: int, j: int) -> list[int]:
+        """Route from lane o (opposite to target_lanes[j]) back along the target's path
+        on opposite-direction lanes: for each earlier non-junction lane of the path,
+        the opposite lane reachable by the shortest way no longer than that stretch
+        of the path + 60 m (lanes without one, one-way roads, are skipped)."""
+        net, path = self.net, self.target_lanes
+        route, last_j = [o], j
+        for jj in range(j - 1, -1, -1):
+            lane = path[jj]
+            if net.region[lane] != -1:
+                continue
+            road, sec, lid = net.keys[lane]
+            opp = [q for q in self._section_lanes(road, sec) if net.keys[q][2] * lid < 0]
+            if not opp or route[-1] in opp:
+                if route[-1] in opp:
+                    last_j = jj
+                continue
+            cutoff = float(net.length[path[jj:last_j + 1]].sum()) + 60.0
+            dist = nx.single_source_dijkstra_path_length(net.graph, route[-1], cutoff=cutoff)
+            reach = [(dist[q], q) for q in opp if q in dist]
+            if not reach:
+                continue
+            route += net.shortest_lanes(route[-1], min(reach)[1])[1:]
+            last_j = jj
+        return route[1:]
+
+    def _section_lanes(self, road: int, sec: int) -> list[int]:
+        if not hasattr(self, "_by_section"):
+            self._by_section: dict[tuple[int, int], list[int]] = {}
+            for q, (rd, sc, _lid) in enumerate(self.net.keys):
+                self._by_section.setdefault((rd, sc), []).append(q)
+        return self._by_section.get((road, sec), [])
+
+    def _meet_following(self, i, d, start, placed, reserved) -> bool:
+        net, k, path = self.net, self.target, self.target_lanes
+        half = 0.5 * self.length[i]
+        for gap in (25.0, 30.0, 20.0, 35.0, 40.0, 45.0, 50.0):
+            lane, p, chain = int(self.lane[k]), float(self.p[k]) - gap, []
+            while p < 0.0:
+                preds = sorted(net.predecessors[lane], key=lambda q: (net.region[q] != -1, q))
+                chain.insert(0, lane)
+                lane = preds[0]
+                p += net.length[lane]
+            if self._spot_free(lane, p, half, placed, reserved):
+                self.lane[i], self.p[i] = lane, p
+                self.routes[i] = chain + list(path[1:])
+                self.v0[i] = 1.25 * self.v0[k]
+                self.headway[i] = 0.8
+                return True
+        return False
+
+    def _meet_crossing(self, i, d, start, placed, reserved) -> bool:
+        net, path = self.net, self.target_lanes
+        half = 0.5 * self.length[i]
+        region = net.region
+        entries = [j for j in range(1, len(path))
+                   if region[path[j]] != -1 and region[path[j - 1]] == -1 and start[j] >= 20.0]
+        on_path = set(path)
+        for j in sorted(entries, key=lambda j: (abs(start[j] - d), j)):
+            r = int(region[path[j]])
+            jend = j
+            while jend < len(path) and region[path[jend]] == r:
+                jend += 1
+            prev = path[j - 1]
+            _, _, _, h_t, _ = net.pose(np.array([prev]), np.array([net.length[prev]]))
+            # points of the target's passage through the region (and its exit lane)
+            pl = np.array(path[j:jend + 1], dtype=np.int64)
+            qs = [np.arange(0.0, net.length[q], 1.0) for q in pl]
+            px, py, *_ = net.pose(np.repeat(pl, [len(q) for q in qs]), np.concatenate(qs))
+            cands = []
+            for a in range(len(net.keys)):
+                if region[a] != -1 or a in on_path or not any(
+                        region[s] == r for s in net.successors[a]):
+                    continue
+                ax, ay, _, h_a, _ = net.pose(np.array([a]), np.array([net.length[a]]))
+                dh = math.radians(float(_wrap_deg(h_a[0] - h_t[0])))
+                if math.cos(dh) > 0.5:  # same direction as the target: would see its back
+                    continue
+                # the target must pass in front of the stop line, close by
+                ha = math.radians(float(h_a[0]))
+                fwd = (px - ax[0]) * math.cos(ha) + (py - ay[0]) * math.sin(ha)
+                near = np.hypot(px - ax[0], py - ay[0])[fwd > 1.0]
+                if len(near) == 0 or near.min() > 12.0:
+                    continue
+                cands.append((abs(math.sin(dh)) < 0.7, round(float(near.min())), a))
+            for *_score, a in sorted(cands):
+                passage = self._straightest_passage(a, r)
+                if passage is None:
+                    continue
+                for back in (12.0, 16.0, 20.0, 24.0, 10.0):
+                    p = net.length[a] - back
+                    if self._spot_free(a, p, half, placed, reserved):
+                        self.lane[i], self.p[i], self.routes[i] = a, p, passage
+                        self.hold[i] = (float(start[jend]) if jend < len(start) else np.inf,
+                                        self.cfg.crossing_max_wait_s, False)
+                        reserved.setdefault(a, []).append((p, float(net.length[a])))
+                        return True
+        return False
+
+    def _straightest_passage(self, a: int, r: int) -> list[int] | None:
+        """Lanes from a's end through region r to the first lane after it, turning
+        least; None when there is none."""
+        net = self.net
+        _, _, _, h0, _ = net.pose(np.array([a]), np.array([net.length[a]]))
+        best = None
+        stack = [[s] for s in net.successors[a] if net.region[s] == r]
+        while stack:
+            seq = stack.pop()
+            last = seq[-1]
+            if net.region[last] != r:
+                _, _, _, h1, _ = net.pose(np.array([last]), np.array([0.0]))
+                turn = abs(float(_wrap_deg(h1[0] - h0[0])))
+                if best is None or (turn, seq) < best:
+                    best = (turn, seq)
+                continue
+            if len(seq) < 12:
+                stack.extend([*seq, s] for s in net.successors[last] if s not in seq)
+        return None if best is None else best[1]
 
     # ------------------------------------------------------------------ stepping
     def _extend_routes(self, horizon_m: float) -> None:
@@ -443,6 +719,13 @@ class TrafficSim:
         dt = cfg.step_s
         n = self.n
         self._extend_routes(cfg.lookahead_m + 150.0)
+        if self.hold:  # release observers waiting for the target
+            k = self.target
+            hop = min(self._target_hops, len(self._path_start) - 1)
+            done = self._path_start[hop] + self.p[k]
+            for i, (dist, t_max, _stand) in list(self.hold.items()):
+                if done >= dist or self.t >= t_max or self.target_arrived_t is not None:
+                    del self.hold[i]
         occ: dict[int, list[tuple[float, int]]] = {}
         for i in range(n):
             occ.setdefault(int(self.lane[i]), []).append((float(self.p[i]), i))
@@ -465,7 +748,7 @@ class TrafficSim:
                     g = off - half_i
                     if g < best:
                         best, best_v = g, 0.0
-                        if off <= cfg.queue_window_m:
+                        if off <= cfg.queue_window_m and i not in self.hold:
                             candidates.append((r, i, k))
                     break
                 for pj, j in occ.get(lane, ()):
@@ -475,6 +758,8 @@ class TrafficSim:
                     if g < best:
                         best, best_v = g, self.v[j]
                 off += net.length[lane]
+            if i in self.hold and self.hold[i][2]:
+                best = 0.0  # stands where it is
             gap[i], lead_v[i] = best, best_v
         self._grant(candidates, occ)
         # IDM (Treiber et al. 2000)
@@ -486,7 +771,7 @@ class TrafficSim:
                                       * math.sin(2 * math.pi * self.t / per + ph))
         sqrt_ab = math.sqrt(idm.max_accel_mps2 * idm.comfort_decel_mps2)
         s_star = idm.min_gap_m + np.maximum(
-            0.0, v * idm.time_headway_s + v * (v - lead_v) / (2 * sqrt_ab))
+            0.0, v * self.headway + v * (v - lead_v) / (2 * sqrt_ab))
         s = np.maximum(gap, 0.05)
         acc = idm.max_accel_mps2 * (1 - (v / v0) ** idm.delta - (s_star / s) ** 2)
         acc = np.clip(acc, -idm.max_decel_mps2, idm.max_accel_mps2)
@@ -576,6 +861,8 @@ class TrafficSim:
                     break
                 self.p[i] -= net.length[self.lane[i]]
                 self.lane[i] = r.pop(0)
+                if i == self.target:
+                    self._target_hops += 1
         if self.target is not None and self.target_arrived_t is None:
             k = self.target
             dl, dp = self.dest
