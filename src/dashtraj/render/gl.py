@@ -66,3 +66,24 @@ def create_context(threads: int | None = None):
 def context_info(ctx) -> dict[str, str]:
     """Renderer, version and vendor strings of a context (for logs and benchmarks)."""
     return {k: str(ctx.info.get(k, "")) for k in ("GL_RENDERER", "GL_VERSION", "GL_VENDOR")}
+
+
+_GL_FUNCS: dict[str, object] = {}
+
+
+def gl_function(name: str, *argtypes):
+    """A raw GL entry point (via ``eglGetProcAddress``) for what moderngl does not expose
+    (logic ops, per-attachment clears). Call it only while a context is current."""
+    fn = _GL_FUNCS.get(name)
+    if fn is None:
+        import ctypes
+
+        egl = ctypes.CDLL("libEGL.so.1")
+        egl.eglGetProcAddress.restype = ctypes.c_void_p
+        egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
+        addr = egl.eglGetProcAddress(name.encode())
+        if not addr:
+            raise RenderUnavailableError(f"OpenGL entry point {name} not found")
+        fn = ctypes.CFUNCTYPE(None, *argtypes)(addr)
+        _GL_FUNCS[name] = fn
+    return fn

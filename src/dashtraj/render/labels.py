@@ -196,39 +196,43 @@ def truncation(uv: np.ndarray, width: int, height: int) -> float:
     return float(min(1.0, max(0.0, 1.0 - _poly_area(_clip_polygon(hull, width, height)) / area)))
 
 
-def compute_labels(
-    renderer, frame, vehicles, world_vertices, idx: np.ndarray, ranges, mvp: bytes
-) -> list[VehicleLabel]:
-    """Labels of every vehicle of a frame (called by ``Renderer.render``).
+@dataclass
+class VehicleProjection:
+    """Projected vertices and pixel boxes of a frame's vehicles (see ``vehicle_boxes``)."""
 
-    Args:
-        renderer: the ``Renderer`` that drew the frame (runs the silhouette pass).
-        frame: the ``Frame`` with rgb/instance/depth.
-        vehicles: the ``VehicleInstance`` list, in draw order (compact id = index + 1).
-        world_vertices: per vehicle, (N, 3) mesh vertices in the CARLA world frame.
-        idx: (H, W) int32 compact ids (0 = none) of the instance pass.
-        ranges: (first vertex, count) of each vehicle in the vehicle buffer.
-        mvp: the frame's world → clip matrix bytes.
-    """
+    uv: np.ndarray  # (P, 2) projected vertices (after near clipping), sorted by vehicle
+    offsets: np.ndarray  # (N + 1,) vehicle i owns uv[offsets[i]:offsets[i + 1]]
+    lo: np.ndarray  # (N, 2) min (u, v), NaN when nothing is in front of the camera
+    hi: np.ndarray  # (N, 2) max (u, v)
+    has: np.ndarray  # (N,) bool: some vertex in front of the near plane
+    boxes: np.ndarray  # (N, 4) int (c0, r0, c1, r1): 1 px beyond lo/hi, clipped to the image
+
+    def boxes_nonempty(self) -> np.ndarray:
+        """(N,) bool: the vehicle can cover a pixel (its box is not empty)."""
+        b = self.boxes
+        return (b[:, 2] > b[:, 0]) & (b[:, 3] > b[:, 1])
+
+
+def vehicle_boxes(
+    renderer, camera_pose, world: np.ndarray, starts: np.ndarray
+) -> VehicleProjection:
+    """Project every vehicle's vertices (``world`` (3T, 3), vehicle i owning rows
+    starts[i]:starts[i + 1]) and bound its pixels: every pixel a vehicle can cover
+    lies in its box (the rasterizer only covers pixel centres inside its triangles)."""
     from dashtraj.render.scene import NEAR_M, world_to_opencv
 
-    n = len(vehicles)
-    if n == 0:
-        return []
+    n = len(starts) - 1
     w, h = renderer.width, renderer.height
-    k = renderer.k
-    m = world_to_opencv(frame.camera_pose)
-    vis_counts = np.bincount(idx.ravel(), minlength=n + 1)[1 : n + 1]
-    slices = ndimage.find_objects(idx, max_label=n)
-    owner = np.repeat(np.arange(n), [len(p) for p in world_vertices])
-    uv, off = clipped_projection(np.concatenate(world_vertices), owner, n, m, k, NEAR_M)
+    m = world_to_opencv(camera_pose)
+    owner = np.repeat(np.arange(n), np.diff(starts))
+    uv, off = clipped_projection(world, owner, n, m, renderer.k, NEAR_M)
     has = off[1:] > off[:-1]
     lo = np.full((n, 2), np.nan)
     hi = np.full((n, 2), np.nan)
     if len(uv):
-        starts = np.minimum(off[:-1], len(uv) - 1)
-        lo[has] = np.minimum.reduceat(uv, starts, axis=0)[has]
-        hi[has] = np.maximum.reduceat(uv, starts, axis=0)[has]
+        first = np.minimum(off[:-1], len(uv) - 1)
+        lo[has] = np.minimum.reduceat(uv, first, axis=0)[has]
+        hi[has] = np.maximum.reduceat(uv, first, axis=0)[has]
     boxes = np.zeros((n, 4), np.int64)
     boxes[has] = np.column_stack(
         [
@@ -238,11 +242,69 @@ def compute_labels(
             np.clip(np.ceil(hi[has, 1]) + 1, 0, h),
         ]
     )
+    return VehicleProjection(uv, off, lo, hi, has, boxes)
+
+
+def _visible(instance: np.ndarray, vehicles, boxes: np.ndarray):
+    """Visible pixel counts and tight boxes per vehicle, scanning only its box."""
+    n = len(vehicles)
+    counts = np.zeros(n, np.int64)
+    vboxes: list = [None] * n
+    for i, v in enumerate(vehicles):
+        c0, r0, c1, r1 = (int(c) for c in boxes[i])
+        if c1 <= c0 or r1 <= r0:
+            continue
+        m = instance[r0:r1, c0:c1] == v.instance_id
+        rows = np.flatnonzero(m.any(axis=1))
+        if len(rows) == 0:
+            continue
+        cols = np.flatnonzero(m.any(axis=0))
+        counts[i] = int(np.count_nonzero(m))
+        vboxes[i] = (
+            c0 + int(cols[0]),
+            r0 + int(rows[0]),
+            c0 + int(cols[-1]) + 1,
+            r0 + int(rows[-1]) + 1,
+        )
+    if int(counts.sum()) != int(np.count_nonzero(instance)):  # pragma: no cover - a pixel
+        # outside its vehicle's box would break the containment argument: scan it all
+        ids = np.array([v.instance_id for v in vehicles], np.int64)
+        order = np.argsort(ids)
+        pos = np.minimum(np.searchsorted(ids[order], instance), n - 1)
+        compact = np.where(ids[order][pos] == instance, order[pos] + 1, 0).astype(np.int32)
+        counts = np.bincount(compact.ravel(), minlength=n + 1)[1 : n + 1]
+        slices = ndimage.find_objects(compact, max_label=n)
+        vboxes = [
+            None if sl is None else (sl[1].start, sl[0].start, sl[1].stop, sl[0].stop)
+            for sl in slices
+        ]
+    return counts, vboxes
+
+
+def compute_labels(
+    renderer, frame, vehicles, proj: VehicleProjection, ranges, mvp: bytes
+) -> list[VehicleLabel]:
+    """Labels of every vehicle of a frame (called by ``Renderer.render``).
+
+    Args:
+        renderer: the ``Renderer`` that drew the frame (runs the silhouette pass).
+        frame: the ``Frame`` with rgb/instance/depth.
+        vehicles: the ``VehicleInstance`` list, in draw order.
+        proj: the vehicles' projection (``vehicle_boxes``).
+        ranges: (first vertex, count) of each vehicle in the vehicle buffer.
+        mvp: the frame's world → clip matrix bytes.
+    """
+    n = len(vehicles)
+    if n == 0:
+        return []
+    w, h = renderer.width, renderer.height
+    uv, off, lo, hi, has = proj.uv, proj.offsets, proj.lo, proj.hi, proj.has
+    vis_counts, vis_boxes = _visible(frame.instance, vehicles, proj.boxes)
     pboxes = [
         (float(lo[i, 0]), float(lo[i, 1]), float(hi[i, 0]), float(hi[i, 1])) if has[i] else None
         for i in range(n)
     ]
-    sil_counts, sil_boxes = renderer.silhouette_counts(boxes, ranges, mvp)
+    sil_counts, sil_boxes = renderer.silhouette_counts(proj.boxes, ranges, mvp)
     cam_xy = frame.camera_pose[:2]
     out = []
     for i, v in enumerate(vehicles):
@@ -250,8 +312,7 @@ def compute_labels(
         rel = relative_yaw(cam_xy, (v.x, v.y), v.yaw_deg)
         ori = orientation(rel)
         det = f"{cls}_{ori}"
-        sl = slices[i] if i < len(slices) else None
-        vbox = None if sl is None else (sl[1].start, sl[0].start, sl[1].stop, sl[0].stop)
+        vbox = vis_boxes[i]
         sbox = None if sil_boxes[i, 0] < 0 else tuple(int(c) for c in sil_boxes[i])
         nv, ns = int(vis_counts[i]), int(sil_counts[i])
         out.append(

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from dashtraj.render.gl import create_context
+from dashtraj.render.gl import create_context, gl_function
 from dashtraj.render.meshes import Mesh, scene_meshes, vehicle_mesh
 
 NEAR_M = 0.1
@@ -34,7 +34,7 @@ FAR_M = 2000.0
 SKY_RGB = (0.62, 0.74, 0.88)
 SUN_DIR = (0.35, -0.45, 0.82)  # CARLA world, towards the sun (unit after normalising)
 AMBIENT, DIFFUSE = 0.45, 0.6
-FRONT_FACE = "cw"  # meshes wind CCW seen from outside; the y-down image flip turns that to CW
+FRONT_FACE = "ccw"  # meshes wind CCW seen from outside (image rows run along GL's +y)
 
 _VS = """
 #version 330
@@ -43,7 +43,7 @@ uniform vec3 sun;
 in vec3 in_pos;
 in vec3 in_normal;
 in vec4 in_color;
-in float in_id;
+in int in_id;
 out vec3 v_color;
 out float v_depth;
 flat out int v_id;
@@ -53,8 +53,30 @@ void main() {
     vec3 lit = in_color.rgb * (%(ambient)f + %(diffuse)f * lam);
     v_color = mix(lit, in_color.rgb, in_color.a);
     v_depth = gl_Position.w;
-    v_id = int(in_id + 0.5);
+    v_id = in_id;
 }
+"""
+_FS_ALL = """
+#version 330
+in vec3 v_color;
+in float v_depth;
+flat in int v_id;
+layout(location = 0) out vec4 f_color;
+layout(location = 1) out int f_id;
+layout(location = 2) out float f_depth;
+void main() { f_color = vec4(v_color, 1.0); f_id = v_id; f_depth = v_depth; }
+"""
+_VS_SIL = """
+#version 330
+uniform mat4 mvp;
+in vec3 in_pos;
+void main() { gl_Position = mvp * vec4(in_pos, 1.0); }
+"""
+_FS_SIL = """
+#version 330
+uniform uint bit;
+out uint f_bits;
+void main() { f_bits = bit; }
 """
 _FS_COLOR = """
 #version 330
@@ -124,14 +146,17 @@ def project_points(points: np.ndarray, camera_pose, k: np.ndarray) -> tuple[np.n
 
 
 def _gl_projection(k: np.ndarray, width: int, height: int) -> np.ndarray:
-    """OpenCV camera frame → GL clip space; clip w = z_cam, NDC y up = image top."""
+    """OpenCV camera frame → GL clip space; clip w = z_cam, NDC y = −1 at the image top.
+
+    GL's window row 0 is then the image's top row: framebuffers read back in image
+    order, with no flip."""
     fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
     a = (FAR_M + NEAR_M) / (FAR_M - NEAR_M)
     b = -2.0 * FAR_M * NEAR_M / (FAR_M - NEAR_M)
     return np.array(
         [
             [2 * fx / width, 0.0, 2 * cx / width - 1.0, 0.0],
-            [0.0, -2 * fy / height, 1.0 - 2 * cy / height, 0.0],
+            [0.0, 2 * fy / height, 2 * cy / height - 1.0, 0.0],
             [0.0, 0.0, a, b],
             [0.0, 0.0, 1.0, 0.0],
         ]
@@ -223,7 +248,9 @@ class Renderer:
         road_map: a ``dashtraj.roads.RoadMap``; its static meshes are built once.
         width, height: image size, pixels.
         fov_deg: horizontal field of view, degrees.
-        msaa: samples of the colour pass (0 or 1 = none).
+        msaa: samples of the colour pass (0 or 1 = none). With 0, colour, ids and depth
+            are drawn in one pass (three attachments); with MSAA, colour has its own
+            pass, since ids need one sample at each pixel centre.
         seed: building placement seed.
         ctx: an existing moderngl context to share; None creates a headless EGL one.
         threads: llvmpipe threads for a new context (see ``dashtraj.render.gl``).
@@ -234,6 +261,10 @@ class Renderer:
         >>> f.labels[0].detection_class  # doctest: +SKIP
         'car_back'
     """
+
+    #: silhouette pass: "bits" (all vehicles in one pass, OR-ed bit masks) or "layers"
+    #: (the reference: one pass and readback per layer of non-overlapping vehicles)
+    silhouette_mode = "bits"
 
     def __init__(
         self,
@@ -262,23 +293,42 @@ class Renderer:
         vs = _VS % {"ambient": AMBIENT, "diffuse": DIFFUSE}
         self._prog_color = ctx.program(vertex_shader=vs, fragment_shader=_FS_COLOR)
         self._prog_id = ctx.program(vertex_shader=vs, fragment_shader=_FS_ID)
-        for p in (self._prog_color, self._prog_id):
+        self._prog_all = ctx.program(vertex_shader=vs, fragment_shader=_FS_ALL)
+        self._prog_sil = ctx.program(vertex_shader=_VS_SIL, fragment_shader=_FS_SIL)
+        self._progs = (self._prog_color, self._prog_id, self._prog_all, self._prog_sil)
+        for p in self._progs:
             if "sun" in p:
                 p["sun"].value = tuple(sun)
         size = (self.width, self.height)
-        self._fbo_ms = ctx.framebuffer(
-            color_attachments=[ctx.renderbuffer(size, 4, samples=self.msaa)],
-            depth_attachment=ctx.depth_renderbuffer(size, samples=self.msaa),
-        )
-        self._fbo_rgb = ctx.framebuffer(color_attachments=[ctx.renderbuffer(size, 4)])
-        self._fbo_id = ctx.framebuffer(
-            color_attachments=[
-                ctx.renderbuffer(size, 1, dtype="i4"),
-                ctx.renderbuffer(size, 1, dtype="f4"),
-            ],
-            depth_attachment=ctx.depth_renderbuffer(size),
-        )
+        self._fbos = []
+        if self.msaa:
+            self._fbo_ms = ctx.framebuffer(
+                color_attachments=[ctx.renderbuffer(size, 4, samples=self.msaa)],
+                depth_attachment=ctx.depth_renderbuffer(size, samples=self.msaa),
+            )
+            self._fbo_rgb = ctx.framebuffer(color_attachments=[ctx.renderbuffer(size, 4)])
+            self._fbo_id = ctx.framebuffer(
+                color_attachments=[
+                    ctx.renderbuffer(size, 1, dtype="i4"),
+                    ctx.renderbuffer(size, 1, dtype="f4"),
+                ],
+                depth_attachment=ctx.depth_renderbuffer(size),
+            )
+            self._fbos += [self._fbo_ms, self._fbo_rgb, self._fbo_id]
+        else:
+            self._fbo_all = ctx.framebuffer(
+                color_attachments=[
+                    ctx.renderbuffer(size, 4),
+                    ctx.renderbuffer(size, 1, dtype="i4"),
+                    ctx.renderbuffer(size, 1, dtype="f4"),
+                ],
+                depth_attachment=ctx.depth_renderbuffer(size),
+            )
+            self._fbos.append(self._fbo_all)
         self._fbo_sil = ctx.framebuffer(color_attachments=[ctx.renderbuffer(size, 1, dtype="i4")])
+        self._fbo_bits = ctx.framebuffer(color_attachments=[ctx.renderbuffer(size, 1, dtype="u4")])
+        self._fbos += [self._fbo_sil, self._fbo_bits]
+        self._logic_op = None
         scene = scene_meshes(road_map, seed)
         self._static = []
         # drawn after the vehicles, near to far, so hidden fragments fail the depth test early
@@ -289,16 +339,22 @@ class Renderer:
                 self._static.append((self._vaos(buf), offset, tiles))
         self._vbuf = None
         self._vbuf_bytes = 0
+        self._vdata: dict[int, tuple[Mesh, np.ndarray]] = {}
         self._moderngl = moderngl
 
     # ------------------------------------------------------------------ GL plumbing
     def _vaos(self, buf):
         # attributes a program does not use are optimised away: skip their bytes
-        color = (buf, "3f 3f 4f 4x", "in_pos", "in_normal", "in_color")
-        ids = (buf, "3f 28x 1f", "in_pos", "in_id")
+        ctx = self.ctx
         return (
-            self.ctx.vertex_array(self._prog_color, [color]),
-            self.ctx.vertex_array(self._prog_id, [ids]),
+            ctx.vertex_array(
+                self._prog_color, [(buf, "3f 3f 4f 4x", "in_pos", "in_normal", "in_color")]
+            ),
+            ctx.vertex_array(self._prog_id, [(buf, "3f 28x 1i", "in_pos", "in_id")]),
+            ctx.vertex_array(
+                self._prog_all, [(buf, "3f 3f 4f 1i", "in_pos", "in_normal", "in_color", "in_id")]
+            ),
+            ctx.vertex_array(self._prog_sil, [(buf, "3f 32x", "in_pos")]),
         )
 
     def _upload_vehicles(self, data: np.ndarray):
@@ -307,19 +363,21 @@ class Renderer:
             cap = max(nbytes, 1 << 16)
             cap = 1 << (cap - 1).bit_length()
             if self._vbuf is not None:
+                for vao in self._vveh:
+                    vao.release()
                 self._vbuf.release()
             self._vbuf = self.ctx.buffer(reserve=cap, dynamic=True)
             self._vbuf_bytes = cap
             self._vveh = self._vaos(self._vbuf)
         if nbytes:
-            self._vbuf.write(data.tobytes())
+            self._vbuf.write(data)
 
-    def _draw_scene(self, which: int, mvp: bytes, n_vehicle_vertices: int):
+    def _draw_scene(self, which: int, mvp: bytes, vehicle_runs):
         mgl = self._moderngl
-        prog = self._prog_color if which == 0 else self._prog_id
+        prog = self._progs[which]
         prog["mvp"].write(mvp)
-        if n_vehicle_vertices:
-            self._vveh[which].render(mgl.TRIANGLES, vertices=n_vehicle_vertices)
+        for first, count in vehicle_runs:
+            self._vveh[which].render(mgl.TRIANGLES, first=first, vertices=count)
         for (vaos, offset, _tiles), runs in zip(self._static, self._runs, strict=True):
             if offset:
                 self.ctx.polygon_offset = (0.0, -2.0)  # units only: no slope term
@@ -328,12 +386,23 @@ class Renderer:
             if offset:
                 self.ctx.polygon_offset = (0.0, 0.0)
 
+    def _mesh_rows(self, v: VehicleInstance) -> tuple[Mesh, np.ndarray]:
+        """Cached (mesh, (N, 11) float32 model-frame rows) of a vehicle's mesh."""
+        mesh = vehicle_mesh(v.model, v.rgb)
+        hit = self._vdata.get(id(mesh))
+        if hit is None or hit[0] is not mesh:
+            if len(self._vdata) > 1024:
+                self._vdata.clear()
+            hit = (mesh, mesh.interleaved(0.0))
+            self._vdata[id(mesh)] = hit
+        return hit
+
     # ------------------------------------------------------------------ frame
     def mvp(self, camera_pose) -> np.ndarray:
         """(4, 4) world → clip matrix (float64) for a camera pose."""
         return self._proj @ world_to_opencv(camera_pose)
 
-    def render(self, camera_pose, vehicles=(), labels: bool = True) -> Frame:
+    def render(self, camera_pose, vehicles=(), labels: bool = True, depth: bool = True) -> Frame:
         """Render one frame.
 
         Args:
@@ -342,32 +411,54 @@ class Renderer:
             vehicles: ``VehicleInstance`` objects or tuples (instance_id ≥ 1, identity
                 or model, x, y, z, yaw_deg), CARLA world.
             labels: compute per-vehicle labels (``Frame.labels``).
+            depth: read back the depth image; False leaves ``Frame.depth`` None.
 
         Returns:
             a :class:`Frame`.
         """
-        from dashtraj.render.labels import compute_labels
+        from dashtraj.render.labels import compute_labels, vehicle_boxes
 
         mgl = self._moderngl
         ctx = self.ctx
+        h, w = self.height, self.width
         vs = as_instances(vehicles)
-        meshes = [vehicle_mesh(v.model, v.rgb) for v in vs]
-        world = [vehicle_world_positions(v, mesh) for v, mesh in zip(vs, meshes, strict=True)]
-        ranges, first = [], 0
-        rows = []
-        for i, (mesh, pos) in enumerate(zip(meshes, world, strict=True)):
-            d = mesh.interleaved(float(i + 1))
-            d[:, :3] = pos
-            c, s = math.cos(math.radians(vs[i].yaw_deg)), math.sin(math.radians(vs[i].yaw_deg))
-            n = mesh.normals
-            d[:, 3] = c * n[:, 0] - s * n[:, 1]
-            d[:, 4] = s * n[:, 0] + c * n[:, 1]
-            rows.append(d)
-            ranges.append((first, mesh.n_vertices))
-            first += mesh.n_vertices
-        data = np.concatenate(rows) if rows else np.zeros((0, 11), np.float32)
-        self._upload_vehicles(data)
-        mvp64 = self.mvp(camera_pose)
+        n = len(vs)
+        pose = tuple(float(c) for c in camera_pose)
+        mvp64 = self.mvp(pose)
+        rows = [self._mesh_rows(v) for v in vs]
+        counts = np.array([len(r[1]) for r in rows], np.int64)
+        starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        ranges = list(zip(starts[:-1].tolist(), counts.tolist(), strict=True))
+        if n:
+            data = np.concatenate([r[1] for r in rows])
+            yaw = np.radians([v.yaw_deg for v in vs])
+            c = np.repeat(np.cos(yaw), counts)
+            s = np.repeat(np.sin(yaw), counts)
+            p = data[:, :3].astype(np.float64)
+            world = np.column_stack(
+                [
+                    np.repeat([v.x for v in vs], counts) + c * p[:, 0] - s * p[:, 1],
+                    np.repeat([v.y for v in vs], counts) + s * p[:, 0] + c * p[:, 1],
+                    np.repeat([v.z for v in vs], counts) + p[:, 2],
+                ]
+            )
+            data[:, :3] = world
+            nx, ny = data[:, 3].astype(np.float64), data[:, 4].astype(np.float64)
+            data[:, 3] = c * nx - s * ny
+            data[:, 4] = s * nx + c * ny
+            data[:, 10] = np.repeat(np.array([v.instance_id for v in vs], np.int32), counts).view(
+                np.float32
+            )
+            self._upload_vehicles(data)
+        else:
+            world = np.zeros((0, 3))
+        if labels and n:
+            proj = vehicle_boxes(self, pose, world, starts)
+            drawn = proj.boxes_nonempty()
+        else:
+            proj = None
+            drawn = _vehicles_in_frustum(world, starts, mvp64) if n else np.zeros(0, bool)
+        vruns = _runs([ranges[i] for i in np.flatnonzero(drawn)])
         self._runs = [_visible_runs(tiles, mvp64) for _, _, tiles in self._static]
         mvp = mvp64.T.astype("f4").tobytes()  # column-major for GLSL
 
@@ -375,34 +466,70 @@ class Renderer:
         ctx.disable(mgl.BLEND)
         ctx.enable(mgl.CULL_FACE)
         ctx.front_face = FRONT_FACE
-        # pass 1: colour (MSAA) -> resolve
-        self._fbo_ms.use()
-        self._fbo_ms.clear(*SKY_RGB, 1.0, depth=1.0)
-        self._draw_scene(0, mvp, first)
-        ctx.copy_framebuffer(self._fbo_rgb, self._fbo_ms)
-        rgb = np.frombuffer(self._fbo_rgb.read(components=4, alignment=1), np.uint8)
-        rgb = rgb.reshape(self.height, self.width, 4)[::-1, :, :3].copy()
-        # pass 2: instance ids + depth, one sample per pixel
-        self._fbo_id.use()
-        self._fbo_id.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        self._draw_scene(1, mvp, first)
-        idx = np.frombuffer(
-            self._fbo_id.read(components=1, attachment=0, dtype="i4", alignment=1), np.int32
-        ).reshape(self.height, self.width)[::-1]
-        depth = (
-            np.frombuffer(
-                self._fbo_id.read(components=1, attachment=1, dtype="f4", alignment=1), np.float32
-            )
-            .reshape(self.height, self.width)[::-1]
-            .copy()
-        )
-        depth[depth <= 0.0] = np.inf
-        lut = np.array([0] + [v.instance_id for v in vs], np.int32)
-        instance = lut[idx]
-        frame = Frame(rgb, instance, depth, self.k.copy(), tuple(float(c) for c in camera_pose))
+        rgb = np.empty((h, w, 3), np.uint8)
+        instance = np.empty((h, w), np.int32)
+        dimg = np.empty((h, w), np.float32) if depth else None
+        if self.msaa:
+            # pass 1: colour (MSAA) -> resolve; pass 2: ids + depth, one sample per pixel
+            self._fbo_ms.use()
+            self._fbo_ms.clear(*SKY_RGB, 1.0, depth=1.0)
+            self._draw_scene(0, mvp, vruns)
+            self._fbo_id.use()
+            self._fbo_id.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+            self._draw_scene(1, mvp, vruns)
+            ctx.copy_framebuffer(self._fbo_rgb, self._fbo_ms)
+            self._fbo_rgb.read_into(rgb, components=3, alignment=1)
+            fbo, a_id, a_depth = self._fbo_id, 0, 1
+        else:
+            # one pass: colour, ids and depth (three attachments)
+            fbo = self._fbo_all
+            fbo.use()
+            self._clear_all()
+            self._draw_scene(2, mvp, vruns)
+            fbo.read_into(rgb, components=3, attachment=0, alignment=1)
+            a_id, a_depth = 1, 2
+        fbo.read_into(instance, components=1, attachment=a_id, dtype="i4", alignment=1)
+        if dimg is not None:
+            fbo.read_into(dimg, components=1, attachment=a_depth, dtype="f4", alignment=1)
+            np.copyto(dimg, np.inf, where=dimg <= 0.0)
+        frame = Frame(rgb, instance, dimg, self.k.copy(), pose)
         if labels:
-            frame.labels = compute_labels(self, frame, vs, world, idx, ranges, mvp)
+            frame.labels = compute_labels(self, frame, vs, proj, ranges, mvp)
         return frame
+
+    def _bitwise_or(self, on: bool) -> None:
+        """Enable/disable GL's OR logic op (moderngl exposes no logic op: call GL directly)."""
+        import ctypes
+
+        if on:
+            gl_function("glEnable", ctypes.c_uint)(0x0BF2)  # GL_COLOR_LOGIC_OP
+            gl_function("glLogicOp", ctypes.c_uint)(0x1507)  # GL_OR
+        else:
+            gl_function("glDisable", ctypes.c_uint)(0x0BF2)
+
+    def _clear_all(self) -> None:
+        """Clear the one-pass framebuffer (bound): sky colour, id 0, depth 0, z 1.
+
+        moderngl clears every attachment with one colour; GL's glClearBuffer* clears
+        each draw buffer with its own value."""
+        import ctypes
+
+        f4 = ctypes.c_float * 4
+        cf = gl_function("glClearBufferfv", ctypes.c_uint, ctypes.c_int, ctypes.c_void_p)
+        ci = gl_function("glClearBufferiv", ctypes.c_uint, ctypes.c_int, ctypes.c_void_p)
+        gl_color, gl_depth = 0x1800, 0x1801
+        self._clear_args = getattr(self, "_clear_args", None) or (
+            f4(*SKY_RGB, 1.0),
+            (ctypes.c_int * 4)(0, 0, 0, 0),
+            f4(0, 0, 0, 0),
+            f4(1, 0, 0, 0),
+        )
+        sky, zero_i, zero_f, one = self._clear_args
+        self.ctx.scissor = None
+        cf(gl_color, 0, sky)
+        ci(gl_color, 1, zero_i)
+        cf(gl_color, 2, zero_f)
+        cf(gl_depth, 0, one)
 
     def silhouette_counts(self, boxes: np.ndarray, ranges, mvp: bytes) -> np.ndarray:
         """Silhouette pixel counts of vehicles drawn alone (pass 3).
@@ -416,12 +543,11 @@ class Renderer:
         Returns:
             (N,) int64 pixel counts and (N, 4) int tight silhouette boxes (−1 if none).
         """
-        mgl = self._moderngl
         n = len(ranges)
         counts = np.zeros(n, np.int64)
         tight = np.full((n, 4), -1, np.int64)
         todo = [i for i in range(n) if boxes[i, 2] > boxes[i, 0] and boxes[i, 3] > boxes[i, 1]]
-        # greedy layering: vehicles whose boxes overlap go to different passes
+        # greedy layering: vehicles whose boxes overlap go to different layers
         layers: list[list[int]] = []
         for i in sorted(todo, key=lambda j: (boxes[j, 0], boxes[j, 1], j)):
             for layer in layers:
@@ -430,41 +556,73 @@ class Renderer:
                     break
             else:
                 layers.append([i])
+        if not layers:
+            return counts, tight
+        if self.silhouette_mode == "layers":
+            self._silhouettes_layers(layers, boxes, ranges, mvp, counts, tight)
+        else:
+            # 32 layers per pass: layer l sets bit l of a uint32 image (logic op OR)
+            for k in range(0, len(layers), 32):
+                self._silhouettes_bits(layers[k : k + 32], boxes, ranges, mvp, counts, tight)
+        return counts, tight
+
+    def _silhouettes_bits(self, layers, boxes, ranges, mvp, counts, tight) -> None:
+        mgl = self._moderngl
+        members = [j for layer in layers for j in layer]
+        c0, r0 = int(boxes[members, 0].min()), int(boxes[members, 1].min())
+        c1, r1 = int(boxes[members, 2].max()), int(boxes[members, 3].max())
+        vp = (c0, r0, c1 - c0, r1 - r0)
+        ctx = self.ctx
+        ctx.disable(mgl.DEPTH_TEST)
+        prog = self._prog_sil
+        prog["mvp"].write(mvp)
+        fbo = self._fbo_bits
+        fbo.use()
+        fbo.clear(0.0, 0.0, 0.0, 0.0, viewport=vp)
+        self._bitwise_or(True)
+        try:
+            for b, layer in enumerate(layers):
+                prog["bit"].value = 1 << b
+                for first, count in _runs([ranges[j] for j in sorted(layer)]):
+                    self._vveh[3].render(mgl.TRIANGLES, first=first, vertices=count)
+        finally:
+            self._bitwise_or(False)
+            ctx.enable(mgl.DEPTH_TEST)
+        bits = np.empty((r1 - r0, c1 - c0), np.uint32)
+        fbo.read_into(bits, viewport=vp, components=1, dtype="u4", alignment=1)
+        for b, layer in enumerate(layers):
+            for j in layer:
+                sub = bits[boxes[j, 1] - r0 : boxes[j, 3] - r0, boxes[j, 0] - c0 : boxes[j, 2] - c0]
+                m = (sub & np.uint32(1 << b)) != 0
+                _count_and_box(m, boxes[j], j, counts, tight)
+
+    def _silhouettes_layers(self, layers, boxes, ranges, mvp, counts, tight) -> None:
+        mgl = self._moderngl
         self.ctx.disable(mgl.DEPTH_TEST)
         self._prog_id["mvp"].write(mvp)
         self._fbo_sil.use()
         for layer in layers:
             c0, r0 = min(boxes[j, 0] for j in layer), min(boxes[j, 1] for j in layer)
             c1, r1 = max(boxes[j, 2] for j in layer), max(boxes[j, 3] for j in layer)
-            vp = (int(c0), int(self.height - r1), int(c1 - c0), int(r1 - r0))
+            vp = (int(c0), int(r0), int(c1 - c0), int(r1 - r0))
             self._fbo_sil.clear(0.0, 0.0, 0.0, 0.0, viewport=vp)
             for j in layer:
                 first, count = ranges[j]
+                self._prog_id["mvp"].write(mvp)
                 self._vveh[1].render(mgl.TRIANGLES, first=first, vertices=count)
             buf = self._fbo_sil.read(viewport=vp, components=1, dtype="i4", alignment=1)
-            ids = np.frombuffer(buf, np.int32).reshape(r1 - r0, c1 - c0)[::-1]
-            counts += np.bincount(ids.ravel(), minlength=n + 1)[1 : n + 1]
+            ids = np.frombuffer(buf, np.int32).reshape(r1 - r0, c1 - c0)
             for j in layer:
-                rr, cc = np.nonzero(
-                    ids[boxes[j, 1] - r0 : boxes[j, 3] - r0, boxes[j, 0] - c0 : boxes[j, 2] - c0]
-                    == j + 1
-                )
-                if len(rr):
-                    tight[j] = (
-                        boxes[j, 0] + cc.min(),
-                        boxes[j, 1] + rr.min(),
-                        boxes[j, 0] + cc.max() + 1,
-                        boxes[j, 1] + rr.max() + 1,
-                    )
+                sub = ids[boxes[j, 1] - r0 : boxes[j, 3] - r0, boxes[j, 0] - c0 : boxes[j, 2] - c0]
+                _count_and_box(sub != 0, boxes[j], j, counts, tight)
         self.ctx.enable(mgl.DEPTH_TEST)
-        return counts, tight
 
     def release(self) -> None:
         """Free this renderer's GL objects, and the context if the renderer created it."""
         if self._owns_ctx:
             self.ctx.release()
             return
-        for fbo in (self._fbo_ms, self._fbo_rgb, self._fbo_id, self._fbo_sil):
+        for fbo in self._fbos:
             for att in (*fbo.color_attachments, fbo.depth_attachment):
                 if att is not None:
                     att.release()
@@ -476,8 +634,37 @@ class Renderer:
             for vao in self._vveh:
                 vao.release()
             self._vbuf.release()
-        self._prog_color.release()
-        self._prog_id.release()
+        for p in self._progs:
+            p.release()
+
+
+def _count_and_box(mask: np.ndarray, box, j: int, counts: np.ndarray, tight: np.ndarray) -> None:
+    """Pixel count and tight box (image pixels) of a boolean mask over ``box``."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    if len(rows) == 0:
+        return
+    cols = np.flatnonzero(mask.any(axis=0))
+    counts[j] = int(np.count_nonzero(mask))
+    tight[j] = (box[0] + cols[0], box[1] + rows[0], box[0] + cols[-1] + 1, box[1] + rows[-1] + 1)
+
+
+def _runs(ranges) -> list[tuple[int, int]]:
+    """Merge (first, count) ranges in order into contiguous runs."""
+    out: list[tuple[int, int]] = []
+    for f, c in ranges:
+        if out and out[-1][0] + out[-1][1] == f:
+            out[-1] = (out[-1][0], out[-1][1] + c)
+        else:
+            out.append((f, c))
+    return out
+
+
+def _vehicles_in_frustum(world: np.ndarray, starts: np.ndarray, mvp: np.ndarray) -> np.ndarray:
+    """(N,) bool: the world box of each vehicle's vertices touches the view frustum."""
+    s = starts[:-1]
+    lo = np.minimum.reduceat(world, s, axis=0)
+    hi = np.maximum.reduceat(world, s, axis=0)
+    return ~_boxes_outside(lo, hi, mvp)
 
 
 TILE_M = 40.0
@@ -513,19 +700,7 @@ def _tiled(data: np.ndarray, tile_m: float = TILE_M):
 def _visible_runs(tiles, mvp: np.ndarray) -> list[tuple[int, int]]:
     """(first, count) vertex runs of the tiles whose boxes touch the view frustum."""
     first, count, lo, hi = tiles
-    corners = np.stack(
-        [np.where(np.array(b)[None, :], hi, lo) for b in np.ndindex(2, 2, 2)], axis=1
-    )  # (T, 8, 3)
-    clip = corners @ mvp[:, :3].T + mvp[:, 3]  # (T, 8, 4)
-    w = clip[..., 3]
-    out = (
-        (clip[..., 0] < -w).all(1)
-        | (clip[..., 0] > w).all(1)
-        | (clip[..., 1] < -w).all(1)
-        | (clip[..., 1] > w).all(1)
-        | (w < NEAR_M).all(1)
-        | (clip[..., 2] > w).all(1)
-    )
+    out = _boxes_outside(lo, hi, mvp)
     runs: list[tuple[int, int]] = []
     for f, n in zip(first[~out].tolist(), count[~out].tolist(), strict=True):
         if runs and runs[-1][0] + runs[-1][1] == f:
@@ -533,6 +708,23 @@ def _visible_runs(tiles, mvp: np.ndarray) -> list[tuple[int, int]]:
         else:
             runs.append((f, n))
     return runs
+
+
+def _boxes_outside(lo: np.ndarray, hi: np.ndarray, mvp: np.ndarray) -> np.ndarray:
+    """(T,) bool: the world boxes lo/hi (T, 3) lie wholly outside one frustum plane."""
+    corners = np.stack(
+        [np.where(np.array(b)[None, :], hi, lo) for b in np.ndindex(2, 2, 2)], axis=1
+    )  # (T, 8, 3)
+    clip = corners @ mvp[:, :3].T + mvp[:, 3]  # (T, 8, 4)
+    w = clip[..., 3]
+    return (
+        (clip[..., 0] < -w).all(1)
+        | (clip[..., 0] > w).all(1)
+        | (clip[..., 1] < -w).all(1)
+        | (clip[..., 1] > w).all(1)
+        | (w < NEAR_M).all(1)
+        | (clip[..., 2] > w).all(1)
+    )
 
 
 def _overlap(a, b) -> bool:
