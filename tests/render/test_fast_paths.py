@@ -1,0 +1,111 @@
+"""The renderer's fast paths give the same labels as the reference paths.
+
+- silhouettes: all vehicles in one pass (OR-ed layer bits) vs one pass and readback
+  per layer of non-overlapping vehicles (``Renderer.silhouette_mode = "layers"``);
+- visible boxes/counts from each vehicle's projected box vs a scan of the whole
+  instance image;
+- one-pass colour+ids+depth (``msaa=0``) vs the separate id pass of the MSAA path:
+  identical instance and depth images;
+- ``depth=False`` changes nothing but the missing depth image.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import BIKE, BUS, MOTO, SEDAN, SUV, TRUCK, VAN, identity
+from scipy import ndimage
+
+from dashtraj.render.scene import Renderer
+
+MODELS = [SEDAN, SUV, VAN, TRUCK, BUS, MOTO, BIKE]
+
+
+def random_scene(rng: np.random.Generator, n: int):
+    """A camera somewhere on the road and ``n`` vehicles around it (many overlapping,
+    some behind the camera, some crossing the image border)."""
+    cx = rng.uniform(-95, 60)
+    cam = (cx, rng.uniform(-6, 6), rng.uniform(1.2, 3.0), rng.uniform(-40, 40),
+           rng.uniform(-8, 3), rng.uniform(-3, 3))  # fmt: skip
+    ids = rng.choice(np.arange(1, 10_000), n, replace=False)
+    vs = []
+    for i in range(n):
+        model = MODELS[rng.integers(len(MODELS))]
+        rgb = tuple(int(c) for c in rng.integers(0, 256, 3))
+        vs.append((int(ids[i]), identity(model, rgb, i), cx + rng.uniform(-15, 70),
+                   rng.uniform(-9, 9), 0.0, rng.uniform(-180, 180)))  # fmt: skip
+    return cam, vs
+
+
+@pytest.fixture(scope="module")
+def pair(gl_ctx, straight_map):
+    a = Renderer(straight_map, 320, 180, 90.0, msaa=0, ctx=gl_ctx)
+    b = Renderer(straight_map, 320, 180, 90.0, msaa=2, ctx=gl_ctx)
+    yield a, b
+    a.release()
+    b.release()
+
+
+def _reference_visible(instance, vehicles):
+    ids = [v[0] for v in vehicles]
+    out = []
+    for i in ids:
+        m = instance == i
+        sl = ndimage.find_objects(m.astype(np.int32))
+        box = None if not sl else (sl[0][1].start, sl[0][0].start, sl[0][1].stop, sl[0][0].stop)
+        out.append((int(m.sum()), box))
+    return out
+
+
+def test_fast_labels_equal_reference_labels(pair):
+    fast, ms = pair
+    rng = np.random.default_rng(7)
+    n_partly = n_hidden = n_layers = 0
+    for _ in range(40):
+        cam, vs = random_scene(rng, int(rng.integers(1, 25)))
+        f = fast.render(cam, vs)
+        fast.silhouette_mode = "layers"
+        try:
+            g = fast.render(cam, vs)
+        finally:
+            fast.silhouette_mode = "bits"
+        assert f.labels == g.labels
+        assert f.instance.tobytes() == g.instance.tobytes()
+        ref = _reference_visible(f.instance, vs)
+        for lb, (count, box) in zip(f.labels, ref, strict=True):
+            assert lb.visible_pixels == count and lb.visible_box == box
+            if 0 < lb.visible_fraction < 1:
+                n_partly += 1
+            if lb.visible_pixels == 0 and lb.silhouette_pixels > 0:
+                n_hidden += 1
+        # the MSAA renderer's separate id/depth pass draws the same ids and depth
+        h = ms.render(cam, vs)
+        assert h.instance.tobytes() == f.instance.tobytes()
+        assert h.depth.tobytes() == f.depth.tobytes()
+        assert h.labels == f.labels
+        n_layers += len(vs) > 1
+    assert n_partly > 20 and n_hidden > 3 and n_layers > 30  # the scenes exercise occlusion
+
+
+def test_more_than_32_silhouette_layers(gl_ctx, straight_map):
+    """Forty vehicles stacked in one spot: one layer each, two bit passes."""
+    r = Renderer(straight_map, 160, 90, 90.0, msaa=0, ctx=gl_ctx)
+    cam = (-95.0, 1.75, 1.6, 0.0, 0.0, 0.0)
+    vs = [(i + 1, identity(SEDAN), -70.0 + 0.3 * i, 1.75, 0.0, 0.0) for i in range(40)]
+    f = r.render(cam, vs)
+    r.silhouette_mode = "layers"
+    g = r.render(cam, vs)
+    assert f.labels == g.labels
+    assert sum(lb.silhouette_pixels > 0 for lb in f.labels) == 40
+    r.release()
+
+
+def test_depth_readback_is_optional(pair):
+    fast, ms = pair
+    cam, vs = random_scene(np.random.default_rng(3), 12)
+    for r in (fast, ms):
+        a = r.render(cam, vs)
+        b = r.render(cam, vs, depth=False)
+        assert b.depth is None
+        assert a.rgb.tobytes() == b.rgb.tobytes() and a.instance.tobytes() == b.instance.tobytes()
+        assert a.labels == b.labels
