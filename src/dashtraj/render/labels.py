@@ -130,21 +130,27 @@ def clipped_projection(
         mesh i owns rows offsets[i]:offsets[i + 1].
     """
     c = world_pts @ m[:3, :3].T + m[:3, 3]
-    keep = c[:, 2] >= near
-    pts, own = c[keep], owner[keep]
-    a = c
-    b = c.reshape(-1, 3, 3)[:, [1, 2, 0]].reshape(-1, 3)
-    cross = (a[:, 2] - near) * (b[:, 2] - near) < 0
-    if np.any(cross):
-        a, b = a[cross], b[cross]
-        t = (near - a[:, 2]) / (b[:, 2] - a[:, 2])
-        pts = np.concatenate([pts, a + t[:, None] * (b - a)])
-        own = np.concatenate([own, owner[cross]])
-        order = np.argsort(own, kind="stable")
-        pts, own = pts[order], own[order]
-    uv = np.column_stack(
-        [k[0, 0] * pts[:, 0] / pts[:, 2] + k[0, 2], k[1, 1] * pts[:, 1] / pts[:, 2] + k[1, 2]]
-    )
+    z = c[:, 2]
+    keep = z >= near
+    if keep.all():  # nothing to clip (the usual case): project every vertex
+        pts, own = c, owner
+    else:
+        pts, own = c[keep], owner[keep]
+        zb = z.reshape(-1, 3)[:, [1, 2, 0]].ravel()
+        cross = np.flatnonzero((z - near) * (zb - near) < 0)
+        if len(cross):
+            a = c[cross]
+            b = c.reshape(-1, 3, 3)[:, [1, 2, 0]].reshape(-1, 3)[cross]
+            t = (near - a[:, 2]) / (b[:, 2] - a[:, 2])
+            pts = np.concatenate([pts, a + t[:, None] * (b - a)])
+            own = np.concatenate([own, owner[cross]])
+            order = np.argsort(own, kind="stable")
+            pts, own = pts[order], own[order]
+    uv = np.empty((len(pts), 2))
+    for j in (0, 1):  # (f * x) / z + c, in this order
+        np.multiply(pts[:, j], k[j, j], out=uv[:, j])
+        uv[:, j] /= pts[:, 2]
+        uv[:, j] += k[j, 2]
     offsets = np.searchsorted(own, np.arange(n + 1))
     return uv, offsets
 
@@ -176,11 +182,14 @@ def _clip_polygon(poly: np.ndarray, w: float, h: float) -> np.ndarray:
     return poly
 
 
-def truncation(uv: np.ndarray, width: int, height: int) -> float:
-    """Fraction of the convex hull of projected points (P, 2) outside the image."""
+def truncation(uv: np.ndarray, width: int, height: int, lo=None, hi=None) -> float:
+    """Fraction of the convex hull of projected points (P, 2) outside the image
+    (``lo``/``hi``: the points' precomputed min/max, optional)."""
     if len(uv) == 0:
         return 1.0
-    lo, hi = uv.min(axis=0), uv.max(axis=0)
+    if lo is None or hi is None:
+        lo, hi = uv.min(axis=0), uv.max(axis=0)
+    lo, hi = (float(lo[0]), float(lo[1])), (float(hi[0]), float(hi[1]))
     if lo[0] >= 0 and lo[1] >= 0 and hi[0] <= width and hi[1] <= height:
         return 0.0
     if hi[0] <= 0 or hi[1] <= 0 or lo[0] >= width or lo[1] >= height:
@@ -330,7 +339,7 @@ def compute_labels(
                 visible_pixels=nv,
                 silhouette_pixels=ns,
                 visible_fraction=(nv / ns) if ns else 0.0,
-                truncation=truncation(uv[off[i] : off[i + 1]], w, h),
+                truncation=truncation(uv[off[i] : off[i + 1]], w, h, lo[i], hi[i]),
             )
         )
     return out
