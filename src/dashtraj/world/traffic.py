@@ -116,7 +116,9 @@ class TrafficConfig:
         observer_placement: one of `OBSERVER_PLACEMENTS`; "meet" places observers
             where the target will pass (see `TrafficSim._place_observers`).
         crossing_max_wait_s: longest a "crossing" observer waits at its junction
-            for the target, seconds.
+            for the target, seconds (from the start).
+        oncoming_max_wait_s: longest an "oncoming" observer stands where it starts
+            waiting for the target, seconds (from the start).
         idm: car-following parameters.
     """
 
@@ -130,7 +132,8 @@ class TrafficConfig:
     target_detour_prob: float = 0.3
     target_trip_m: tuple[float, float] = (400.0, 900.0)
     observer_placement: str = "meet"
-    crossing_max_wait_s: float = 75.0
+    crossing_max_wait_s: float = 60.0
+    oncoming_max_wait_s: float = 40.0
     idm: IDMParams = field(default_factory=IDMParams)
 
     def __post_init__(self) -> None:
@@ -465,15 +468,18 @@ class TrafficSim:
         The target's planned path (`target_lanes`, distance measured from the
         target's start) is split evenly: observer m gets the point at fraction
         (m + u) / n_observers of its length, u ~ U(0.25, 0.75), and the role
-        ``MEET_ROLES[m % 3]``:
+        oncoming, crossing, following, oncoming, crossing, ... (m = 0, 1, 2, ...):
 
         - oncoming: on the opposite-direction lane (same road and section, the
-          driving lane nearest the centre) at that point, at least 40 m ahead of
+          driving lane nearest the centre) at that point, at least 30 m ahead of
           the target; its route is the target's path reversed on opposite lanes
           (consecutive ones joined by `LaneNetwork.shortest_lanes`, one-way roads
           skipped), so the two pass each other a lane apart: it sees the front.
+          It stands still until the target is 50 m away (at most
+          `oncoming_max_wait_s`), so that they meet near that point, not in a
+          junction on the way.
         - following (at most one): 20-50 m behind the target on the lanes leading
-          into its first lane, on the target's path, 25 % faster with a 0.8 s
+          into its first lane, on the target's path, 40 % faster with a 0.8 s
           headway: it sees the back.
         - crossing: on a side road entering the junction region of the target's
           path nearest that point (heading as close to perpendicular as found),
@@ -500,7 +506,7 @@ class TrafficSim:
         n = len(obs)
         used_following = False
         for m, i in enumerate(obs):
-            role = MEET_ROLES[m % len(MEET_ROLES)]
+            role = ("oncoming", "crossing", "following")[m % 3]
             d = (m + rng.uniform(0.25, 0.75)) / n * total
             done = None
             for r in [role, *[x for x in MEET_ROLES if x != role]]:
@@ -578,7 +584,7 @@ class TrafficSim:
                     self.lane[i], self.p[i] = o, p
                     self.routes[i] = self._reverse_route(o, j)
                     if ahead > 60.0:  # wait until the target is 50 m away, then drive
-                        self.hold[i] = (float(ahead) - 50.0, self.cfg.crossing_max_wait_s, True)
+                        self.hold[i] = (float(ahead) - 50.0, self.cfg.oncoming_max_wait_s, True)
                     return True
         return False
 
@@ -618,7 +624,7 @@ class TrafficSim:
     def _meet_following(self, i, d, start, placed, reserved) -> bool:
         net, k, path = self.net, self.target, self.target_lanes
         half = 0.5 * self.length[i]
-        for gap in (25.0, 30.0, 20.0, 35.0, 40.0, 45.0, 50.0):
+        for gap in (20.0, 25.0, 30.0, 35.0, 40.0, 45.0, 50.0):
             lane, p, chain = int(self.lane[k]), float(self.p[k]) - gap, []
             while p < 0.0:
                 preds = sorted(net.predecessors[lane], key=lambda q: (net.region[q] != -1, q))
@@ -628,7 +634,7 @@ class TrafficSim:
             if self._spot_free(lane, p, half, placed, reserved):
                 self.lane[i], self.p[i] = lane, p
                 self.routes[i] = chain + list(path[1:])
-                self.v0[i] = 1.25 * self.v0[k]
+                self.v0[i] = 1.4 * self.v0[k]
                 self.headway[i] = 0.8
                 return True
         return False
