@@ -12,16 +12,35 @@ never overriding a value the user already set):
 - ``LIBGL_ALWAYS_SOFTWARE=1``: Mesa picks llvmpipe even where a GPU driver exists, so
   images are byte-identical on every machine (a GPU driver would rasterize slightly
   differently).
-- ``LP_NUM_THREADS``: llvmpipe's rasterizer threads; pass ``threads`` to pin it (it must
-  be set before the first context of the process is created; 0 = rasterize on the
-  calling thread only). Output bytes do not depend on it.
+- ``LP_NUM_THREADS``: llvmpipe's rasterizer threads; pass ``threads`` to pin it (0 =
+  rasterize on the calling thread only). Output bytes do not depend on it (checked:
+  identical frames with 0 and 2 threads).
+
+Threads, and why setting them often seems to do nothing:
+
+- llvmpipe reads ``LP_NUM_THREADS`` once per process, when its screen is created, i.e.
+  with the first EGL context. Later contexts share that screen (and its rasterizer
+  threads): ``create_context(threads=2)`` after a first context with 0 threads still
+  runs on one thread, and setting the variable after the first context does nothing.
+  ``create_context`` warns when asked for a different count than the one in effect.
+- The threads only split rasterization (tiles of 64×64 px). Vertex shading and
+  triangle setup run on the calling thread, and so does everything in numpy (labels),
+  so with 2 cores the gain is at most that of the rasterization share.
+- On a machine whose cores are busy with other processes, extra rasterizer threads
+  get no core to run on. (Here, 2 shared cores at load ~4: 0, 1 and 2 threads gave the
+  same wall-clock and CPU times per frame.)
+- Time with ``time.process_time()`` (all threads' CPU), not only wall-clock: with
+  ``threads=0`` a frame's CPU time is its one-core cost even on a loaded machine.
 """
 
 from __future__ import annotations
 
 import os
+import warnings
 
 from dashtraj.errors import DashtrajError
+
+_THREADS_IN_EFFECT: str | None = None  # LP_NUM_THREADS when the first context was made
 
 
 class RenderUnavailableError(DashtrajError):
@@ -42,9 +61,19 @@ def create_context(threads: int | None = None):
         RenderUnavailableError: moderngl is not installed or EGL/Mesa cannot open a
             context; the message says what to install.
     """
+    global _THREADS_IN_EFFECT
     os.environ.setdefault("EGL_PLATFORM", "surfaceless")
     os.environ.setdefault("LIBGL_ALWAYS_SOFTWARE", "1")
-    if threads is not None:
+    if _THREADS_IN_EFFECT is not None:
+        if threads is not None and str(int(threads)) != _THREADS_IN_EFFECT:
+            warnings.warn(
+                f"llvmpipe already runs with LP_NUM_THREADS={_THREADS_IN_EFFECT or 'default'} "
+                f"in this process; threads={threads} has no effect (set it before the "
+                "first context)",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+    elif threads is not None:
         os.environ["LP_NUM_THREADS"] = str(int(threads))
     try:
         import moderngl
@@ -60,7 +89,15 @@ def create_context(threads: int | None = None):
             "software rasterizer: scripts/install_render_deps.sh "
             "(apt-get install libegl1 libgl1 libgl1-mesa-dri)"
         ) from e
+    if _THREADS_IN_EFFECT is None:
+        _THREADS_IN_EFFECT = os.environ.get("LP_NUM_THREADS", "")
     return ctx
+
+
+def threads_in_effect() -> str | None:
+    """``LP_NUM_THREADS`` as read by llvmpipe in this process ("" = Mesa's default, one
+    per core), or None before the first context."""
+    return _THREADS_IN_EFFECT
 
 
 def context_info(ctx) -> dict[str, str]:

@@ -10,12 +10,21 @@ CARLA/Unreal).
 
 Passes per frame (moderngl on Mesa llvmpipe, headless EGL; see ``dashtraj.render.gl``):
 
-1. colour, ``msaa`` samples, resolved to ``rgb``;
-2. ids and depth without multisampling (one sample per pixel centre: exact ids);
-3. silhouettes: every vehicle drawn alone (no occluders) into an id buffer; vehicles
-   whose projected boxes do not overlap share a pass. Pass 3 rasterizes each
-   vehicle with the same viewport and matrix as pass 2, so the visible pixels of a
-   vehicle are always a subset of its silhouette pixels.
+1. with ``msaa=0``: ONE pass writes colour, instance ids and depth (three
+   attachments). With MSAA: colour with ``msaa`` samples, resolved to ``rgb``, then
+   ids and depth without multisampling (one sample per pixel centre: exact ids; all
+   attachments of a framebuffer share one sample count, and MSAA samples do not sit
+   at pixel centres, so ids cannot come from the MSAA pass). Both give the same ids
+   and depth, byte for byte.
+2. silhouettes (labels only): every vehicle drawn alone (no occluders, no depth test)
+   in ONE pass: vehicles whose projected boxes overlap go to different layers, layer
+   ``l`` ORs bit ``l`` into a uint32 image (GL logic op), 32 layers per pass, one
+   readback. It rasterizes each vehicle with the same viewport and matrix as pass 1,
+   so the visible pixels of a vehicle are always a subset of its silhouette pixels.
+
+Framebuffer rows are image rows (the projection puts the image top at GL's row 0), so
+nothing is flipped on readback. Static tiles and vehicles outside the view frustum
+are not drawn; road, kerb and mark polylines are simplified when the meshes are built.
 """
 
 from __future__ import annotations
@@ -202,7 +211,8 @@ class Frame:
     Attributes:
         rgb: (H, W, 3) uint8, antialiased.
         instance: (H, W) int32 instance ids (0 = no vehicle), one sample per pixel centre.
-        depth: (H, W) float32 metres along the optical axis (inf = sky).
+        depth: (H, W) float32 metres along the optical axis (inf = sky); None when
+            rendered with ``depth=False``.
         k: (3, 3) camera intrinsics, pixels.
         camera_pose: (x, y, z, yaw, pitch, roll), CARLA world.
         labels: per-vehicle labels (``dashtraj.render.labels.VehicleLabel``), in the
