@@ -164,22 +164,22 @@ def _poly_area(p: np.ndarray) -> float:
 
 def _clip_polygon(poly: np.ndarray, w: float, h: float) -> np.ndarray:
     """Sutherland–Hodgman clip of a convex polygon (P, 2) to [0, w] × [0, h]."""
+    pts = [(float(x), float(y)) for x, y in np.asarray(poly, np.float64)]
     for axis, bound, keep_less in ((0, 0.0, False), (0, w, True), (1, 0.0, False), (1, h, True)):
-        if len(poly) == 0:
+        if not pts:
             break
-        cur = poly
-        nxt = np.roll(cur, -1, axis=0)
-        ins_a = (cur[:, axis] <= bound) if keep_less else (cur[:, axis] >= bound)
-        ins_b = (nxt[:, axis] <= bound) if keep_less else (nxt[:, axis] >= bound)
         out = []
-        for p, q, ia, ib in zip(cur, nxt, ins_a, ins_b, strict=True):
+        for k, p in enumerate(pts):
+            q = pts[(k + 1) % len(pts)]
+            ia = p[axis] <= bound if keep_less else p[axis] >= bound
+            ib = q[axis] <= bound if keep_less else q[axis] >= bound
             if ia:
                 out.append(p)
             if ia != ib:
                 t = (bound - p[axis]) / (q[axis] - p[axis])
-                out.append(p + t * (q - p))
-        poly = np.array(out).reshape(-1, 2)
-    return poly
+                out.append((p[0] + t * (q[0] - p[0]), p[1] + t * (q[1] - p[1])))
+        pts = out
+    return np.array(pts, np.float64).reshape(-1, 2)
 
 
 def truncation(uv: np.ndarray, width: int, height: int, lo=None, hi=None) -> float:
