@@ -275,8 +275,9 @@ def _visible(instance: np.ndarray, vehicles, boxes: np.ndarray):
             c0 + int(cols[-1]) + 1,
             r0 + int(rows[-1]) + 1,
         )
-    if int(counts.sum()) != int(np.count_nonzero(instance)):  # pragma: no cover - a pixel
-        # outside its vehicle's box would break the containment argument: scan it all
+    if int(counts.sum()) != int(np.count_nonzero(instance)):  # pragma: no cover
+        # a pixel outside its vehicle's box would break the containment argument: then
+        # scan the whole image (never seen; this keeps the labels exact regardless)
         ids = np.array([v.instance_id for v in vehicles], np.int64)
         order = np.argsort(ids)
         pos = np.minimum(np.searchsorted(ids[order], instance), n - 1)
@@ -308,12 +309,13 @@ def compute_labels(
         return []
     w, h = renderer.width, renderer.height
     uv, off, lo, hi, has = proj.uv, proj.offsets, proj.lo, proj.hi, proj.has
-    vis_counts, vis_boxes = _visible(frame.instance, vehicles, proj.boxes)
+    sil_counts, sil_boxes = renderer.silhouette_counts(proj.boxes, ranges, mvp)
+    # a vehicle's visible pixels lie in its silhouette: scan only the silhouette box
+    vis_counts, vis_boxes = _visible(frame.instance, vehicles, np.maximum(sil_boxes, 0))
     pboxes = [
         (float(lo[i, 0]), float(lo[i, 1]), float(hi[i, 0]), float(hi[i, 1])) if has[i] else None
         for i in range(n)
     ]
-    sil_counts, sil_boxes = renderer.silhouette_counts(proj.boxes, ranges, mvp)
     cam_xy = frame.camera_pose[:2]
     out = []
     for i, v in enumerate(vehicles):

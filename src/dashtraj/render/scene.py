@@ -75,12 +75,6 @@ layout(location = 1) out int f_id;
 layout(location = 2) out float f_depth;
 void main() { f_color = vec4(v_color, 1.0); f_id = v_id; f_depth = v_depth; }
 """
-_VS_SIL = """
-#version 330
-uniform mat4 mvp;
-in vec3 in_pos;
-void main() { gl_Position = mvp * vec4(in_pos, 1.0); }
-"""
 _FS_SIL = """
 #version 330
 uniform uint bit;
@@ -304,7 +298,9 @@ class Renderer:
         self._prog_color = ctx.program(vertex_shader=vs, fragment_shader=_FS_COLOR)
         self._prog_id = ctx.program(vertex_shader=vs, fragment_shader=_FS_ID)
         self._prog_all = ctx.program(vertex_shader=vs, fragment_shader=_FS_ALL)
-        self._prog_sil = ctx.program(vertex_shader=_VS_SIL, fragment_shader=_FS_SIL)
+        # the same vertex shader in every pass: identical positions, so the pixels of a
+        # vehicle in the frame are always a subset of its silhouette's
+        self._prog_sil = ctx.program(vertex_shader=vs, fragment_shader=_FS_SIL)
         self._progs = (self._prog_color, self._prog_id, self._prog_all, self._prog_sil)
         for p in self._progs:
             if "sun" in p:
