@@ -202,3 +202,22 @@ def test_stitch_drops_duplicate_joints_and_interpolates_time():
     assert isinstance(tr, Trajectory)
     assert tr.points.tolist() == [[0, 0], [10, 0], [10, 10], [10, 30]]
     assert tr.t.tolist() == pytest.approx([0.0, 1.0, 2.0, 4.0])
+
+
+def test_a_gross_outlier_is_dropped_not_a_chain_break(town10):
+    # One sighting in the middle of a clean run is placed back at the start of the route,
+    # far behind the vehicle (a gross localisation error): nothing joins it to its
+    # neighbours at a plausible cost. The HMM drops it as an outlier and keeps one chain.
+    poly = known_route(town10)
+    sightings = follower_sightings(town10, poly)
+    k = len(sightings) // 2
+    far = town10.waypoint(1, 0, -1, 5.0).transform.location
+    sightings[k] = Sighting(**{**{f: getattr(sightings[k], f) for f in Sighting.__slots__},
+                               "x": far.x, "y": far.y})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ReconstructionWarning)
+        rec = reconstruct(town10, sightings, method="hmm", radius_m=6.0)
+    assert rec.details["breaks"] == 0
+    assert rec.details["outliers"] == 1
+    assert rec.details["sightings_used"] == len(sightings) - 1
+    assert sspd(Trajectory(poly), rec.trajectory) < 0.5

@@ -423,20 +423,15 @@ def reconstruct_hmm(road_map: RoadMap, sightings: Sequence[Sighting], *,
         e = np.log((1.0 - outlier_prob) * gauss + outlier_prob / (math.pi * radius_m**2))
         emis.append(e + _orientation_loglik(c, s, orientation_probs, orientation_soft_deg))
 
-    # Viterbi, restarting the chain where no transition is finite.
-    delta = emis[0].copy()
-    back: list[np.ndarray | None] = [None]
-    starts = [0]
-    piece_deltas: list[np.ndarray] = []
-    for k in range(n - 1):
-        a, b = cands[k], cands[k + 1]
-        dt = max(t[k + 1] - t[k], 0.0)
-        d = float(np.linalg.norm(z[k + 1] - z[k]))
+    def transition(p: int, q: int, from_delta: np.ndarray):
+        """Best predecessor in step p for each candidate of step q, and its score."""
+        a, b = cands[p], cands[q]
+        dt = max(t[q] - t[p], 0.0)
+        d = float(np.linalg.norm(z[q] - z[p]))
         speed_cap = max_speed_mps * dt + speed_slack_m
         max_cost = d + speed_cap + 2.0 * radius_m
         cost = np.full((len(a.waypoints), len(b.waypoints)), math.inf)
-        alive = np.flatnonzero(np.isfinite(delta))
-        for i in alive:
+        for i in np.flatnonzero(np.isfinite(from_delta)):
             cost[i] = router.costs(a.waypoints[i], b.waypoints, max_cost)
         behind = _behind_on_same_way(a.road[:, None], a.lane[:, None], a.s[:, None],
                                      b.road[None, :], b.lane[None, :], b.s[None, :], backtrack_m)
@@ -446,38 +441,80 @@ def reconstruct_hmm(road_map: RoadMap, sightings: Sequence[Sighting], *,
         trans = -math.log(beta) - np.abs(cost - d) / beta
         trans = np.where(cost > speed_cap, trans + infeasible_logp, trans)
         trans[~np.isfinite(cost)] = -np.inf
-        score = delta[:, None] + trans
+        score = from_delta[:, None] + trans
         best_prev = np.argmax(score, axis=0)
-        best = score[best_prev, np.arange(score.shape[1])]
-        if not np.isfinite(best).any():
-            warnings.warn(f"hmm: no plausible route into sighting {k + 1} (t={t[k + 1]:.2f} s); "
+        return best_prev, score[best_prev, np.arange(score.shape[1])]
+
+    # Viterbi with outliers. When nothing reaches step q from the chain's last step
+    # f, the cause is usually one gross position error (a wrong-side estimate: no
+    # candidate near the truth). First f is taken for the outlier (q is joined to
+    # f's predecessor); else q itself is skipped, at most `max_skips` in a row;
+    # only then (or when the skipped ones end the sequence) does the chain restart,
+    # at the first skipped step.
+    max_skips = 2
+    deltas: dict[int, np.ndarray] = {0: emis[0].copy()}
+    back: dict[int, tuple[int, np.ndarray]] = {}
+    starts, ends, outliers = [0], [], 0
+    frontier, pending, q = 0, [], 1
+    while q < n or pending:
+        if q >= n or len(pending) >= max_skips:
+            # A run of unreachable sightings (or some at the very end): a real break.
+            r = pending[0]
+            warnings.warn(f"hmm: no plausible route into sighting {r} (t={t[r]:.2f} s); "
                           f"restarting the chain there", ReconstructionWarning, stacklevel=2)
-            piece_deltas.append(delta)
-            delta = emis[k + 1].copy()
-            back.append(None)
-            starts.append(k + 1)
+            ends.append(frontier)
+            starts.append(r)
+            deltas[r] = emis[r].copy()
+            frontier, pending, q = r, [], r + 1
             continue
-        delta = best + emis[k + 1]
-        back.append(best_prev)
-    piece_deltas.append(delta)
+        best_prev, best = transition(frontier, q, deltas[frontier])
+        if np.isfinite(best).any():
+            back[q] = (frontier, best_prev)
+            deltas[q] = best + emis[q]
+            frontier, pending, q = q, [], q + 1
+            continue
+        if not pending and frontier in back:
+            p0 = back[frontier][0]
+            best_prev, best = transition(p0, q, deltas[p0])
+            if np.isfinite(best).any():
+                warnings.warn(f"hmm: sighting {frontier} (t={t[frontier]:.2f} s) cannot be "
+                              f"joined to the next one; treated as an outlier",
+                              ReconstructionWarning, stacklevel=2)
+                outliers += 1
+                back[q] = (p0, best_prev)
+                deltas[q] = best + emis[q]
+                frontier, q = q, q + 1
+                continue
+        pending.append(q)
+        q += 1
+    ends.append(frontier)
 
     # Backtrack each chain piece from its best end state.
     choice = np.zeros(n, dtype=np.int64)
+    used: list[int] = []
     log_lik = 0.0
-    for lo, hi, end_delta in zip(starts, [*starts[1:], n], piece_deltas, strict=True):
-        choice[hi - 1] = int(np.argmax(end_delta))
-        log_lik += float(end_delta[choice[hi - 1]])
-        for k in range(hi - 1, lo, -1):
-            choice[k - 1] = int(back[k][choice[k]])
+    for end in ends:
+        choice[end] = int(np.argmax(deltas[end]))
+        log_lik += float(deltas[end][choice[end]])
+        k = end
+        used.append(k)
+        while k in back:
+            p, best_prev = back[k]
+            choice[p] = int(best_prev[choice[k]])
+            used.append(p)
+            k = p
+    used = sorted(set(used))
+    outliers = n - len(used)
 
-    matched = [cands[k].waypoints[int(choice[k])] for k in range(n)]
+    matched = [cands[k].waypoints[int(choice[k])] for k in used]
 
     # Route between consecutive chosen lanes.
     legs: list[tuple[np.ndarray, float, float]] = []
-    anchor_k = 0
+    anchor_k = used[0]
     held = 0
-    for k in range(1, n):
-        a_wp, b_wp = matched[anchor_k], matched[k]
+    for k in used[1:]:
+        a_wp, b_wp = cands[anchor_k].waypoints[int(choice[anchor_k])], \
+            cands[k].waypoints[int(choice[k])]
         ca, cb = cands[anchor_k], cands[k]
         ia, ib = int(choice[anchor_k]), int(choice[k])
         behind = _behind_on_same_way(ca.road[ia], ca.lane[ia], ca.s[ia],
@@ -494,11 +531,12 @@ def reconstruct_hmm(road_map: RoadMap, sightings: Sequence[Sighting], *,
         legs.append((poly, t[anchor_k], t[k]))
         anchor_k = k
     first_xy = legs[0][0][0] if legs else _xy(matched[0])
-    traj = _stitch(first_xy, float(t[0]), legs)
+    traj = _stitch(first_xy, float(t[used[0]]), legs)
     details = {
         "sightings": len(sightings),
-        "sightings_used": n,
+        "sightings_used": len(used),
         "merged": merged,
+        "outliers": outliers,
         "breaks": len(starts) - 1,
         "held": held,
         "log_likelihood": log_lik,
