@@ -480,12 +480,39 @@ class Renderer:
             self._fbo_ms.use()
             self._fbo_ms.clear(*SKY_RGB, 1.0, depth=1.0)
             self._draw_scene(0, mvp, vruns)
+            region = None  # without depth, ids are only needed where vehicles can be
+            if not depth:
+                if proj is None and n:
+                    proj = vehicle_boxes(self, pose, world, starts)
+                b = proj.boxes[drawn] if n else np.zeros((0, 4), np.int64)
+                b = b[(b[:, 2] > b[:, 0]) & (b[:, 3] > b[:, 1])]
+                region = (0, 0, 0, 0)
+                if len(b):
+                    c0, r0 = int(b[:, 0].min()), int(b[:, 1].min())
+                    region = (c0, r0, int(b[:, 2].max()) - c0, int(b[:, 3].max()) - r0)
             self._fbo_id.use()
-            self._fbo_id.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-            self._draw_scene(1, mvp, vruns)
+            if region is None:
+                self._fbo_id.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+                self._draw_scene(1, mvp, vruns)
+            elif region[2] and region[3]:
+                self._fbo_id.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=region)
+                ctx.scissor = region  # the rest of the image has no vehicle: id 0
+                self._draw_scene(1, mvp, vruns)
+                ctx.scissor = None
             ctx.copy_framebuffer(self._fbo_rgb, self._fbo_ms)
             self._fbo_rgb.read_into(rgb, components=3, alignment=1)
             fbo, a_id, a_depth = self._fbo_id, 0, 1
+            if region is not None:
+                instance[:] = 0
+                if region[2] and region[3]:
+                    c0, r0, rw, rh = region
+                    sub = np.empty((rh, rw), np.int32)
+                    fbo.read_into(sub, viewport=region, components=1, dtype="i4", alignment=1)
+                    instance[r0 : r0 + rh, c0 : c0 + rw] = sub
+                frame = Frame(rgb, instance, None, self.k.copy(), pose)
+                if labels:
+                    frame.labels = compute_labels(self, frame, vs, proj, ranges, mvp)
+                return frame
         else:
             # one pass: colour, ids and depth (three attachments)
             fbo = self._fbo_all
