@@ -492,11 +492,10 @@ class Renderer:
                     region = (c0, r0, int(b[:, 2].max()) - c0, int(b[:, 3].max()) - r0)
             self._fbo_id.use()
             if region is None:
-                self._fbo_id.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+                self._clear_buffers(False)
                 self._draw_scene(1, mvp, vruns)
             elif region[2] and region[3]:
-                self._fbo_id.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=region)
-                ctx.scissor = region  # the rest of the image has no vehicle: id 0
+                self._clear_buffers(False, region)  # scissor stays: the rest has no vehicle
                 self._draw_scene(1, mvp, vruns)
                 ctx.scissor = None
             ctx.copy_framebuffer(self._fbo_rgb, self._fbo_ms)
@@ -517,14 +516,13 @@ class Renderer:
             # one pass: colour, ids and depth (three attachments)
             fbo = self._fbo_all
             fbo.use()
-            self._clear_all()
+            self._clear_buffers(True)
             self._draw_scene(2, mvp, vruns)
             fbo.read_into(rgb, components=3, attachment=0, alignment=1)
             a_id, a_depth = 1, 2
         fbo.read_into(instance, components=1, attachment=a_id, dtype="i4", alignment=1)
         if dimg is not None:
             fbo.read_into(dimg, components=1, attachment=a_depth, dtype="f4", alignment=1)
-            np.copyto(dimg, np.inf, where=dimg <= 0.0)
         frame = Frame(rgb, instance, dimg, self.k.copy(), pose)
         if labels:
             frame.labels = compute_labels(self, frame, vs, proj, ranges, mvp)
@@ -540,8 +538,9 @@ class Renderer:
         else:
             gl_function("glDisable", ctypes.c_uint)(0x0BF2)
 
-    def _clear_all(self) -> None:
-        """Clear the one-pass framebuffer (bound): sky colour, id 0, depth 0, z 1.
+    def _clear_buffers(self, colour: bool, region=None) -> None:
+        """Clear the bound framebuffer per attachment: [sky colour,] id 0, depth +inf
+        (sky: fragments always have depth ≥ NEAR_M), z 1; in ``region`` if given.
 
         moderngl clears every attachment with one colour; GL's glClearBuffer* clears
         each draw buffer with its own value."""
@@ -551,17 +550,21 @@ class Renderer:
         cf = gl_function("glClearBufferfv", ctypes.c_uint, ctypes.c_int, ctypes.c_void_p)
         ci = gl_function("glClearBufferiv", ctypes.c_uint, ctypes.c_int, ctypes.c_void_p)
         gl_color, gl_depth = 0x1800, 0x1801
-        self._clear_args = getattr(self, "_clear_args", None) or (
-            f4(*SKY_RGB, 1.0),
-            (ctypes.c_int * 4)(0, 0, 0, 0),
-            f4(0, 0, 0, 0),
-            f4(1, 0, 0, 0),
-        )
-        sky, zero_i, zero_f, one = self._clear_args
-        self.ctx.scissor = None
-        cf(gl_color, 0, sky)
-        ci(gl_color, 1, zero_i)
-        cf(gl_color, 2, zero_f)
+        if getattr(self, "_clear_args", None) is None:
+            self._clear_args = (
+                f4(*SKY_RGB, 1.0),
+                (ctypes.c_int * 4)(0, 0, 0, 0),
+                f4(math.inf, 0, 0, 0),
+                f4(1, 0, 0, 0),
+            )
+        sky, zero_i, inf_f, one = self._clear_args
+        self.ctx.scissor = region
+        k = 0
+        if colour:
+            cf(gl_color, 0, sky)
+            k = 1
+        ci(gl_color, k, zero_i)
+        cf(gl_color, k + 1, inf_f)
         cf(gl_depth, 0, one)
 
     def silhouette_counts(self, boxes: np.ndarray, ranges, mvp: bytes) -> np.ndarray:
