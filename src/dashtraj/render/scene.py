@@ -712,13 +712,16 @@ def _tiled(data: np.ndarray, tile_m: float = TILE_M):
     Returns the sorted rows and a tile table: (first vertex, vertex count, lo (3,),
     hi (3,)) arrays, one row per non-empty tile, lo/hi the tile's bounding box in the
     CARLA world frame. Triangles larger than a tile (the grass plane) get their own
-    always-tested tile; culling whole tiles never changes which pixels are drawn.
+    always-tested tile, drawn after the others; culling whole tiles never changes which
+    pixels are drawn.
     """
     tri = data[:, :3].reshape(-1, 3, 3).astype(np.float64)
     c = tri.mean(axis=1)
     key = np.floor(c[:, :2] / tile_m).astype(np.int64)
     big = (np.ptp(tri[:, :, :2], axis=1) > tile_m).any(axis=1)
-    key[big] = np.iinfo(np.int64).min // 4 + np.arange(big.sum())[:, None]
+    # big triangles (the grass plane under everything) sort last: drawn after the road
+    # surfaces, most of their samples fail the depth test early
+    key[big] = np.iinfo(np.int64).max // 4 + np.arange(big.sum())[:, None]
     _, inv = np.unique(key, axis=0, return_inverse=True)
     inv = inv.ravel()
     order = np.argsort(inv, kind="stable")
