@@ -1,0 +1,429 @@
+"""A vehicle re-identification set after the paper's CARLA ReID dataset (§II.B).
+
+Every identity (model × colour, ``catalog.identities(n_ids)``, canonical order) is
+placed alone at the same spot of a built-in town — the middle of the longest straight
+road piece (a ``line`` geometry of a non-junction road), in its lane −1, heading along
+the road — and photographed by a fixed ring of ``n_cameras`` cameras ("85 fixed
+locations ... at various distances around the vehicle"). Camera i (1-based) is drawn
+from ``numpy.random.default_rng([seed, i])``: azimuth around the vehicle (degrees from
+its heading, stratified: (i − 1 + u) · 360 / n), ground distance 4–15 m and height
+1.2–3.5 m, uniform; the ground distance is shortened so the camera stays within
+``max_lateral_m`` of the vehicle sideways (on the road and sidewalks, outside the
+buildings). Every camera looks at the vehicle's box centre. Its FOV is the narrowest
+of ``FOV_BINS_DEG`` that holds the vehicle's bounding sphere with a 10 % border, so a
+crop has roughly the output resolution at every distance (a zoom lens per camera).
+
+Crops: the vehicle's visible box (``VehicleLabel.visible_box``) grown by ``margin`` on
+each side, resized (bicubic) so the long side is ``size`` pixels, JPEG quality 95.
+A camera that sees fewer than ``MIN_VISIBLE_PIXELS`` of the vehicle writes nothing.
+
+Layout (VeRi-776)::
+
+    out/image_train/  out/image_query/  out/image_test/   [out/image_query_moving/]
+    out/name_train.txt  out/name_query.txt  out/name_test.txt  [out/name_query_moving.txt]
+    out/reid.json   (config, id map, cameras, counts)
+
+File names ``<id:04d>_c<cam:03d>_<frame:08d>_<n>.jpg``:
+
+- id = identity_id + 1 (1-based, VeRi style; ``reid.json`` lists the map with each
+  identity's key, e.g. ``vehicle.audi.a2/red``, and class);
+- ring cameras: cam = 1 … n_cameras, frame = 0, n = 0;
+- moving observers (``image_query_moving``): cam = n_cameras + 1 + k for the k-th
+  (recording, observer) pair in input order, frame = the recording's state step
+  index, n = recording index.
+
+Split (paper: 700 ids, 650 train, 50 test, 424 query, 3,823 gallery): the first
+``n_ids − n_test_ids`` ids train, the last ``n_test_ids`` test. Of each test id's
+images, ``round(q · n + u)`` (u uniform from ``default_rng([seed, 1, id])``, q =
+424 / 4247 so 8–9 of 85) from distinct cameras go to query, at least one and never all;
+the rest are the gallery (``image_test``). The name files list the files of their
+folder, sorted. Output bytes do not depend on the number of worker processes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from dashtraj.datasets.frames import (
+    DatasetError,
+    JPEG_QUALITY,
+    crop_vehicle,
+    recording_frames,
+)
+
+FOV_BINS_DEG = (10.0, 15.0, 20.0, 30.0, 45.0, 60.0, 75.0, 90.0, 110.0)
+"""Horizontal (= vertical, square images) fields of view of the ring cameras, degrees."""
+QUERY_FRACTION = 424 / (424 + 3823)
+"""The paper's query share of the test images (424 query, 3,823 gallery)."""
+MIN_VISIBLE_PIXELS = 16
+NAME_PATTERN = r"^\d{4}_c\d{3}_\d{8}_\d+\.jpg$"
+SPLITS = ("train", "query", "test")
+
+
+@dataclass(frozen=True)
+class RingCamera:
+    """A fixed camera around the vehicle, in the vehicle's frame.
+
+    index: 1-based camera id (``c<index:03d>``). azimuth_deg: direction from the vehicle
+    to the camera, degrees from the vehicle's heading (positive toward its right, CARLA
+    yaw sense). distance_m: ground distance to the vehicle centre. height_m: camera
+    height above the road, metres.
+    """
+
+    index: int
+    azimuth_deg: float
+    distance_m: float
+    height_m: float
+
+
+@dataclass(frozen=True)
+class ReidConfig:
+    """Settings of a ReID set; written to ``reid.json``.
+
+    Attributes:
+        n_ids: identities (the first n of ``catalog.identities()``).
+        n_cameras: ring cameras. size: crop long side, pixels. seed: camera/split seed.
+        n_test_ids: test identities (the last ones); None = round(n_ids · 50 / 700),
+            at least 1.
+        town: built-in town of the stage. margin: crop margin, fraction of the box.
+        distance_range_m, height_range_m: ring camera ground distance and height, m.
+        max_lateral_m: largest sideways offset of a ring camera from the vehicle, m.
+        every_s, min_visible_fraction, min_box_height_px: frames sampled from
+            recordings and the crops kept for ``image_query_moving``.
+    """
+
+    n_ids: int = 700
+    n_cameras: int = 85
+    size: int = 256
+    seed: int = 0
+    n_test_ids: int | None = None
+    town: str = "town10"
+    margin: float = 0.1
+    distance_range_m: tuple[float, float] = (4.0, 15.0)
+    height_range_m: tuple[float, float] = (1.2, 3.5)
+    max_lateral_m: float = 9.5
+    every_s: float = 0.5
+    min_visible_fraction: float = 0.6
+    min_box_height_px: float = 40.0
+    msaa: int = 4
+    recordings: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def test_ids(self) -> int:
+        n = self.n_test_ids if self.n_test_ids is not None else max(1, round(self.n_ids * 50 / 700))
+        return int(n)
+
+
+def ring_cameras(config: ReidConfig) -> list[RingCamera]:
+    """The ring's cameras, deterministic per index (see the module docstring)."""
+    out = []
+    d0, d1 = config.distance_range_m
+    h0, h1 = config.height_range_m
+    for i in range(1, config.n_cameras + 1):
+        rng = np.random.default_rng([config.seed, i])
+        az = (i - 1 + rng.uniform()) * 360.0 / config.n_cameras
+        d = rng.uniform(d0, d1)
+        h = rng.uniform(h0, h1)
+        s = abs(math.sin(math.radians(az)))
+        if d * s > config.max_lateral_m:
+            d = config.max_lateral_m / s
+        out.append(RingCamera(i, round(az, 6), round(d, 6), round(h, 6)))
+    return out
+
+
+def stage_pose(road_map) -> tuple[float, float, float, float]:
+    """(x, y, z, yaw_deg), CARLA world: middle of the longest straight road piece, lane −1.
+
+    Raises DatasetError when the map has no straight non-junction road with lane −1.
+    """
+    best = None
+    for rid in sorted(road_map.roads):
+        road = road_map.roads[rid]
+        if road.junction >= 0:
+            continue
+        for g in road.plan_view.geometries:
+            if g.kind == "line" and (best is None or g.length > best[0] + 1e-9):
+                best = (g.length, rid, g.s)
+    wp = None
+    if best is not None:
+        wp = road_map.get_waypoint_xodr(best[1], -1, best[2] + best[0] / 2)
+    if wp is None:
+        raise DatasetError(f"map {road_map.name!r}: no straight road with a lane -1 for the "
+                           "ReID stage")
+    tr = wp.transform
+    return (float(tr.location.x), float(tr.location.y), float(tr.location.z),
+            float(tr.rotation.yaw))
+
+
+def split_of(vid: int, config: ReidConfig) -> str:
+    """"train" or "test" for a 1-based ReID id."""
+    return "test" if vid > config.n_ids - config.test_ids else "train"
+
+
+def query_cameras(vid: int, cams: list[int], config: ReidConfig) -> set[int]:
+    """The cameras of test id ``vid`` whose images go to query (distinct, ≥ 1, < all)."""
+    if len(cams) < 2:
+        return set()
+    rng = np.random.default_rng([config.seed, 1, vid])
+    n = int(math.floor(QUERY_FRACTION * len(cams) + rng.uniform()))
+    n = min(max(n, 1), len(cams) - 1)
+    return {int(c) for c in rng.choice(sorted(cams), size=n, replace=False)}
+
+
+def veri_name(vid: int, cam: int, frame: int, n: int) -> str:
+    """``<id:04d>_c<cam:03d>_<frame:08d>_<n>.jpg``; raises DatasetError when a field overflows."""
+    if not (0 < vid <= 9999 and 0 < cam <= 999 and 0 <= frame <= 99_999_999 and n >= 0):
+        raise DatasetError(f"VeRi name fields out of range: id {vid}, camera {cam}, "
+                           f"frame {frame}, n {n}")
+    return f"{vid:04d}_c{cam:03d}_{frame:08d}_{n}.jpg"
+
+
+class _Stage:
+    """Renderers (one per FOV bin, sharing one GL context) of the town with the stage."""
+
+    def __init__(self, config: ReidConfig, map_path: str, out_dir: str):
+        from dashtraj.roads import RoadMap
+
+        self.config = config
+        self.out = Path(out_dir)
+        self.road_map = RoadMap.from_file(map_path)
+        self.pose = stage_pose(self.road_map)
+        self.cameras = ring_cameras(config)
+        self._renderers: dict[float, object] = {}
+        self._ctx = None
+
+    def renderer(self, fov: float):
+        from dashtraj.render.scene import Renderer
+
+        r = self._renderers.get(fov)
+        if r is None:
+            s = self.config.size
+            r = Renderer(self.road_map, s, s, fov, msaa=self.config.msaa, ctx=self._ctx,
+                         threads=0)
+            self._ctx = r.ctx
+            self._renderers[fov] = r
+        return r
+
+    def release(self) -> None:
+        owner = None
+        for r in self._renderers.values():
+            if r._owns_ctx:
+                owner = r
+            else:
+                r.release()
+        if owner is not None:
+            owner.release()
+        self._renderers.clear()
+
+    def camera_pose(self, cam: RingCamera, model) -> tuple[tuple, float]:
+        """Camera pose (x, y, z, yaw, pitch, roll) looking at the vehicle, and its FOV bin."""
+        x, y, z, yaw = self.pose
+        a = math.radians(yaw + cam.azimuth_deg)
+        cx, cy = x + cam.distance_m * math.cos(a), y + cam.distance_m * math.sin(a)
+        tz = z + model.height_m / 2
+        cz = z + cam.height_m
+        cyaw = math.degrees(math.atan2(y - cy, x - cx))
+        pitch = -math.degrees(math.atan2(cz - tz, cam.distance_m))
+        r = 0.5 * math.sqrt(model.length_m ** 2 + model.width_m ** 2 + model.height_m ** 2)
+        d3 = math.hypot(cam.distance_m, cz - tz)
+        need = 2.0 * math.degrees(math.asin(min(1.0, r / d3))) / 0.9
+        fov = next((f for f in FOV_BINS_DEG if f >= need), FOV_BINS_DEG[-1])
+        return (cx, cy, cz, cyaw, pitch, 0.0), fov
+
+    def identity_images(self, identity) -> dict[str, list[str]]:
+        """Render, crop and write one identity's images; returns names per split."""
+        vid = identity.identity_id + 1
+        x, y, z, yaw = self.pose
+        crops = {}
+        for cam in self.cameras:
+            pose, fov = self.camera_pose(cam, identity.model)
+            frame = self.renderer(fov).render(pose, [(1, identity, x, y, z, yaw)])
+            lab = frame.labels[0]
+            if lab.visible_box is None or lab.visible_pixels < MIN_VISIBLE_PIXELS:
+                continue
+            crops[cam.index] = crop_vehicle(frame.rgb, lab.visible_box, self.config.margin,
+                                            self.config.size)
+        if split_of(vid, self.config) == "train":
+            dest = dict.fromkeys(crops, "train")
+        else:
+            q = query_cameras(vid, list(crops), self.config)
+            dest = {c: ("query" if c in q else "test") for c in crops}
+        names: dict[str, list[str]] = {s: [] for s in SPLITS}
+        for c in sorted(crops):
+            name = veri_name(vid, c, 0, 0)
+            crops[c].save(self.out / f"image_{dest[c]}" / name, format="JPEG",
+                          quality=JPEG_QUALITY)
+            names[dest[c]].append(name)
+        return names
+
+
+_WORKER: _Stage | None = None  # set in each worker process by _init_worker only
+
+
+def _init_worker(config: ReidConfig, map_path: str, out_dir: str) -> None:
+    global _WORKER
+    _WORKER = _Stage(config, map_path, out_dir)
+
+
+def _work(identity_id: int) -> dict[str, list[str]]:
+    from dashtraj.world import catalog
+
+    return _WORKER.identity_images(catalog.identities()[identity_id])
+
+
+def build_reid_dataset(config: ReidConfig, out_dir, workers: int = 1, recordings=(),
+                       progress=None) -> dict:
+    """Render the ReID set (layout and split in the module docstring).
+
+    Args:
+        config: a ``ReidConfig``.
+        out_dir: output directory (created; same-named files are overwritten).
+        workers: processes (each with its own GL context, started with ``spawn`` so no
+            context exists before a worker starts); 1 renders in this process.
+        recordings: opened ``Recording`` objects whose observers' crops of the test
+            identities make ``image_query_moving`` (none: the folder is not written).
+        progress: called with no argument after each identity, or None.
+
+    Returns:
+        the ``reid.json`` dict (config, id map, cameras, stage pose, counts).
+
+    Raises:
+        DatasetError: bad counts (ids beyond the catalog, no train id, ...).
+        RenderUnavailableError: no GL context.
+    """
+    from dashtraj.world import catalog
+    from dashtraj.world.towns import town_path
+
+    n_all = len(catalog.identities())
+    if not 1 <= config.n_ids <= min(n_all, 9999):
+        raise DatasetError(f"--ids {config.n_ids}: the catalog has {n_all} identities")
+    if not 1 <= config.test_ids < config.n_ids:
+        raise DatasetError(f"{config.test_ids} test ids of {config.n_ids}: need at least one "
+                           "train and one test id")
+    if not 1 <= config.n_cameras <= 999:
+        raise DatasetError(f"--cameras {config.n_cameras}: 1 to 999 (c001 … c999)")
+    out = Path(out_dir)
+    for s in (*SPLITS, "query_moving"):
+        d = out / f"image_{s}"
+        if d.is_dir():  # stale images of an earlier run would not be in the name files
+            for old in sorted(d.glob("*.jpg")):
+                old.unlink()
+        elif s != "query_moving":
+            d.mkdir(parents=True)
+    map_path = str(town_path(config.town))
+    names: dict[str, list[str]] = {s: [] for s in SPLITS}
+    ids = list(range(config.n_ids))
+    if workers <= 1:
+        stage = _Stage(config, map_path, str(out))
+        try:
+            for iid in ids:
+                for s, ns in stage.identity_images(catalog.identities()[iid]).items():
+                    names[s].extend(ns)
+                if progress is not None:
+                    progress()
+            pose = stage.pose
+        finally:
+            stage.release()
+    else:
+        import multiprocessing as mp
+
+        ctx = mp.get_context("spawn")
+        with ctx.Pool(workers, initializer=_init_worker,
+                      initargs=(config, map_path, str(out))) as pool:
+            for res in pool.imap(_work, ids, chunksize=1):
+                for s, ns in res.items():
+                    names[s].extend(ns)
+                if progress is not None:
+                    progress()
+        from dashtraj.roads import RoadMap
+
+        pose = stage_pose(RoadMap.from_file(map_path))
+    counts = {}
+    for s in SPLITS:
+        (out / f"name_{s}.txt").write_text("".join(f"{n}\n" for n in sorted(names[s])),
+                                           encoding="utf-8")
+        counts[s] = {"images": len(names[s]), "ids": len({n[:4] for n in names[s]})}
+    moving = None
+    if recordings:
+        moving = moving_queries(recordings, out, config)
+        counts["query_moving"] = moving["counts"]
+    pool_ids = catalog.identities(config.n_ids)
+    info = {
+        "format": "veri-776",
+        "config": {**asdict(config), "distance_range_m": list(config.distance_range_m),
+                   "height_range_m": list(config.height_range_m),
+                   "recordings": [str(r.path) for r in recordings]},
+        "test_ids": config.test_ids,
+        "stage": {"town": config.town, "x": pose[0], "y": pose[1], "z": pose[2],
+                  "yaw_deg": pose[3]},
+        "cameras": [asdict(c) for c in ring_cameras(config)],
+        "ids": [{"id": i.identity_id + 1, "identity_id": i.identity_id, "key": i.key,
+                 "class": i.model.vehicle_class,
+                 "split": split_of(i.identity_id + 1, config)} for i in pool_ids],
+        "counts": counts,
+    }
+    if moving is not None:
+        info["moving_cameras"] = moving["cameras"]
+    (out / "reid.json").write_text(json.dumps(info, indent=1, sort_keys=True) + "\n",
+                                   encoding="utf-8")
+    return info
+
+
+def moving_queries(recordings, out_dir, config: ReidConfig) -> dict:
+    """Crops of the test identities seen by the recordings' moving observers.
+
+    Writes ``image_query_moving/`` and ``name_query_moving.txt``: every sampled frame
+    (``config.every_s``) where a vehicle whose catalog identity is a test id shows at
+    least ``min_visible_fraction`` of itself and a visible box ≥ ``min_box_height_px``
+    high. Vehicles of other identities (recordings draw identities from the whole
+    catalog) are skipped and counted.
+
+    Returns:
+        {"counts": {"images", "ids", "skipped_not_test"}, "cameras": [{"cam",
+        "recording", "observer_id"}]}.
+    """
+    from dashtraj.datasets.frames import observer_ids
+    from dashtraj.world import catalog
+
+    out = Path(out_dir) / "image_query_moving"
+    out.mkdir(parents=True, exist_ok=True)
+    pool = catalog.identities()
+    cams, cam_of = [], {}
+    for ri, rec in enumerate(recordings):
+        for o in observer_ids(rec):
+            cam_of[(ri, o)] = config.n_cameras + 1 + len(cams)
+            cams.append({"cam": cam_of[(ri, o)], "recording": str(rec.path), "observer_id": o})
+    if cams and cams[-1]["cam"] > 999:
+        raise DatasetError(f"{len(cams)} moving observers + {config.n_cameras} ring cameras "
+                           "exceed the 999 camera ids of the VeRi names")
+    names, skipped = [], 0
+    for ri, rec in enumerate(recordings):
+        rows = {int(v["vehicle_id"]): v for v in rec.vehicles}
+        for rf in recording_frames(rec, config.every_s, msaa=config.msaa):
+            for lab, vehicle_id, iid in zip(rf.frame_data.labels, rf.vehicle_ids,
+                                            rf.identity_ids, strict=True):
+                b = lab.visible_box
+                if (b is None or lab.visible_fraction < config.min_visible_fraction
+                        or b[3] - b[1] < config.min_box_height_px):
+                    continue
+                row = rows[vehicle_id]
+                same_look = (0 <= iid < len(pool) and pool[iid].model.blueprint_id
+                             == row["blueprint_id"] and pool[iid].color_name == row["color"])
+                vid = iid + 1
+                if not same_look or iid >= config.n_ids or split_of(vid, config) != "test":
+                    skipped += 1
+                    continue
+                name = veri_name(vid, cam_of[(ri, rf.observer_id)], rf.frame, ri)
+                crop_vehicle(rf.frame_data.rgb, b, config.margin, config.size).save(
+                    out / name, format="JPEG", quality=JPEG_QUALITY)
+                names.append(name)
+    names.sort()
+    (Path(out_dir) / "name_query_moving.txt").write_text("".join(f"{n}\n" for n in names),
+                                                         encoding="utf-8")
+    return {"counts": {"images": len(names), "ids": len({n[:4] for n in names}),
+                       "skipped_not_test": skipped}, "cameras": cams}
