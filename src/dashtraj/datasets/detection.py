@@ -85,7 +85,7 @@ def yolo_lines(labels, width: int, height: int, min_box_height_px: float,
 def split_units(n: int, val_fraction: float, rng: np.random.Generator) -> np.ndarray:
     """(n,) bool, True = val: round(n × val_fraction) units (at least 1 when n ≥ 2 and
     val_fraction > 0, at most n − 1), drawn with ``rng``."""
-    n_val = int(round(n * val_fraction))
+    n_val = round(n * val_fraction)
     if val_fraction > 0 and n >= 2:
         n_val = min(max(n_val, 1), n - 1)
     else:

@@ -50,8 +50,8 @@ from pathlib import Path
 import numpy as np
 
 from dashtraj.datasets.frames import (
-    DatasetError,
     JPEG_QUALITY,
+    DatasetError,
     crop_vehicle,
     recording_frames,
 )
@@ -170,7 +170,7 @@ def query_cameras(vid: int, cams: list[int], config: ReidConfig) -> set[int]:
     if len(cams) < 2:
         return set()
     rng = np.random.default_rng([config.seed, 1, vid])
-    n = int(math.floor(QUERY_FRACTION * len(cams) + rng.uniform()))
+    n = math.floor(QUERY_FRACTION * len(cams) + rng.uniform())
     n = min(max(n, 1), len(cams) - 1)
     return {int(c) for c in rng.choice(sorted(cams), size=n, replace=False)}
 
