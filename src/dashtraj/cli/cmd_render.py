@@ -1,0 +1,191 @@
+"""`dashtraj render`, `dashtraj detection-dataset`, `dashtraj reid-dataset`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the `render`, `detection-dataset` and `reid-dataset` commands."""
+    p = subparsers.add_parser(
+        "render",
+        help="render a recording's observer frames (JPEG) with a labels table",
+        description=(
+            "Render every observer's dashcam every --every seconds: DIR/<observer>/<frame>.jpg "
+            "and DIR/labels.parquet (observer_id, t, vehicle_id, label, class id, visible "
+            "and silhouette boxes, visible fraction, truncation, distance). --preview adds "
+            "DIR/preview/ PNGs with boxes and a contact sheet of crops per vehicle."
+        ),
+    )
+    p.add_argument("recording", metavar="RUN", help="recording directory")
+    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
+    p.add_argument("--observer", type=int, action="append", metavar="ID",
+                   help="only this observer (repeatable; default all)")
+    p.add_argument("--every", type=float, default=0.5, metavar="S",
+                   help="sampling period, seconds (default 0.5)")
+    p.add_argument("--size", default=None, metavar="WxH",
+                   help="image size (default: the recording's camera)")
+    p.add_argument("--preview", action="store_true", help="also write preview pictures")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(func=run_render)
+
+    d = subparsers.add_parser(
+        "detection-dataset",
+        help="render recordings into a YOLO detection set (15 classes)",
+        description=(
+            "YOLO set: images/{train,val}, labels/{train,val} (class cx cy w h of visible "
+            "boxes, normalised), data.yaml, dataset.json. Split by recording (by observer "
+            "with one recording). Vehicles lower than --min-box-height or more occluded "
+            "than --max-occlusion stay unlabelled in the image (YOLO sees background)."
+        ),
+    )
+    d.add_argument("recordings", nargs="+", metavar="RUN", help="recording directories")
+    d.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
+    d.add_argument("--every", type=float, default=0.5, metavar="S",
+                   help="sampling period, seconds (default 0.5)")
+    d.add_argument("--size", default="640x360", metavar="WxH", help="image size (640x360)")
+    d.add_argument("--min-box-height", type=float, default=10.0, metavar="PX",
+                   help="smallest labelled visible box height, pixels (default 10)")
+    d.add_argument("--max-occlusion", type=float, default=0.7,
+                   help="largest labelled occlusion 1 - visible fraction (default 0.7)")
+    d.add_argument("--val-fraction", type=float, default=0.2,
+                   help="share of recordings in val (default 0.2)")
+    d.add_argument("--seed", type=int, default=0, help="split seed (default 0)")
+    d.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    d.add_argument("--json", action="store_true", help="print the summary as JSON")
+    d.set_defaults(func=run_detection)
+
+    r = subparsers.add_parser(
+        "reid-dataset",
+        help="render a VeRi-layout ReID set (identities seen by a ring of fixed cameras)",
+        description=(
+            "After the paper's CARLA ReID dataset: every identity alone on a straight road "
+            "of a town, seen by --cameras fixed cameras around it; crops in the VeRi-776 "
+            "layout (image_train, image_query, image_test, name_*.txt, reid.json). The last "
+            "--test-ids identities are test. --from-recordings adds image_query_moving/ "
+            "(test identities seen by moving observers)."
+        ),
+    )
+    r.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
+    r.add_argument("--ids", type=int, default=700, help="identities (default 700)")
+    r.add_argument("--cameras", type=int, default=85, help="ring cameras (default 85)")
+    r.add_argument("--test-ids", type=int, default=None,
+                   help="test identities (default round(ids * 50 / 700), at least 1)")
+    r.add_argument("--size", type=int, default=256, metavar="PX",
+                   help="crop long side, pixels (default 256)")
+    r.add_argument("--town", default="town10", help="built-in town of the stage (town10)")
+    r.add_argument("--seed", type=int, default=0, help="camera and split seed (default 0)")
+    r.add_argument("--workers", type=int, default=1, help="render processes (default 1)")
+    r.add_argument("--from-recordings", nargs="+", default=(), metavar="RUN",
+                   help="recordings whose observers' crops make image_query_moving/")
+    r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--json", action="store_true", help="print the summary as JSON")
+    r.set_defaults(func=run_reid)
+
+
+def _bar(args, total: int, unit: str):
+    if args.quiet or not sys.stderr.isatty():
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit=unit, file=sys.stderr)
+
+
+def _frame_total(recordings, every_s: float, observers=None) -> int:
+    from dashtraj.datasets.frames import observer_ids, sample_steps
+
+    n = 0
+    for rec in recordings:
+        obs = observers or observer_ids(rec)
+        n += len(sample_steps(rec, every_s)) * len(obs)
+    return n
+
+
+def run_render(args: argparse.Namespace) -> int:
+    """Render one recording's frames; prints a summary; returns 0."""
+    from dashtraj.datasets.frames import export_frames, parse_size
+    from dashtraj.world.recording import Recording
+
+    rec = Recording.open(args.recording)
+    size = parse_size(args.size) if args.size else None
+    bar = _bar(args, _frame_total([rec], args.every, args.observer), "frame")
+    try:
+        s = export_frames(rec, args.output, args.every, size, args.observer, args.preview,
+                          progress=bar.update if bar is not None else None)
+    finally:
+        if bar is not None:
+            bar.close()
+    info = {"output": str(s.out_dir), "frames": s.frames, "labels": s.labels,
+            "in_view": s.in_view, "per_observer": {str(k): v for k, v in s.per_observer.items()},
+            "labels_path": str(s.labels_path),
+            "preview": str(s.preview_dir) if s.preview_dir else None}
+    if args.json:
+        print(json.dumps(info))
+    else:
+        obs = ", ".join(f"{k}: {v}" for k, v in s.per_observer.items())
+        print(f"{s.out_dir}: {s.frames} frames ({obs}), {s.labels} labels "
+              f"({s.in_view} with visible pixels) in {s.labels_path.name}"
+              + (f"; previews in {s.preview_dir}" if s.preview_dir else ""))
+    return 0
+
+
+def run_detection(args: argparse.Namespace) -> int:
+    """Build a YOLO detection set; prints a summary; returns 0."""
+    from dashtraj.datasets.detection import DetectionConfig, build_detection_dataset
+    from dashtraj.datasets.frames import parse_size
+    from dashtraj.world.recording import Recording
+
+    recs = [Recording.open(p) for p in args.recordings]
+    cfg = DetectionConfig(every_s=args.every, size=parse_size(args.size),
+                          min_box_height_px=args.min_box_height,
+                          max_occlusion=args.max_occlusion, val_fraction=args.val_fraction,
+                          seed=args.seed)
+    bar = _bar(args, _frame_total(recs, args.every), "frame")
+    try:
+        info = build_detection_dataset(recs, args.output, cfg,
+                                       progress=bar.update if bar is not None else None)
+    finally:
+        if bar is not None:
+            bar.close()
+    if args.json:
+        print(json.dumps(info))
+    else:
+        c = info["counts"]
+        print(f"{args.output}: train {c['train']['images']} images / {c['train']['labels']} "
+              f"boxes, val {c['val']['images']} images / {c['val']['labels']} boxes; split by "
+              f"{info['split_by']} (val: {', '.join(map(str, info['val'])) or 'none'})")
+        if "warning" in info:
+            print(f"dashtraj: warning: {info['warning']}", file=sys.stderr)
+    return 0
+
+
+def run_reid(args: argparse.Namespace) -> int:
+    """Build a VeRi-layout ReID set; prints a summary; returns 0."""
+    from dashtraj.datasets.reid import ReidConfig, build_reid_dataset
+    from dashtraj.world.recording import Recording
+
+    recs = [Recording.open(p) for p in args.from_recordings]
+    cfg = ReidConfig(n_ids=args.ids, n_cameras=args.cameras, size=args.size, seed=args.seed,
+                     n_test_ids=args.test_ids, town=args.town)
+    bar = _bar(args, args.ids, "id")
+    try:
+        info = build_reid_dataset(cfg, args.output, workers=args.workers, recordings=recs,
+                                  progress=bar.update if bar is not None else None)
+    finally:
+        if bar is not None:
+            bar.close()
+    if args.json:
+        print(json.dumps(info["counts"]))
+    else:
+        c = info["counts"]
+        line = (f"{args.output}: train {c['train']['images']} images of {c['train']['ids']} ids; "
+                f"query {c['query']['images']}, gallery {c['test']['images']} of "
+                f"{c['test']['ids']} test ids")
+        if "query_moving" in c:
+            m = c["query_moving"]
+            line += f"; moving query {m['images']} images of {m['ids']} ids"
+        print(line + f"; ids are identity_id + 1 (see {args.output}/reid.json)")
+    return 0
