@@ -1,57 +1,14 @@
-"""Shared fixtures of the roads tests: the real CARLA maps and a tiny OpenDRIVE writer.
+"""A tiny OpenDRIVE writer for the roads tests' synthetic maps.
 
-The real maps live in ``../shared/maps/carla/`` next to the checkout (override with
-``DASHTRAJ_CARLA_MAPS``); tests that need them skip when the folder is missing.
+The real CARLA maps and their fixtures (town01, town10, carla_map) are shared by
+all test folders: ``tests/carla_maps.py`` and ``tests/conftest.py``.
 """
 
 from __future__ import annotations
 
-import os
-import warnings
-from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
-
-from dashtraj.roads import RoadMap
-
-CARLA_MAPS = Path(
-    os.environ.get(
-        "DASHTRAJ_CARLA_MAPS",
-        Path(__file__).resolve().parents[3] / "shared" / "maps" / "carla",
-    )
-)
-
-_LOADED: dict[str, tuple[RoadMap, list[warnings.WarningMessage]]] = {}
-
-
-def load_carla_map(town: str) -> tuple[RoadMap, list[warnings.WarningMessage]]:
-    """(map, warnings raised while loading it) for Town01 / Town10HD; skips when absent."""
-    path = CARLA_MAPS / f"{town}.xodr"
-    if not path.is_file():
-        pytest.skip(f"real CARLA map {path} not available")
-    if town not in _LOADED:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            m = RoadMap.from_file(path)
-        _LOADED[town] = (m, list(caught))
-    return _LOADED[town]
-
-
-@pytest.fixture(scope="session")
-def town01() -> RoadMap:
-    return load_carla_map("Town01")[0]
-
-
-@pytest.fixture(scope="session")
-def town10() -> RoadMap:
-    return load_carla_map("Town10HD")[0]
-
-
-@pytest.fixture(scope="session", params=["Town01", "Town10HD"])
-def carla_map(request) -> RoadMap:
-    return load_carla_map(request.param)[0]
-
 
 # --- a tiny OpenDRIVE writer for synthetic maps ------------------------------------------
 

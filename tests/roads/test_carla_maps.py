@@ -8,8 +8,8 @@ import math
 
 import numpy as np
 import pytest
-from conftest import load_carla_map
 
+from carla_maps import load_carla_map
 from dashtraj.roads import LaneType, Location, RoadMap
 
 pytestmark = pytest.mark.carla_maps

@@ -9,8 +9,8 @@ import math
 import networkx as nx
 import numpy as np
 import pytest
-from conftest import load_carla_map
 
+from carla_maps import load_carla_map
 from dashtraj.errors import NoRouteError
 from dashtraj.roads import RoadMap
 

@@ -6,28 +6,22 @@ Skipped when ``../shared/maps/carla`` is missing.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from carla_maps import carla_map_path
 from dashtraj.cli import main
 from dashtraj.roads import RoadMap
 from dashtraj.trajectory.io import read_trajectory, write_sightings
 from dashtraj.trajectory.reconstruct import reconstruct
 from dashtraj.trajectory.synth import make_trips
 
-CARLA_MAPS = Path(os.environ.get(
-    "DASHTRAJ_CARLA_MAPS", Path(__file__).resolve().parents[3] / "shared" / "maps" / "carla"))
-
 
 @pytest.fixture(scope="module")
 def town01_path() -> Path:
-    path = CARLA_MAPS / "Town01.xodr"
-    if not path.is_file():
-        pytest.skip(f"real CARLA map {path} not available")
-    return path
+    return carla_map_path("Town01")
 
 
 @pytest.fixture(scope="module")

@@ -7,25 +7,11 @@ Skipped when ``../shared/maps/carla`` is missing.
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import pytest
 
 from dashtraj.roads import RoadMap
 from dashtraj.trajectory.correction import REASONS, correct_position
 from dashtraj.trajectory.records import Sighting
-
-CARLA_MAPS = Path(os.environ.get(
-    "DASHTRAJ_CARLA_MAPS", Path(__file__).resolve().parents[3] / "shared" / "maps" / "carla"))
-
-
-@pytest.fixture(scope="module")
-def town10() -> RoadMap:
-    path = CARLA_MAPS / "Town10HD.xodr"
-    if not path.is_file():
-        pytest.skip(f"real CARLA map {path} not available")
-    return RoadMap.from_file(path)
 
 
 def sighting_at(m: RoadMap, veh: tuple, obs: tuple, orientation: str) -> Sighting:

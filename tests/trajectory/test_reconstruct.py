@@ -6,9 +6,7 @@ Skipped when ``../shared/maps/carla`` is missing.
 from __future__ import annotations
 
 import math
-import os
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,29 +22,6 @@ from dashtraj.trajectory.reconstruct import (
     reconstruct,
 )
 from dashtraj.trajectory.records import Sighting, Trajectory
-
-CARLA_MAPS = Path(os.environ.get(
-    "DASHTRAJ_CARLA_MAPS", Path(__file__).resolve().parents[3] / "shared" / "maps" / "carla"))
-_MAPS: dict[str, RoadMap] = {}
-
-
-def load(town: str) -> RoadMap:
-    path = CARLA_MAPS / f"{town}.xodr"
-    if not path.is_file():
-        pytest.skip(f"real CARLA map {path} not available")
-    if town not in _MAPS:
-        _MAPS[town] = RoadMap.from_file(path)
-    return _MAPS[town]
-
-
-@pytest.fixture(scope="module", params=["Town01", "Town10HD"])
-def carla_map(request) -> RoadMap:
-    return load(request.param)
-
-
-@pytest.fixture(scope="module")
-def town10() -> RoadMap:
-    return load("Town10HD")
 
 
 def known_route(m: RoadMap, road_a=(1, 0, -1, 5.0)) -> np.ndarray:

@@ -6,38 +6,12 @@ Skipped when ``../shared/maps/carla`` is missing.
 from __future__ import annotations
 
 import math
-import os
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from dashtraj.roads import RoadMap
 from dashtraj.trajectory.reconstruct import ReconstructionError
 from dashtraj.trajectory.synth import OBSERVER_KINDS, make_trips, run_bench
-
-CARLA_MAPS = Path(os.environ.get(
-    "DASHTRAJ_CARLA_MAPS", Path(__file__).resolve().parents[3] / "shared" / "maps" / "carla"))
-_MAPS: dict[str, RoadMap] = {}
-
-
-def load(town: str) -> RoadMap:
-    path = CARLA_MAPS / f"{town}.xodr"
-    if not path.is_file():
-        pytest.skip(f"real CARLA map {path} not available")
-    if town not in _MAPS:
-        _MAPS[town] = RoadMap.from_file(path)
-    return _MAPS[town]
-
-
-@pytest.fixture(scope="module")
-def town01() -> RoadMap:
-    return load("Town01")
-
-
-@pytest.fixture(scope="module")
-def town10() -> RoadMap:
-    return load("Town10HD")
 
 
 @pytest.fixture(scope="module")

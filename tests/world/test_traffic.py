@@ -3,23 +3,17 @@ determinism — on the real CARLA Town10HD / Town01 maps (skipped when absent)."
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
+from carla_maps import load_carla_map
 from dashtraj.roads import RoadMap
 from dashtraj.world.catalog import sample_identities
 from dashtraj.world.traffic import LaneNetwork, TrafficConfig, TrafficSim, VehicleSpec
 
-CARLA_MAPS = Path(__file__).resolve().parents[3] / "shared" / "maps" / "carla"
-
 
 def _map(name: str) -> RoadMap:
-    path = CARLA_MAPS / f"{name}.xodr"
-    if not path.is_file():
-        pytest.skip(f"{path} is not available")
-    return RoadMap.from_file(path)
+    return load_carla_map(name)[0]
 
 
 @pytest.fixture(scope="module")
