@@ -198,27 +198,26 @@ class _Stage:
         self._ctx = None
 
     def renderer(self, fov: float):
+        from dashtraj.render.gl import create_context
         from dashtraj.render.scene import Renderer
 
         r = self._renderers.get(fov)
         if r is None:
+            if self._ctx is None:
+                self._ctx = create_context(threads=0)
             s = self.config.size
-            r = Renderer(self.road_map, s, s, fov, msaa=self.config.msaa, ctx=self._ctx,
-                         threads=0)
-            self._ctx = r.ctx
+            r = Renderer(self.road_map, s, s, fov, msaa=self.config.msaa, ctx=self._ctx)
             self._renderers[fov] = r
         return r
 
     def release(self) -> None:
-        owner = None
+        """Free the renderers and the GL context."""
         for r in self._renderers.values():
-            if r._owns_ctx:
-                owner = r
-            else:
-                r.release()
-        if owner is not None:
-            owner.release()
+            r.release()
         self._renderers.clear()
+        if self._ctx is not None:
+            self._ctx.release()
+            self._ctx = None
 
     def camera_pose(self, cam: RingCamera, model) -> tuple[tuple, float]:
         """Camera pose (x, y, z, yaw, pitch, roll) looking at the vehicle, and its FOV bin."""
