@@ -309,8 +309,11 @@ def export_frames(recording, out_dir, every_s: float = 0.5, size: tuple[int, int
             sheet.add_frame(rf)
         if progress is not None:
             progress()
-    table = pa.table({c: [r[c] for r in rows] for c in LABEL_COLUMNS}) if rows else pa.table(
-        {c: pa.array([], type=pa.float64()) for c in LABEL_COLUMNS})
+    types = {"t": pa.float64(), "image": pa.string(), "label": pa.string(),
+             "visible_fraction": pa.float64(), "truncation": pa.float64(),
+             "distance_m": pa.float64()}
+    schema = pa.schema([(c, types.get(c, pa.int32())) for c in LABEL_COLUMNS])
+    table = pa.table({c: [r[c] for r in rows] for c in LABEL_COLUMNS}, schema=schema)
     labels_path = out / "labels.parquet"
     pq.write_table(table, labels_path)
     preview_dir = None
