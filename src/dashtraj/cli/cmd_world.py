@@ -23,6 +23,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--observers", type=int, default=4, help="observer cars (default 4)")
     p.add_argument("--agents", type=int, default=20, help="other cars (default 20)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--identities", type=_id_range, metavar="LO-HI",
+                   help="draw vehicle identities with LO <= identity_id < HI only (e.g. "
+                   "650-700, the ReID set's test identities)")
     p.add_argument("--duration", type=float, default=180.0, metavar="S",
                    help="simulated seconds (default 180; the most with --until-target-arrives)")
     p.add_argument("--until-target-arrives", action="store_true",
@@ -60,6 +63,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     s.set_defaults(func=run_sightings)
 
 
+def _id_range(text: str) -> tuple[int, int]:
+    try:
+        lo, hi = (int(v) for v in text.split("-"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected LO-HI, got {text!r}") from None
+    if not 0 <= lo < hi:
+        raise argparse.ArgumentTypeError(f"expected 0 <= LO < HI, got {text!r}")
+    return lo, hi
+
+
 def run_simulate(args: argparse.Namespace) -> int:
     """Run the simulation, print a summary; returns 0 (130 is handled by the caller)."""
     from dataclasses import replace
@@ -70,6 +83,7 @@ def run_simulate(args: argparse.Namespace) -> int:
     config = RunConfig(map=args.town, seed=args.seed, duration_s=args.duration,
                        n_observers=args.observers, n_agents=args.agents,
                        until_target_arrives=args.until_target_arrives,
+                       identity_range=args.identities,
                        traffic=replace(TrafficConfig(), step_s=args.step,
                                        observer_placement=args.observer_placement))
     bar = None

@@ -333,14 +333,19 @@ def identities(n: int | None = None) -> list[VehicleIdentity]:
 
 
 def sample_identities(rng: np.random.Generator, n: int,
-                      classes: Iterable[str] | None = None) -> list[VehicleIdentity]:
+                      classes: Iterable[str] | None = None,
+                      id_range: tuple[int, int] | None = None) -> list[VehicleIdentity]:
     """Draw ``n`` distinct identities uniformly at random (without replacement),
-    optionally only of the given detector classes.
+    optionally only of the given detector classes and with identity_id in
+    ``[id_range[0], id_range[1])`` (e.g. the ReID set's test identities).
 
     Deterministic for a given generator state. Raises ValueError for an unknown
     class or if fewer than ``n`` identities match.
     """
     pool = _all_identities()
+    if id_range is not None:
+        lo, hi = id_range
+        pool = tuple(i for i in pool if lo <= i.identity_id < hi)
     if classes is not None:
         wanted = set(classes)
         unknown = wanted - set(VEHICLE_CLASSES)

@@ -103,6 +103,9 @@ class RunConfig:
         max_range_m: truth is kept for vehicles this close to a camera, metres.
         chunk_s: simulated seconds per parquet row group.
         vehicle_classes: classes drawn for every vehicle.
+        identity_range: draw identities with identity_id in [lo, hi) only, or None for
+            the whole catalog (e.g. the ReID set's test identities, so that
+            `dashtraj reid-dataset --from-recordings` finds them).
         target_route: ((x, y), (x, y)) origin and destination, CARLA world metres, or None.
         camera, traffic: the camera and the traffic model (``traffic.observer_placement``:
             "meet", the default, places the observers where the target passes;
@@ -119,6 +122,7 @@ class RunConfig:
     max_range_m: float = 60.0
     chunk_s: float = 10.0
     vehicle_classes: tuple[str, ...] = ("car", "truck", "bus", "motorcycle")
+    identity_range: tuple[int, int] | None = None
     target_route: tuple[tuple[float, float], tuple[float, float]] | None = None
     camera: CameraSpec = field(default_factory=CameraSpec)
     traffic: TrafficConfig = field(default_factory=TrafficConfig)
@@ -138,6 +142,8 @@ class RunConfig:
         d["traffic"] = TrafficConfig.from_dict(d.get("traffic", {}))
         if "vehicle_classes" in d:
             d["vehicle_classes"] = tuple(d["vehicle_classes"])
+        if d.get("identity_range") is not None:
+            d["identity_range"] = tuple(d["identity_range"])
         if d.get("target_route") is not None:
             (a, b) = d["target_route"]
             d["target_route"] = (tuple(a), tuple(b))
@@ -180,12 +186,12 @@ def resolve_map(source: str) -> Path:
                              f"{exc}") from exc
 
 
-def _identities(rng: np.random.Generator, n: int, classes):
+def _identities(rng: np.random.Generator, n: int, classes, id_range=None):
     """n distinct catalog identities as rows for vehicles.csv (without id/role)."""
     from dashtraj.world.catalog import CATALOG_VERSION, sample_identities
 
     out = []
-    for ident in sample_identities(rng, n, classes=classes):
+    for ident in sample_identities(rng, n, classes=classes, id_range=id_range):
         m = ident.model
         out.append({"identity_id": ident.identity_id, "blueprint_id": m.blueprint_id,
                     "vehicle_class": m.vehicle_class, "body_type": m.body_type,
@@ -249,7 +255,8 @@ def simulate(config: RunConfig, out_dir: str | Path,
     seeds = np.random.SeedSequence(config.seed).spawn(2)
     rng_ids, rng_traffic = (np.random.default_rng(s) for s in seeds)
     n = 1 + config.n_observers + config.n_agents
-    rows, catalog_version = _identities(rng_ids, n, config.vehicle_classes)
+    rows, catalog_version = _identities(rng_ids, n, config.vehicle_classes,
+                                        config.identity_range)
     roles = ["target"] + ["observer"] * config.n_observers + ["agent"] * config.n_agents
     for vid, (row, role) in enumerate(zip(rows, roles, strict=True)):
         row["vehicle_id"] = vid
