@@ -103,6 +103,86 @@ def point_to_polyline_distances(
     """
     p = _as_points(points, "points")
     q = _as_points(polyline, "polyline")
+    if p.shape[0] * q.shape[0] >= PRUNE_MIN_PAIRS and q.shape[0] > 2:
+        pruned = _pruned_distances(p, q)
+        if pruned is not None:
+            return pruned
+    return _dense_distances(p, q, chunk_elements)
+
+
+PRUNE_MIN_PAIRS = 50_000
+"""Below this many point × segment pairs the dense kernel is as fast as pruning."""
+
+
+def _pair_sq_distances(px, py, ax, ay, bx, by) -> np.ndarray:
+    """traj-dist's point-to-segment distance, squared, for aligned pair arrays.
+
+    The same operations in the same order as the dense kernel, so the values are
+    bit-identical to it (and to traj-dist after the square root).
+    """
+    dx = bx - ax
+    dy = by - ay
+    segl = np.sqrt(dx * dx + dy * dy)
+    seg2 = segl * segl
+    degenerate = seg2 == 0
+    vx, vy = px - ax, py - ay
+    wx, wy = px - bx, py - by
+    va2 = vx * vx
+    va2 += vy * vy
+    vb2 = wx * wx
+    vb2 += wy * wy
+    with np.errstate(over="ignore", invalid="ignore"):
+        u = vx * dx
+        u += vy * dy
+        u /= np.where(degenerate, 1.0, seg2)
+        fx = u * dx
+        fx += ax
+        fx = px - fx
+        fy = u * dy
+        fy += ay
+        fy = py - fy
+        fx *= fx
+        fy *= fy
+        fx += fy
+    endpoint = (u < _U_MIN) | (u > 1.0) | degenerate
+    return np.where(endpoint, np.minimum(va2, vb2), fx)
+
+
+def _pruned_distances(p: np.ndarray, q: np.ndarray) -> np.ndarray | None:
+    """Exact point-to-polyline distances evaluating only the segments that can win.
+
+    The nearest vertex of the polyline is at distance r0 from a point, and
+    traj-dist's distance to a segment ending there is at most r0. A segment of
+    half-length h whose midpoint is farther than r0 + h is farther than r0 from
+    the point, so it cannot be the nearest: only midpoints within r0 + max(h)
+    are candidates (a k-d tree finds them). Returns None when that prunes too
+    little to pay (long segments), for the dense kernel to take over.
+    """
+    from scipy.spatial import cKDTree
+
+    n, m = p.shape[0], q.shape[0]
+    half = 0.5 * np.hypot(q[1:, 0] - q[:-1, 0], q[1:, 1] - q[:-1, 1])
+    r0, _ = cKDTree(q).query(p)
+    radius = r0 + half.max()
+    radius += 1e-9 * (1.0 + radius)  # rounding slack: never drop the winner
+    mids = cKDTree(0.5 * (q[1:] + q[:-1]))
+    lists = mids.query_ball_point(p, radius, return_sorted=False)
+    counts = np.fromiter((len(c) for c in lists), dtype=np.int64, count=n)
+    total = int(counts.sum())
+    if total > 0.2 * n * (m - 1):
+        return None
+    seg = np.fromiter((j for c in lists for j in c), dtype=np.int64, count=total)
+    pt = np.repeat(np.arange(n), counts)
+    d2 = _pair_sq_distances(p[pt, 0], p[pt, 1], q[seg, 0], q[seg, 1],
+                            q[seg + 1, 0], q[seg + 1, 1])
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    out = np.minimum.reduceat(d2, starts)
+    np.sqrt(out, out=out)
+    return out
+
+
+def _dense_distances(p: np.ndarray, q: np.ndarray, chunk_elements: int) -> np.ndarray:
+    """Every point against every segment, in chunks of at most `chunk_elements` pairs."""
     n, m = p.shape[0], q.shape[0]
     out = np.empty(n, dtype=np.float64)
     s1 = q[:-1]
