@@ -44,6 +44,15 @@ from dashtraj.roads.types import LaneType, Location, Rotation, Transform, as_xy,
 LaneKey = tuple[int, int, int]  # (road_id, section_id, lane_id)
 
 
+def _linspace(a: float, b: float, n: int) -> np.ndarray:
+    """np.linspace(a, b, n) for n ≥ 2 without its overhead (endpoints exact)."""
+    out = np.arange(n, dtype=float)
+    out *= (b - a) / (n - 1)
+    out += a
+    out[-1] = b
+    return out
+
+
 @contextlib.contextmanager
 def _gc_paused():
     """Pause the cyclic garbage collector while building many long-lived objects.
@@ -422,23 +431,27 @@ class RoadMap:
         (the Hermite refinement assumes a smooth curve between its two samples).
         """
         sec = road.sections[k]
-        breaks = [road.plan_view.starts, road.lane_offset.starts]
+        lo, hi = s0 + 1e-6, s1 - 1e-6
+        knots = {s0, s1}
+        for x in road.plan_view.starts.tolist():
+            if lo < x < hi:
+                knots.add(x)
+        for x in road.lane_offset.starts.tolist():
+            if lo < x < hi:
+                knots.add(x)
         for rec in sec.lanes.values():
-            breaks.append(sec.s + rec.width.starts)
-            if rec.border is not None:
-                breaks.append(sec.s + rec.border.starts)
-        b = np.concatenate(breaks)
-        b = b[(b > s0 + 1e-6) & (b < s1 - 1e-6)]
-        if not len(b):
-            return np.linspace(s0, s1, max(2, math.ceil((s1 - s0) / step) + 1))
-        knots = np.unique(np.concatenate([[s0, s1], b]))
-        parts = []
-        for a, c in itertools.pairwise(knots):
-            n = max(2, math.ceil((c - a) / step) + 1)
-            parts.append(np.linspace(a, c, n)[:-1])
-        parts.append([s1])
-        out = np.concatenate(parts)
-        return out if len(out) >= 2 else np.array([s0, s1])
+            for cubic in (rec.width, rec.border):
+                if cubic is not None and len(cubic.starts) > 1:
+                    for x in cubic.starts.tolist():
+                        if lo < sec.s + x < hi:
+                            knots.add(sec.s + x)
+        if len(knots) == 2:
+            return _linspace(s0, s1, max(2, math.ceil((s1 - s0) / step) + 1))
+        ordered = sorted(knots)
+        parts = [_linspace(a, c, max(2, math.ceil((c - a) / step) + 1))[:-1]
+                 for a, c in itertools.pairwise(ordered)]
+        parts.append(np.array([s1]))
+        return np.concatenate(parts)
 
     def _sample_lanes(self) -> None:
         xs, ys, zs, hs, ss, ws, owner = [], [], [], [], [], [], []
@@ -452,7 +465,7 @@ class RoadMap:
                     continue
                 s = self._section_samples(road, k, s0, s1, step)
                 n = len(s)
-                xr_all = road.plan_view.evaluate(s)
+                xr_all = road.plan_view.evaluate_sorted(s)
                 xr, yr, hr, kr = xr_all
                 sn, cs = np.sin(hr), np.cos(hr)
                 z = road.elevation(s)

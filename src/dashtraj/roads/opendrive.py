@@ -63,7 +63,15 @@ class LaneSectionRecord:
     s: float
     single_side: bool
     lanes: dict[int, LaneRecord]  # lane id -> lane, centre lane (0) excluded
-    center_marks: tuple[RoadMark, ...] = ()
+    _center: object = field(default=None, repr=False, compare=False)
+    _center_marks: tuple[RoadMark, ...] | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def center_marks(self) -> tuple[RoadMark, ...]:
+        """The centre lane's `<roadMark>` records (the centre line), read on first use."""
+        if self._center_marks is None:
+            self._center_marks = _parse_marks(self._center) if self._center is not None else ()
+        return self._center_marks
 
 
 @dataclass(frozen=True, slots=True)
@@ -314,36 +322,56 @@ def _parse_marks(lane_el) -> tuple[RoadMark, ...]:
     )
 
 
+_POLY_KEYS = {"sOffset": ["sOffset", "a", "b", "c", "d"], "s": ["s", "a", "b", "c", "d"]}
+
+
 def _poly(el, start: str) -> tuple[float, float, float, float, float]:
     """(start, a, b, c, d) of a cubic record; missing attributes read as 0."""
+    if el.keys() == _POLY_KEYS[start]:  # the usual attribute order: read them in one call
+        return tuple(map(float, el.values()))
     g = el.get
     return (float(g(start) or 0.0), float(g("a") or 0.0), float(g("b") or 0.0),
             float(g("c") or 0.0), float(g("d") or 0.0))
 
 
+def _lane_id(el, what, source: str) -> int:
+    """An integer id attribute; `what()` names the element only when it is bad."""
+    v = el.get("id")
+    try:
+        return int(v)
+    except (TypeError, ValueError):
+        return _int(v, what(), source)
+
+
 def _parse_section(ls, source: str, road_where: str) -> LaneSectionRecord:
     s = _f(ls, "s", 0.0)
     lanes: dict[int, LaneRecord] = {}
-    center_marks: tuple[RoadMark, ...] = ()
+    center = None
     for side in ("left", "center", "right"):
         side_el = ls.find(side)
         if side_el is None:
             continue
         for lane in side_el.iterfind("lane"):
-            lid = _int(lane.get("id"), f"{road_where} lane", source)
+            lid = _lane_id(lane, lambda: f"{road_where} lane", source)
             if lid == 0:
-                center_marks = _parse_marks(lane)
+                center = lane
                 continue
-            widths = [_poly(w, "sOffset") for w in lane.iterfind("width")]
-            borders = [_poly(w, "sOffset") for w in lane.iterfind("border")]
+            widths, borders, link = [], [], None
+            for child in lane:  # one pass over the lane's children
+                tag = child.tag
+                if tag == "width":
+                    widths.append(_poly(child, "sOffset"))
+                elif tag == "link":
+                    link = child
+                elif tag == "border":
+                    borders.append(_poly(child, "sOffset"))
             pred = succ = None
-            link = lane.find("link")
             if link is not None:
                 p = link.find("predecessor")
                 q = link.find("successor")
-                pred = _int(p.get("id"), f"{road_where} lane {lid} predecessor", source) \
+                pred = _lane_id(p, lambda lid=lid: f"{road_where} lane {lid} predecessor", source) \
                     if p is not None else None
-                succ = _int(q.get("id"), f"{road_where} lane {lid} successor", source) \
+                succ = _lane_id(q, lambda lid=lid: f"{road_where} lane {lid} successor", source) \
                     if q is not None else None
             if not widths and not borders:
                 _warn(source, f"{road_where} section at s={s:g} lane {lid} has no <width>; "
@@ -358,7 +386,7 @@ def _parse_section(ls, source: str, road_where: str) -> LaneSectionRecord:
                 level=lane.get("level", "false") in ("true", "1"),
                 _element=lane,
             )
-    return LaneSectionRecord(s, ls.get("singleSide", "false") == "true", lanes, center_marks)
+    return LaneSectionRecord(s, ls.get("singleSide", "false") == "true", lanes, center)
 
 
 def _parse_junction(el, source: str) -> JunctionRecord:

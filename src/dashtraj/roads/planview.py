@@ -19,6 +19,7 @@ heading (rad) and curvature (1/m).
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,6 +50,9 @@ class Cubic:
         """Build from (start, a, b, c, d) records; an empty list gives zero."""
         if not records:
             return Cubic.constant(0.0)
+        if len(records) == 1:
+            r = records[0]
+            return Cubic(np.array([r[0]]), np.array([r[1:]], dtype=float))
         records = sorted(records, key=lambda r: r[0])
         arr = np.asarray(records, dtype=float)
         return Cubic(arr[:, 0].copy(), arr[:, 1:].copy())
@@ -170,6 +174,16 @@ class PlanView:
             for o, v in zip(out, vals, strict=True):
                 o[m] = v
         return tuple(out)
+
+    def evaluate_sorted(self, s: np.ndarray) -> tuple[np.ndarray, ...]:
+        """`evaluate` for s sorted ascending: contiguous slices per record, no masks."""
+        if len(self.geometries) == 1:
+            return self._eval_one(0, s - self.starts[0])
+        cuts = np.searchsorted(s, self.starts[1:], side="left")
+        bounds = [0, *cuts.tolist(), len(s)]
+        parts = [self._eval_one(i, s[a:b] - self.starts[i])
+                 for i, (a, b) in enumerate(itertools.pairwise(bounds)) if b > a]
+        return tuple(np.concatenate([pt[j] for pt in parts]) for j in range(4))
 
     # -- one record ---------------------------------------------------------------
     def _eval_one(self, i: int, ds: np.ndarray) -> tuple[np.ndarray, ...]:
