@@ -454,7 +454,7 @@ class RoadMap:
         return np.concatenate(parts)
 
     def _sample_lanes(self) -> None:
-        xs, ys, zs, hs, ss, ws, owner = [], [], [], [], [], [], []
+        xs, ys, zs, hs, ss, ws, owner, lane_n = [], [], [], [], [], [], [], []
         step = self.sample_step_m
         n_total = 0
         for road in self.roads.values():
@@ -469,24 +469,29 @@ class RoadMap:
                 xr, yr, hr, kr = xr_all
                 sn, cs = np.sin(hr), np.cos(hr)
                 z = road.elevation(s)
-                for lid, (t, dt, w) in self._section_centres(road, k, s).items():
+                centres = self._section_centres(road, k, s)
+                lids = list(centres)
+                t = np.array([centres[i][0] for i in lids])  # (L, n): all lanes at once
+                dt = np.array([centres[i][1] for i in lids])
+                for j, lid in enumerate(lids):
                     lane = self.lanes[(road.id, k, lid)]
-                    lane.v0, lane.v1 = n_total, n_total + n
-                    n_total += n
-                    xs.append(xr - t * sn)
-                    ys.append(-(yr + t * cs))
-                    hs.append(-(hr + np.arctan2(dt, 1.0 - t * kr)))
-                    zs.append(z)
-                    ss.append(s)
-                    ws.append(w)
-                    owner.append(np.full(n, lane.index, dtype=np.int32))
+                    lane.v0, lane.v1 = n_total + j * n, n_total + (j + 1) * n
+                    owner.append(lane.index)
+                    lane_n.append(n)
+                n_total += len(lids) * n
+                xs.append((xr - t * sn).ravel())
+                ys.append((-(yr + t * cs)).ravel())
+                hs.append((-(hr + np.arctan2(dt, 1.0 - t * kr))).ravel())
+                zs.append(np.tile(z, len(lids)))
+                ss.append(np.tile(s, len(lids)))
+                ws.append(np.concatenate([centres[i][2] for i in lids]))
         self._vx = np.concatenate(xs)
         self._vy = np.concatenate(ys)
         self._vz = np.concatenate(zs)
         self._vh = np.concatenate(hs)
         self._vs = np.concatenate(ss)
         self._vw = np.concatenate(ws)
-        self._vlane = np.concatenate(owner)
+        self._vlane = np.repeat(np.array(owner, dtype=np.int32), lane_n)
         same = self._vlane[:-1] == self._vlane[1:]
         self._seg = np.flatnonzero(same & (self._vs[1:] > self._vs[:-1]))  # segment i: v[i]→v[i+1]
         self._lane_types = np.array([int(ln.type) for ln in self.lane_list], dtype=np.int64)

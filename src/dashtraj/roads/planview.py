@@ -59,7 +59,7 @@ class Cubic:
 
     def _piece(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         i = np.searchsorted(self.starts, s, side="right") - 1
-        np.clip(i, 0, len(self.starts) - 1, out=i)
+        np.maximum(i, 0, out=i)  # searchsorted never exceeds len(starts)
         return self.coeffs[i], s - self.starts[i]
 
     def __call__(self, s: np.ndarray | float) -> np.ndarray:
