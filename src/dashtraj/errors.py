@@ -20,4 +20,7 @@ class NoRouteError(DashtrajError):
 
 
 class InputFormatError(DashtrajError):
-    """A row, column or value of an input file is malformed; the message names file, line and column."""
+    """A row, column or value of an input file is malformed.
+
+    The message names the file, the line and the column.
+    """
