@@ -694,11 +694,13 @@ class RoadMap:
             raise ValueError(f"distance must be positive, got {distance}")
         out = []
         for road in self.roads.values():
-            for s in np.arange(_EPS, road.length - _EPS, distance):
-                k = self.section_at(road, float(s))
+            s = _EPS
+            while s < road.length - _EPS:  # accumulated as CARLA does (s += d), not s = ε + i·d
+                k = self.section_at(road, s)
                 for lid in sorted(road.sections[k].lanes):
                     if self.lanes[(road.id, k, lid)].type == LaneType.Driving:
-                        out.append(Waypoint(road.id, k, lid, float(s), self))
+                        out.append(Waypoint(road.id, k, lid, s, self))
+                s += distance
         return out
 
     def _walk(self, wp: Waypoint, distance: float, forward: bool) -> list[Waypoint]:
