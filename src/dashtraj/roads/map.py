@@ -527,23 +527,32 @@ class RoadMap:
         pts = np.asarray(points, dtype=float).reshape(-1, np.shape(points)[-1])[:, :2]
         tree, seg, half = self._index(lane_type)
         n_seg = len(seg)
-        best = np.empty(len(pts), dtype=np.int64)
-        best_d = np.empty(len(pts))
-        todo = np.arange(len(pts))
         k = min(8, n_seg)
-        while len(todo):
-            d, j = tree.query(pts[todo], k=k)
-            d = d.reshape(len(todo), -1)
-            cand = seg[j.reshape(len(todo), -1)]
-            dist = self._segment_distance(pts[todo, None, :], cand)
-            a = np.argmin(dist, axis=1)
-            rows = np.arange(len(todo))
-            best[todo] = cand[rows, a]
-            best_d[todo] = dist[rows, a]
-            # A segment whose midpoint is farther than d_k cannot be nearer than d_k - half.
-            unsure = (d[:, -1] - half < best_d[todo]) & (k < n_seg)
-            todo = todo[unsure]
-            k = min(4 * k, n_seg)
+        d, j = tree.query(pts, k=k)
+        d = d.reshape(len(pts), -1)
+        cand = seg[j.reshape(len(pts), -1)]
+        dist = self._segment_distance(pts[:, None, :], cand)
+        a = np.argmin(dist, axis=1)
+        rows = np.arange(len(pts))
+        best = cand[rows, a]
+        best_d = dist[rows, a]
+        # A segment whose midpoint is farther than best_d + half cannot beat best_d;
+        # where the k-th midpoint is nearer than that, look at every such segment.
+        unsure = np.flatnonzero((d[:, -1] - half < best_d) & (k < n_seg))
+        if len(unsure):
+            lists = tree.query_ball_point(pts[unsure], best_d[unsure] + half + 1e-9,
+                                          return_sorted=False)
+            counts = np.fromiter((len(c) for c in lists), dtype=np.int64, count=len(lists))
+            flat = seg[np.fromiter((i for c in lists for i in c), dtype=np.int64,
+                                   count=int(counts.sum()))]
+            owner = np.repeat(unsure, counts)
+            dd = self._segment_distance(pts[owner], flat)
+            starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+            order = np.lexsort((dd, owner))  # per point, nearest first
+            first = order[starts]
+            better = dd[first] < best_d[unsure]
+            best[unsure[better]] = flat[first[better]]
+            best_d[unsure[better]] = dd[first[better]]
         return self._refine(pts, best)
 
     def candidates(self, location, radius_m: float,
