@@ -35,6 +35,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--observer-placement", choices=("meet", "random"), default="meet",
                    help="meet: observers start where the target will pass (oncoming, "
                         "following, waiting at a crossing); random: anywhere (default meet)")
+    p.add_argument("--parked-fraction", type=_fraction, default=0.25, metavar="F",
+                   help="share of the observers that are parked at the roadside for the whole "
+                        "run, dashcam on (random placement: the last round(F * observers); "
+                        "meet placement: F > 0 adds a 'parked' role to the cycle oncoming, "
+                        "crossing, following, parked; 0: none) (default 0.25)")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="recording directory")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -63,6 +68,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     s.set_defaults(func=run_sightings)
 
 
+def _fraction(text: str) -> float:
+    try:
+        f = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
+    if not 0.0 <= f <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
+    return f
+
+
 def _id_range(text: str) -> tuple[int, int]:
     try:
         lo, hi = (int(v) for v in text.split("-"))
@@ -85,7 +100,8 @@ def run_simulate(args: argparse.Namespace) -> int:
                        until_target_arrives=args.until_target_arrives,
                        identity_range=args.identities,
                        traffic=replace(TrafficConfig(), step_s=args.step,
-                                       observer_placement=args.observer_placement))
+                                       observer_placement=args.observer_placement,
+                                       parked_fraction=args.parked_fraction))
     bar = None
     progress = None
     if not args.quiet and sys.stderr.isatty():

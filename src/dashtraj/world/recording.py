@@ -7,8 +7,10 @@ A recording is a directory:
     "map.xodr", sha256 of the .xodr bytes); seed; step_s; duration_s asked for;
     simulated_to_t (s); complete (false until the run ended normally);
     target_arrived_t (s or null); camera (the `CameraSpec`); catalog_version;
-    observer_roles ({vehicle id: "oncoming" | "following" | "crossing"} with
-    "meet" placement, empty otherwise); config (the whole `RunConfig`, enough to
+    observer_roles ({vehicle id: "oncoming" | "following" | "crossing" | "parked"}
+    with "meet" placement, empty otherwise); parked_observer_ids (the observers
+    that stand still at the roadside for the whole run, with either placement;
+    see `TrafficConfig.parked_fraction`); config (the whole `RunConfig`, enough to
     repeat the run).
 ``vehicles.csv``
     vehicle_id, identity_id, blueprint_id, vehicle_class, body_type, color,
@@ -17,7 +19,8 @@ A recording is a directory:
     one row per vehicle and step: t (s), vehicle_id, x, y, z (box centre at road
     level, CARLA world, m), yaw (deg), speed (m/s), road_id, section_id, lane_id,
     s (m) — the lane the vehicle follows (the target's wobble moves it off the
-    centre by up to `TrafficConfig.target_wobble_m`).
+    centre by up to `TrafficConfig.target_wobble_m`; a parked observer stands
+    beside that lane, off the road's driving lanes, with speed 0 at every step).
 ``truth.parquet``
     one row per observer, camera frame and vehicle seen (see `dashtraj.world.camera`):
     t, observer_id, vehicle_id, cam_x, cam_y, cam_z, cam_yaw (the camera),
@@ -109,7 +112,8 @@ class RunConfig:
         target_route: ((x, y), (x, y)) origin and destination, CARLA world metres, or None.
         camera, traffic: the camera and the traffic model (``traffic.observer_placement``:
             "meet", the default, places the observers where the target passes;
-            "random" anywhere).
+            "random" anywhere; ``traffic.parked_fraction`` makes some of them
+            parked cars at the roadside).
     """
 
     map: str = "town01"
@@ -288,6 +292,7 @@ def simulate(config: RunConfig, out_dir: str | Path,
         "target_vehicle_id": 0, "observer_ids": obs_idx.tolist(),
         "observer_roles": {str(int(sim.ids[i])): role
                            for i, role in sorted(sim.meet_roles.items())},
+        "parked_observer_ids": [int(sim.ids[i]) for i in np.flatnonzero(sim.parked)],
         "camera": config.camera.to_dict(), "catalog_version": catalog_version,
         "config": config.to_dict(),
     }

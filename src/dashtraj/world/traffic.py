@@ -75,9 +75,23 @@ OBSERVER_PLACEMENTS: tuple[str, ...] = ("meet", "random")
 """How observers are placed: "meet" (around the target's path, see
 `TrafficSim._place_observers`) or "random" (anywhere, like agents)."""
 
-MEET_ROLES: tuple[str, ...] = ("oncoming", "following", "crossing")
+MEET_ROLES: tuple[str, ...] = ("oncoming", "following", "crossing", "parked")
 """Observer roles of "meet" placement, and the side of the target each one sees:
-oncoming → its front, following → its back, crossing → its side."""
+oncoming → its front, following → its back, crossing → its side, parked → its front
+then its side (it stands at the roadside facing the oncoming target, see
+`TrafficSim._meet_parked`)."""
+
+PARKED_GAP_M = 0.2
+"""Clearance between a parked car's body and the edge of the driving lane it stands
+beside, metres: its centre is lane_width/2 + width/2 + PARKED_GAP_M right of the
+lane centre."""
+
+PARKED_FACING_MAX_M = 8.0
+"""A "meet" parked observer faces the target from the opposite roadside only when it
+stands this close to the target's lane centre, metres (see `TrafficSim._meet_parked`)."""
+
+PARKED_JUNCTION_CLEARANCE_M = 15.0
+"""A parked car stands on a non-junction lane, its box this far from both lane ends."""
 
 
 class TrafficError(DashtrajError):
@@ -119,6 +133,13 @@ class TrafficConfig:
             for the target, seconds (from the start).
         oncoming_max_wait_s: longest an "oncoming" observer stands where it starts
             waiting for the target, seconds (from the start).
+        parked_fraction: share of the observers that are parked cars (standing
+            still at the roadside for the whole run, dashcam on; see
+            `TrafficSim._park`). With "random" placement the last
+            round(parked_fraction * n_observers) observers are parked at random
+            roadside spots; with "meet" placement the role cycle gets a "parked"
+            role (oncoming, crossing, following, parked, ...) when it is > 0 and
+            none when it is 0 (then the cycle is oncoming, crossing, following).
         idm: car-following parameters.
     """
 
@@ -134,12 +155,15 @@ class TrafficConfig:
     observer_placement: str = "meet"
     crossing_max_wait_s: float = 60.0
     oncoming_max_wait_s: float = 40.0
+    parked_fraction: float = 0.25
     idm: IDMParams = field(default_factory=IDMParams)
 
     def __post_init__(self) -> None:
         if self.observer_placement not in OBSERVER_PLACEMENTS:
             raise TrafficError(f"unknown observer placement {self.observer_placement!r}; "
                                f"valid: {', '.join(OBSERVER_PLACEMENTS)}")
+        if not 0.0 <= self.parked_fraction <= 1.0:
+            raise TrafficError(f"parked_fraction must be in [0, 1], got {self.parked_fraction}")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -147,9 +171,11 @@ class TrafficConfig:
     @classmethod
     def from_dict(cls, d: dict) -> TrafficConfig:
         """Read `to_dict` output; a dict without ``observer_placement`` was written
-        before "meet" existed and means "random"."""
+        before "meet" existed and means "random"; one without ``parked_fraction``
+        was written before parked observers existed and means 0."""
         d = dict(d)
         d.setdefault("observer_placement", "random")
+        d.setdefault("parked_fraction", 0.0)
         d["idm"] = IDMParams(**d.get("idm", {}))
         if "target_trip_m" in d:
             d["target_trip_m"] = tuple(d["target_trip_m"])
@@ -327,6 +353,11 @@ class LaneNetwork:
             y = y + lateral_m * np.cos(h)
         return x, y, z, np.degrees(h), np.interp(q, self._g, self._rs)
 
+    def width(self, lane: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Lane widths at progress p (metres), vectorised like `pose`."""
+        q = self.base[lane] + np.clip(p, 0.0, self.length[lane])
+        return np.interp(q, self._g, self._w)
+
     def lane_keys(self, lane: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(road_id, section_id, lane_id) arrays of lane indices."""
         return self._road[lane], self._section[lane], self._lane_id[lane]
@@ -390,6 +421,10 @@ class TrafficSim:
         # where it is (True) or wait at the next junction's stop line (False))
         self.hold: dict[int, tuple[float, float, bool]] = {}
         self.meet_roles: dict[int, str] = {}  # observer index -> role in MEET_ROLES
+        # parked observers: standing still beside their lane, park_lat m right of its centre
+        self.parked = np.zeros(n, dtype=bool)
+        self.park_lat = np.zeros(n)
+        self._parked_xy: list[tuple[float, float, float]] = []  # x, y, radius
         self._target_hops = 0  # lanes the target has left behind (index in target_lanes)
         self._spawn()
         # junction regions
@@ -406,6 +441,8 @@ class TrafficSim:
             self._spd = (rng.uniform(15.0, 30.0), rng.uniform(0, 2 * np.pi), self.v0[k])
             if config.observer_placement == "meet":
                 self._place_observers()
+        if config.observer_placement == "random" or self.target is None:
+            self._park_share()
 
     # ------------------------------------------------------------------ set-up
     def _spawn(self) -> None:
@@ -461,6 +498,147 @@ class TrafficSim:
         self.dest = dest
         self.target_lanes = lanes
 
+    # ------------------------------------------------------------------ parked observers
+    def _curb_lane(self, lane: int) -> int | None:
+        """The outermost (rightmost in its driving direction) driving lane of lane's road
+        section with the same direction, if it is in the network and not in a junction
+        region; else None."""
+        net = self.net
+        road, sec, lid = net.keys[lane]
+        same = [j for j in self._section_lanes(road, sec) if net.keys[j][2] * lid > 0]
+        if not same:
+            return None
+        j = max(same, key=lambda q: (abs(net.keys[q][2]), q))
+        return j if net.region[j] == -1 else None
+
+    def _free_run(self, lane: int, ahead: bool, need: float) -> float:
+        """Metres of non-junction lanes before `lane`'s start (ahead=False) or after its
+        end (ahead=True) along every chain of lane links, up to `need`: 0 when a
+        junction region lane adjoins it."""
+        net = self.net
+        nxt = net.successors[lane] if ahead else net.predecessors[lane]
+        if need <= 0.0 or not nxt:
+            return 0.0
+        if any(net.region[q] != -1 for q in nxt):
+            return 0.0
+        return min(min(float(net.length[q]) + self._free_run(q, ahead, need - net.length[q]),
+                       need) for q in nxt)
+
+    def _park(self, i: int, lane: int, p: float, near=None) -> bool:
+        """Park vehicle i beside `lane` at progress p, if the spot is a roadside one.
+
+        The spot: a non-junction lane whose right neighbour (in its driving direction)
+        is not a Driving lane; the box inside the lane and at least
+        `PARKED_JUNCTION_CLEARANCE_M` from any junction region along the lane links
+        (both ways); centre lane_width/2 + width/2 + `PARKED_GAP_M` right of the lane
+        centre, yaw the lane's; every corner and edge midpoint of the box outside
+        every driving lane of the map (more than 0.1 m beyond its half width); clear of
+        the other parked cars; with ``near`` = (x, y, d), within d metres of (x, y).
+        On success vehicle i stands there for the whole run.
+        """
+        net, m = self.net, self.net.map
+        half = 0.5 * self.length[i]
+        clear = PARKED_JUNCTION_CLEARANCE_M
+        if net.region[lane] != -1 or not half <= p <= net.length[lane] - half:
+            return False
+        if p - half < clear and self._free_run(lane, False, clear) + p - half < clear:
+            return False
+        rest = net.length[lane] - p - half
+        if rest < clear and self._free_run(lane, True, clear) + rest < clear:
+            return False
+        road, sec, lid = net.keys[lane]
+        right = m.lanes.get((road, sec, lid + (1 if lid > 0 else -1)))
+        if right is not None and right.type == LaneType.Driving:
+            return False
+        lane_a, p_a = np.array([lane]), np.array([p])
+        lat = 0.5 * float(net.width(lane_a, p_a)[0]) + 0.5 * self.width[i] + PARKED_GAP_M
+        x, y, _z, yaw, _s = net.pose(lane_a, p_a, np.array([lat]))
+        if near is not None and math.hypot(x[0] - near[0], y[0] - near[1]) > near[2]:
+            return False
+        h = math.radians(float(yaw[0]))
+        c, sn = math.cos(h), math.sin(h)
+        hw = 0.5 * self.width[i]
+        pts = np.array([(x[0] + a * half * c - b * hw * sn, y[0] + a * half * sn + b * hw * c)
+                        for a in (-1, 0, 1) for b in (-1, 0, 1) if a or b])
+        proj = m.project(pts, LaneType.Driving)
+        if np.any(np.abs(proj.lateral_m) <= 0.5 * proj.lane_width + 0.1):
+            return False
+        r = math.hypot(half, hw)
+        if any(math.hypot(x[0] - px, y[0] - py) <= r + pr + 0.5
+               for px, py, pr in self._parked_xy):
+            return False
+        self.lane[i], self.p[i], self.v[i] = lane, p, 0.0
+        self.routes[i] = []
+        self.parked[i] = True
+        self.park_lat[i] = lat
+        self._parked_xy.append((float(x[0]), float(y[0]), r))
+        return True
+
+    def _park_share(self) -> None:
+        """Park the last round(`parked_fraction` * n_observers) observers at random
+        roadside spots ("random" placement)."""
+        net, rng = self.net, self.rng
+        obs = [i for i, v in enumerate(self.vehicles) if v.role == "observer"]
+        k = math.floor(self.cfg.parked_fraction * len(obs) + 0.5)
+        if k == 0:
+            return
+        free = np.flatnonzero((net.region == -1) & (net.length > 12.0))
+        if len(free) == 0:
+            raise TrafficError(f"{net.map.name}: no lane long enough to park a car beside")
+        for i in obs[-k:]:
+            for _attempt in range(500):
+                lane = int(rng.choice(free, p=net.length[free] / net.length[free].sum()))
+                if self._park(i, lane, float(rng.uniform(0.0, net.length[lane]))):
+                    break
+            else:
+                raise TrafficError(f"{net.map.name}: found no roadside spot to park observer "
+                                   f"{int(self.ids[i])}; ask for a smaller parked fraction")
+
+    def _meet_parked(self, i, d, start, placed, reserved) -> bool:
+        """Park beside the target's path near distance d along it (path lanes tried in
+        order of distance from d, spots shifted by up to 18 m).
+
+        Per path lane, first facing the target: at the roadside of the opposite
+        direction's outermost lane, if that spot is within `PARKED_FACING_MAX_M` of
+        the target's lane centre (a two-lane road, e.g. Town01: about 7 m), at least
+        40 m ahead of the target's start; it sees the target's front as it
+        approaches, then its side as it passes. Else at the roadside of the target's
+        own direction (its outermost lane), at least 30 m ahead: the target passes
+        lane_width/2 + width/2 + `PARKED_GAP_M` (about 3 m) away when it drives in
+        that lane, and the dashcam, facing the same way, sees its side as it passes,
+        then its back. (A car parked on the right, facing its lane's direction, cannot
+        see the front of a car coming from behind; on multi-lane roads such as
+        Town10's the opposite roadside is 10 m or more away, too far to see much.)"""
+        net, path = self.net, self.target_lanes
+        ends = start + net.length[path]
+        order = sorted(range(len(path)), key=lambda j: (abs(min(max(d, start[j]), ends[j]) - d), j))
+        for j in order:
+            lane = path[j]
+            if net.region[lane] != -1:
+                continue
+            q = min(max(d - start[j], 0.0), net.length[lane])
+            o = self._opposite(lane)
+            o = self._curb_lane(o) if o is not None else None
+            if o is not None:
+                po = (1.0 - q / net.length[lane]) * net.length[o]
+                for shift in (0.0, 6.0, -6.0, 12.0, -12.0, 18.0, -18.0):
+                    ahead = start[j] + (1.0 - (po + shift) / net.length[o]) * net.length[lane]
+                    if ahead < 40.0:
+                        continue
+                    q_t = np.array([(1.0 - (po + shift) / net.length[o]) * net.length[lane]])
+                    tx, ty, *_ = net.pose(np.array([lane]), q_t)
+                    if self._park(i, o, po + shift,
+                                  near=(tx[0], ty[0], PARKED_FACING_MAX_M)):
+                        return True
+            c = self._curb_lane(lane)
+            if c is not None:
+                pc = q / net.length[lane] * net.length[c]
+                for shift in (0.0, 6.0, -6.0, 12.0, -12.0, 18.0, -18.0):
+                    ahead = start[j] + (pc + shift) / net.length[c] * net.length[lane]
+                    if ahead >= 30.0 and self._park(i, c, pc + shift):
+                        return True
+        return False
+
     # ------------------------------------------------------------------ meet placement
     def _place_observers(self) -> None:
         """Place the observers where the target will pass ("meet" placement).
@@ -468,7 +646,8 @@ class TrafficSim:
         The target's planned path (`target_lanes`, distance measured from the
         target's start) is split evenly: observer m gets the point at fraction
         (m + u) / n_observers of its length, u ~ U(0.25, 0.75), and the role
-        oncoming, crossing, following, oncoming, crossing, ... (m = 0, 1, 2, ...):
+        oncoming, crossing, following, parked, oncoming, ... (m = 0, 1, 2, ...;
+        without "parked" when `TrafficConfig.parked_fraction` is 0):
 
         - oncoming: on the opposite-direction lane (same road and section, the
           driving lane nearest the centre) at that point, at least 30 m ahead of
@@ -486,6 +665,9 @@ class TrafficSim:
           10-25 m before the entry, with a route across the region; it drives up
           to the stop line and waits there (without queueing) until the target has
           left the region or `crossing_max_wait_s` passed: it sees the side.
+        - parked: stands still at the roadside beside the target's path for the
+          whole run (`_meet_parked`, `_park`): it sees the front, then the side.
+          It is not in a driving lane and does not take part in car following.
 
         A role that finds no room falls back to the others, then to a random
         place. Agents left overlapping an observer (same lane, closer than the
@@ -505,12 +687,17 @@ class TrafficSim:
         placed.setdefault(int(self.lane[k]), []).append((float(self.p[k]), 0.5 * self.length[k]))
         n = len(obs)
         used_following = False
+        cycle = ("oncoming", "crossing", "following", "parked")
+        if self.cfg.parked_fraction <= 0.0:
+            cycle = cycle[:3]
         for m, i in enumerate(obs):
-            role = ("oncoming", "crossing", "following")[m % 3]
+            role = cycle[m % len(cycle)]
             d = (m + rng.uniform(0.25, 0.75)) / n * total
             done = None
             for r in [role, *[x for x in MEET_ROLES if x != role]]:
                 if r == "following" and used_following:
+                    continue
+                if r == "parked" and "parked" not in cycle:
                     continue
                 if getattr(self, f"_meet_{r}")(i, d, start, placed, reserved):
                     done = r
@@ -520,6 +707,8 @@ class TrafficSim:
                 continue
             used_following |= done == "following"
             self.meet_roles[i] = done
+            if done == "parked":  # beside the lane, not in it: takes no room on it
+                continue
             placed.setdefault(int(self.lane[i]), []).append((float(self.p[i]),
                                                              0.5 * self.length[i]))
         for i, v in enumerate(self.vehicles):
@@ -711,6 +900,8 @@ class TrafficSim:
     def _extend_routes(self, horizon_m: float) -> None:
         net, rng = self.net, self.rng
         for i in range(self.n):
+            if self.parked[i]:
+                continue
             r = self.routes[i]
             ahead = net.length[self.lane[i]] - self.p[i] + sum(net.length[j] for j in r)
             while ahead < horizon_m:
@@ -734,12 +925,17 @@ class TrafficSim:
                     del self.hold[i]
         occ: dict[int, list[tuple[float, int]]] = {}
         for i in range(n):
+            if self.parked[i]:  # beside its lane, not in it: nobody's leader
+                continue
             occ.setdefault(int(self.lane[i]), []).append((float(self.p[i]), i))
         gap = np.full(n, np.inf)
         lead_v = np.zeros(n)
         candidates: list[tuple[int, int, int]] = []  # (region, vehicle, index in path of entry)
         region = net.region
         for i in range(n):
+            if self.parked[i]:
+                gap[i] = 0.0
+                continue
             li = int(self.lane[i])
             path = [li, *self.routes[i]]
             off = -float(self.p[i])
@@ -787,6 +983,8 @@ class TrafficSim:
         dp = np.maximum(dp, 0.0)
         # never drive past a stop line or into the leader
         dp = np.minimum(dp, np.maximum(gap, 0.0))
+        dp[self.parked] = 0.0
+        v_new[self.parked] = 0.0
         self.v = np.maximum(v_new, 0.0)
         self.p = self.p + dp
         self.t = round(self.t + dt, 9)
@@ -877,7 +1075,8 @@ class TrafficSim:
 
     # ------------------------------------------------------------------ output
     def lateral_offsets(self) -> np.ndarray:
-        """(N,) lateral offsets from the lane centre, metres (the target's wobble)."""
+        """(N,) lateral offsets from the lane centre, metres (the target's wobble, the
+        parked cars' roadside offsets)."""
         out = np.zeros(self.n)
         if self.target is not None:
             a = self.cfg.target_wobble_m
@@ -885,6 +1084,7 @@ class TrafficSim:
             w = 0.7 * math.sin(2 * math.pi * self.t / p1 + f1) + 0.3 * math.sin(
                 2 * math.pi * self.t / p2 + f2)
             out[self.target] = a * w
+        out[self.parked] = self.park_lat[self.parked]
         return out
 
     def frame(self) -> dict[str, np.ndarray]:
