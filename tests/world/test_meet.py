@@ -34,7 +34,8 @@ def test_meet_observers_see_the_target_front_and_back(tmp_path, town, seed):
     rec, sightings = _run(tmp_path, town, seed)
     roles = {int(k): v for k, v in rec.meta["observer_roles"].items()}
     assert sorted(roles) == rec.meta["observer_ids"]
-    assert {"oncoming", "following", "crossing"} == set(roles.values())
+    # 4 observers: one of each role (the 4th is parked, see TrafficSim._place_observers)
+    assert {"oncoming", "following", "crossing", "parked"} == set(roles.values())
     seen: dict[int, Counter] = {}
     for s in sightings:
         assert s.distance <= 15.0
@@ -63,8 +64,9 @@ def test_meet_placement_no_overlap_and_deterministic():
         assert a.routes == b.routes and a.meet_roles == b.meet_roles
         assert set(a.meet_roles) == {1, 2, 3, 4}
         assert (net.region[a.lane] == -1).all()
-        for lane in set(a.lane.tolist()):
-            ps = np.sort(a.p[a.lane == lane])
+        on_lane = ~a.parked  # a parked observer stands beside its lane, not in it
+        for lane in set(a.lane[on_lane].tolist()):
+            ps = np.sort(a.p[on_lane & (a.lane == lane)])
             assert (np.diff(ps) > 12.0).all()  # `_spawn`'s spacing on every lane
         for i, role in a.meet_roles.items():
             if role == "following":
