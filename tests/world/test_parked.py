@@ -84,11 +84,14 @@ def test_meet_parked_sees_the_target(tmp_path, town):
         roles = {int(k): v for k, v in rec.meta["observer_roles"].items()}
         parked = [o for o, r in roles.items() if r == "parked"]
         assert parked == rec.meta["parked_observer_ids"]
-        states = rec.states.to_pandas()
+        vid = rec.states.column("vehicle_id").to_numpy()
+        cols = {c: rec.states.column(c).to_numpy() for c in ("speed", "x", "y", "yaw")}
         for o in parked:
-            mine = states[states.vehicle_id == o]
-            assert (mine.speed == 0.0).all()
-            assert mine[["x", "y", "yaw"]].nunique().max() == 1
+            mine = vid == o
+            assert mine.any()
+            assert (cols["speed"][mine] == 0.0).all()
+            for c in ("x", "y", "yaw"):
+                assert np.unique(cols[c][mine]).size == 1
         sightings = oracle_sightings(rec, OracleConfig(max_distance_m=15.0))
         if any(s.observer_id in parked and s.distance <= 15.0 for s in sightings):
             saw += 1
