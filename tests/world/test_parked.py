@@ -8,13 +8,14 @@ import json
 
 import numpy as np
 import pytest
-from tests.world.test_traffic import _vehicles, obb_overlap
 
 from dashtraj.roads import RoadMap
 from dashtraj.world.oracle import OracleConfig, oracle_sightings
 from dashtraj.world.recording import Recording, RunConfig, simulate
 from dashtraj.world.towns import town_path
 from dashtraj.world.traffic import LaneNetwork, TrafficConfig, TrafficError, TrafficSim
+from traffic_helpers import obb_overlap
+from traffic_helpers import traffic_vehicles as _vehicles
 
 
 @pytest.fixture(autouse=True)
