@@ -52,18 +52,10 @@ def register(sub) -> None:
 
 def load(map_arg: str):
     """A RoadMap from a path, or from a built-in town name when no such file exists."""
-    from pathlib import Path
-
     from dashtraj.roads import RoadMap
+    from dashtraj.world.towns import resolve_map
 
-    path = Path(map_arg)
-    if not path.exists():
-        try:
-            from dashtraj.world.towns import town_path
-        except ImportError:
-            town_path = None
-        if town_path is not None and path.suffix == "":
-            path = town_path(map_arg)
+    path = resolve_map(map_arg)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         m = RoadMap.from_file(path)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -55,21 +54,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def _load_map(arg: str):
     """A RoadMap from an .xodr path, or from a built-in town name when no such file exists."""
-    from dashtraj.errors import InputFormatError
+    from dashtraj.errors import DashtrajError, InputFormatError
     from dashtraj.roads import RoadMap
+    from dashtraj.world.towns import resolve_map
 
-    path = Path(arg)
-    if path.is_file():
-        return RoadMap.from_file(path)
     try:
-        from dashtraj.world.towns import town_path
-    except ImportError:
-        raise InputFormatError(f"--map {arg!r}: no such file") from None
-    try:
-        return RoadMap.from_file(town_path(arg))
-    except (KeyError, ValueError) as exc:
+        path = resolve_map(arg)
+    except DashtrajError as exc:
         raise InputFormatError(f"--map {arg!r}: neither a file nor a built-in town ({exc})") \
             from None
+    return RoadMap.from_file(path)
 
 
 def run_reconstruct(args: argparse.Namespace) -> int:

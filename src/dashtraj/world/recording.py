@@ -173,18 +173,13 @@ class RunSummary:
 
 def resolve_map(source: str) -> Path:
     """The .xodr file of a built-in town name or a path. Raises RecordingError."""
-    p = Path(source)
-    if p.suffix.lower() == ".xodr" or p.exists():
-        if not p.is_file():
-            raise RecordingError(f"map file {p} does not exist")
-        return p
+    from dashtraj.errors import OpenDriveError
+    from dashtraj.world.towns import resolve_map as resolve
+
     try:
-        from dashtraj.world.towns import town_path
-    except ImportError as exc:  # pragma: no cover - towns ship with the package
-        raise RecordingError(f"{source!r} is not an .xodr file and built-in towns are "
-                             "not available; pass a path") from exc
-    try:
-        return town_path(source)
+        return resolve(source)
+    except OpenDriveError as exc:
+        raise RecordingError(str(exc)) from exc
     except (DashtrajError, ValueError) as exc:
         raise RecordingError(f"{source!r} is neither an .xodr file nor a built-in town: "
                              f"{exc}") from exc

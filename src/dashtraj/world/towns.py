@@ -35,7 +35,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from dashtraj.errors import DashtrajError
+from dashtraj.errors import DashtrajError, OpenDriveError
 from dashtraj.world.xodr_writer import (
     Connection,
     Geometry,
@@ -55,6 +55,7 @@ __all__ = [
     "UnknownTownError",
     "build_town",
     "build_town_map",
+    "resolve_map",
     "town_path",
 ]
 
@@ -508,3 +509,21 @@ def town_path(name: str, cache_dir: str | os.PathLike[str] | None = None) -> Pat
     tmp.write_bytes(text)
     os.replace(tmp, path)
     return path
+
+
+def resolve_map(source: str | os.PathLike[str]) -> Path:
+    """The .xodr file a user named: a path as given, or a built-in town's file.
+
+    A name ending in ``.xodr``, or one that exists on disk, is a path; anything
+    else is a built-in town name (see `town_path`).
+
+    Raises:
+        OpenDriveError: the path does not name a file.
+        UnknownTownError: not a path and not a town; the message lists the towns.
+    """
+    p = Path(source)
+    if p.suffix.lower() == ".xodr" or p.exists():
+        if not p.is_file():
+            raise OpenDriveError(f"map file {p} does not exist")
+        return p
+    return town_path(str(source))
