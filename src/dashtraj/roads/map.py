@@ -53,6 +53,20 @@ def _linspace(a: float, b: float, n: int) -> np.ndarray:
     return out
 
 
+def _hermite(p0, t0, p1, t1, tt):
+    """Cubic Hermite curve through p0, p1 with tangents t0, t1, at parameters tt (N, 1).
+
+    Returns the point, its first and its second derivative, each (N, 2).
+    """
+    tt2, tt3 = tt * tt, tt * tt * tt
+    c = (p0 * (2 * tt3 - 3 * tt2 + 1) + t0 * (tt3 - 2 * tt2 + tt)
+         + p1 * (-2 * tt3 + 3 * tt2) + t1 * (tt3 - tt2))
+    c1 = (p0 * (6 * tt2 - 6 * tt) + t0 * (3 * tt2 - 4 * tt + 1)
+          + p1 * (-6 * tt2 + 6 * tt) + t1 * (3 * tt2 - 2 * tt))
+    c2 = p0 * (12 * tt - 6) + t0 * (6 * tt - 4) + p1 * (6 - 12 * tt) + t1 * (6 * tt - 2)
+    return c, c1, c2
+
+
 @contextlib.contextmanager
 def _gc_paused():
     """Pause the cyclic garbage collector while building many long-lived objects.
@@ -600,21 +614,12 @@ class RoadMap:
         d = p1 - p0
         t = np.clip(np.einsum("ij,ij->i", q - p0, d) / np.maximum(chord[:, 0] ** 2, 1e-18), 0, 1)
         for _ in range(3):
-            tt = t[:, None]
-            c = (p0 * (2 * tt**3 - 3 * tt**2 + 1) + t0 * (tt**3 - 2 * tt**2 + tt)
-                 + p1 * (-2 * tt**3 + 3 * tt**2) + t1 * (tt**3 - tt**2))
-            c1 = (p0 * (6 * tt**2 - 6 * tt) + t0 * (3 * tt**2 - 4 * tt + 1)
-                  + p1 * (-6 * tt**2 + 6 * tt) + t1 * (3 * tt**2 - 2 * tt))
-            c2 = p0 * (12 * tt - 6) + t0 * (6 * tt - 4) + p1 * (6 - 12 * tt) + t1 * (6 * tt - 2)
+            c, c1, c2 = _hermite(p0, t0, p1, t1, t[:, None])
             r = c - q
             g = np.einsum("ij,ij->i", r, c1)
             dg = np.einsum("ij,ij->i", c1, c1) + np.einsum("ij,ij->i", r, c2)
             t = np.clip(t - g / np.where(np.abs(dg) > 1e-12, dg, 1e-12), 0.0, 1.0)
-        tt = t[:, None]
-        c = (p0 * (2 * tt**3 - 3 * tt**2 + 1) + t0 * (tt**3 - 2 * tt**2 + tt)
-             + p1 * (-2 * tt**3 + 3 * tt**2) + t1 * (tt**3 - tt**2))
-        c1 = (p0 * (6 * tt**2 - 6 * tt) + t0 * (3 * tt**2 - 4 * tt + 1)
-              + p1 * (-6 * tt**2 + 6 * tt) + t1 * (3 * tt**2 - 2 * tt))
+        c, c1, _ = _hermite(p0, t0, p1, t1, t[:, None])
         lane_idx = self._vlane[i]
         keys = self._lane_keys[lane_idx]
         s = self._vs[i] + t * (self._vs[i + 1] - self._vs[i])
