@@ -740,13 +740,7 @@ def _visible_runs(tiles, mvp: np.ndarray) -> list[tuple[int, int]]:
     """(first, count) vertex runs of the tiles whose boxes touch the view frustum."""
     first, count, lo, hi = tiles
     out = _boxes_outside(lo, hi, mvp)
-    runs: list[tuple[int, int]] = []
-    for f, n in zip(first[~out].tolist(), count[~out].tolist(), strict=True):
-        if runs and runs[-1][0] + runs[-1][1] == f:
-            runs[-1] = (runs[-1][0], runs[-1][1] + n)
-        else:
-            runs.append((f, n))
-    return runs
+    return _runs(zip(first[~out].tolist(), count[~out].tolist(), strict=True))
 
 
 def _boxes_outside(lo: np.ndarray, hi: np.ndarray, mvp: np.ndarray) -> np.ndarray:
