@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import BIKE, BUS, MOTO, SEDAN, SUV, TRUCK, VAN, identity
 from scipy import ndimage
 
 from dashtraj.render.scene import Renderer
+from render_scene import BIKE, BUS, MOTO, SEDAN, SUV, TRUCK, VAN, identity
 
 MODELS = [SEDAN, SUV, VAN, TRUCK, BUS, MOTO, BIKE]
 

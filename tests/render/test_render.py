@@ -10,11 +10,11 @@ import math
 
 import numpy as np
 import pytest
-from conftest import BIKE, BUS, MOTO, SEDAN, SUV, TRUCK, VAN, identity
 
 from dashtraj.render.labels import DETECTION_CLASSES, relative_yaw, truncation
 from dashtraj.render.meshes import scene_meshes, vehicle_mesh
 from dashtraj.render.scene import Renderer, intrinsics, project_points
+from render_scene import BIKE, BUS, MOTO, SEDAN, SUV, TRUCK, VAN, identity
 
 CAM = (-95.0, 1.75, 1.6, 0.0, 0.0, 0.0)
 
