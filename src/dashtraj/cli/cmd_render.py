@@ -77,6 +77,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     r.add_argument("--size", type=int, default=256, metavar="PX",
                    help="crop long side, pixels (default 256)")
     r.add_argument("--town", default="town10", help="built-in town of the stage (town10)")
+    r.add_argument("--fov", default="90", metavar="DEG|zoom",
+                   help="horizontal FOV of every ring camera, degrees (default 90, a fixed lens "
+                        "as the paper's cameras); 'zoom' fits a FOV per camera instead")
+    r.add_argument("--image-size", default="800x600", metavar="WxH",
+                   help="ring camera image size with a fixed FOV (default 800x600)")
     r.add_argument("--seed", type=int, default=0, help="camera and split seed (default 0)")
     r.add_argument("--workers", type=int, default=1, help="render processes (default 1)")
     r.add_argument("--from-recordings", nargs="+", default=(), metavar="RUN",
@@ -164,12 +169,23 @@ def run_detection(args: argparse.Namespace) -> int:
 
 def run_reid(args: argparse.Namespace) -> int:
     """Build a VeRi-layout ReID set; prints a summary; returns 0."""
+    from dashtraj.datasets.frames import DatasetError, parse_size
     from dashtraj.datasets.reid import ReidConfig, build_reid_dataset
     from dashtraj.world.recording import Recording
 
+    if args.fov == "zoom":
+        fov = None
+    else:
+        try:
+            fov = float(args.fov)
+        except ValueError:
+            fov = float("nan")
+        if not 1.0 <= fov <= 170.0:
+            raise DatasetError(f"--fov {args.fov!r}: degrees in [1, 170] or 'zoom'")
     recs = [Recording.open(p) for p in args.from_recordings]
     cfg = ReidConfig(n_ids=args.ids, n_cameras=args.cameras, size=args.size, seed=args.seed,
-                     n_test_ids=args.test_ids, town=args.town)
+                     n_test_ids=args.test_ids, town=args.town, fov_deg=fov,
+                     image_size=parse_size(args.image_size))
     bar = _bar(args, args.ids, "id")
     try:
         info = build_reid_dataset(cfg, args.output, workers=args.workers, recordings=recs,
