@@ -61,6 +61,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     e.add_argument("--json", action="store_true", help="print the figures as JSON")
     e.set_defaults(func=run_eval)
 
+    m = sub.add_parser(
+        "moving-queries",
+        help="add image_query_moving/ to a reid-dataset set from recordings",
+        description="Crops of the set's test identities seen by the moving observers of "
+                    "recordings (e.g. 'dashtraj simulate --identities 650-700') become "
+                    "DATA/image_query_moving/ and name_query_moving.txt (the paper never "
+                    "measured this query set); reid.json gets their counts and cameras.")
+    m.add_argument("data", metavar="DATA", help="a reid-dataset output folder (with reid.json)")
+    m.add_argument("recordings", nargs="+", metavar="RUN", help="recording directories")
+    m.add_argument("--every", type=float, default=None, metavar="S",
+                   help="sampling period, seconds (default: the set's, 0.5)")
+    m.add_argument("--overwrite", action="store_true", help="replace an existing query set")
+    m.add_argument("--json", action="store_true", help="print the counts as JSON")
+    m.set_defaults(func=run_moving)
+
     x = sub.add_parser(
         "export", help="export a checkpoint (best.pt) to ONNX (needs the .[train] extra)",
         description="Write the embedding network of a training checkpoint as ONNX "
@@ -158,4 +173,53 @@ def run_export(args: argparse.Namespace) -> int:
     else:
         print(f"{args.output}: {meta['model']} {meta['input_height']}x{meta['input_width']}, "
               f"{len(data) / 1e6:.2f} MB, sha256 {info['sha256'][:16]}...")
+    return 0
+
+
+def run_moving(args: argparse.Namespace) -> int:
+    """Add the moving-observer query set to a reid-dataset folder; returns 0."""
+    import dataclasses
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    from dashtraj.datasets.reid import ReidConfig, moving_queries
+    from dashtraj.reid.evaluate import VeriLayoutError
+    from dashtraj.world.recording import Recording
+
+    root = Path(args.data)
+    meta_path = root / "reid.json"
+    if not meta_path.is_file():
+        raise VeriLayoutError(f"{root}: no reid.json (not a 'dashtraj reid-dataset' folder)")
+    info = json.loads(meta_path.read_text(encoding="utf-8"))
+    dest = root / "image_query_moving"
+    if dest.exists() and not args.overwrite:
+        raise VeriLayoutError(f"{dest} exists; --overwrite replaces it")
+    names = {f.name for f in dataclasses.fields(ReidConfig)}
+    cfg_d = {k: (tuple(v) if isinstance(v, list) else v)
+             for k, v in info["config"].items() if k in names and k != "recordings"}
+    if args.every is not None:
+        cfg_d["every_s"] = args.every
+    cfg = ReidConfig(**cfg_d)
+    recs = [Recording.open(p) for p in args.recordings]
+    with tempfile.TemporaryDirectory(dir=root, prefix=".moving-") as tmp:
+        res = moving_queries(recs, tmp, cfg)
+        if dest.exists():
+            shutil.rmtree(dest)
+        os_replace = Path(tmp) / "image_query_moving"
+        os_replace.rename(dest)
+        (Path(tmp) / "name_query_moving.txt").replace(root / "name_query_moving.txt")
+    info["counts"]["query_moving"] = res["counts"]
+    info["moving_cameras"] = res["cameras"]
+    info["config"]["recordings"] = [str(r.path) for r in recs]
+    info["config"]["every_s"] = cfg.every_s
+    tmp_meta = meta_path.with_suffix(".json.tmp")
+    tmp_meta.write_text(json.dumps(info, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+    tmp_meta.replace(meta_path)
+    c = res["counts"]
+    if args.json:
+        print(json.dumps(c))
+    else:
+        print(f"{dest}: {c['images']} crops of {c['ids']} test ids from {len(res['cameras'])} "
+              f"moving observers ({c['skipped_not_test']} crops of other identities skipped)")
     return 0
