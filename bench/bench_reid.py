@@ -5,11 +5,12 @@ threads (2: this project's machines): crops/s of the network alone on (N, H, W, 
 crops at its input size, and crops/s from 256-pixel JPEG-sized Pillow crops (resize
 included). Target ≥ 300 crops/s.
 
-Gallery: one query at a time, k = 10, over ``--gallery`` (100,000) unit 512-d vectors
-clustered like embeddings (10 views per identity): ``dashtraj.reid.gallery.Gallery``
-on faiss (flat inner product, exact; IVF 1024 cells / 16 probed, with its recall@10
-against the exact answer; HNSW with ``--hnsw``), against a numpy brute force (matrix-vector product + argpartition)
-measured in the same run. Target ≤ 1 ms per query over 100k: an exact scan reads the
+Gallery: one query at a time, k = 10, over ``--gallery`` (100,000) unit 512-d
+vectors clustered like embeddings (10 views per identity):
+``dashtraj.reid.gallery.Gallery`` on faiss (flat inner product, exact; IVF with 1024
+cells of which 16 are probed, with its recall@10 against the exact answer; HNSW with
+``--hnsw``) against a numpy brute force (matrix-vector product + argpartition)
+measured in the same run. Target <= 1 ms per query over 100k: an exact scan reads the
 whole 205 MB gallery per query, so only the IVF index can meet it on these machines.
 
 Usage:
