@@ -23,7 +23,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "train", help="train a backbone on a VeRi-layout set (needs the .[train] extra)",
         description="Train (or --resume) a ReID backbone on DATA/image_train with softmax "
                     "cross-entropy (label smoothing; --triplet adds the batch-hard triplet "
-                    "loss). Recipes: 'cpu' (osnet_x0_25, 128x128, channels-last, 12 epochs "
+                    "loss). Recipes: 'cpu' (osnet_x0_25, 128x128, channels-last, 6 epochs "
                     "on 2 CPU cores) and 'paper' (Table I: Adam 3e-4, 256x256, 60 epochs). "
                     "The run folder holds last.pt (resumable), best.pt, log.jsonl, "
                     "curves.png and run.json.")
