@@ -79,6 +79,8 @@ CASES: list[tuple[str, list[str], str]] = [
      "argument --parked-fraction"),
     ("simulate-identities", ["simulate", "--identities", "9-2", "-o", "{NEW_DIR}"],
      "argument --identities"),
+    ("simulate-identities-too-few", ["simulate", "--identities", "650-652", "--agents", "3",
+                                     "-o", "{NEW_DIR}"], "only 2 match"),
     ("simulate-unknown-town", ["simulate", "--town", "town99", "-o", "{NEW_DIR}"],
      "valid names: town01, town10"),
     ("simulate-missing-map-file", ["simulate", "--town", "{MISSING}.xodr", "-o", "{NEW_DIR}"],
@@ -275,7 +277,7 @@ def test_reconstruct_drops_off_road_sightings_and_says_which(inputs, tmp_path, c
     assert rc == 0, err
     assert err.splitlines() == [err.strip()]
     assert err.startswith("warning: ")
-    assert "dropped 1 of 3 sightings" in err and "line 4 (1e+06, 1e+06)" in err
+    assert "dropped 1 of 3 sightings" in err and "line 4 (1e+06, 1e+06) 14137" in err
     with_far = out.read_text()
     clean = tmp_path / "clean.csv"
     assert main(["reconstruct", "--map", "town01", "--sightings", inputs["SIGHTINGS"], "-o",
@@ -362,3 +364,15 @@ def test_warnings_print_in_one_clean_style(tmp_path, capsys):
     rc, err = _run(["score", "--truth", str(bad), "--estimate", str(bad)], capsys)
     assert rc == 0
     assert err == "warning: s.csv: ignoring unknown column(s) 'colour'\n" * 2  # both files
+
+
+def test_a_recording_with_another_runs_map_is_refused(inputs, tmp_path, capsys):
+    import shutil
+
+    rec = tmp_path / "rec"
+    shutil.copytree(inputs["REC"], rec)
+    (rec / "map.xodr").write_bytes((rec / "map.xodr").read_bytes() + b"\n")
+    rc, err = _run(["sightings", str(rec), "-o", str(tmp_path / "s.csv")], capsys)
+    assert rc == 2
+    assert err.count("\n") == 1 and "is not the map meta.json names" in err
+    assert not (tmp_path / "s.csv").exists()

@@ -143,3 +143,17 @@ def load_map(arg: str, what: str = "map"):
     if path != Path(arg):
         road_map.name = str(arg).lower()
     return road_map
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
+    """``--help`` with the description's paragraphs kept and every default shown.
+
+    A default already stated in the help text, a flag's False and a None (no default)
+    are not repeated.
+    """
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        if "default" in text or action.default in (None, False, argparse.SUPPRESS):
+            return text
+        return super()._get_help_string(action)
