@@ -244,8 +244,9 @@ class LaneProjection:
     Arrays, all (N,): `road_id`, `section_id`, `lane_id` (int), `s` (m from road
     start), `x`, `y`, `z` (lane-centre point, CARLA world, m), `yaw` (deg, driving
     direction), `lateral_m` (signed offset of the query from the centre, positive to
-    the right of the driving direction), `distance_m` (distance from the query to
-    the lane-centre point: plan-view, or 3-D for a query that carries a z), `lane_width` (m), `lane_index` (index into `RoadMap.lane_list`).
+    the right of the driving direction), `distance_m` (distance from the query to the
+    lane-centre point: plan-view, or 3-D for a query that carries a z), `lane_width`
+    (m), `lane_index` (index into `RoadMap.lane_list`).
     """
 
     road_id: np.ndarray
