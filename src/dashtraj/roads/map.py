@@ -397,6 +397,23 @@ class RoadMap:
                                                  f"junction {rlink.element_id} connection {c.id}")
                                 if t:
                                     targets.append(t)
+            # The link against the driving direction (a forward lane's predecessor, a
+            # backward lane's successor) builds nothing (CARLA links lanes from their
+            # successors), but one naming a lane that does not exist is still a quirk
+            # of the map: warn about it, as for the successor links.
+            back_id = rec.predecessor if forward else rec.successor
+            if back_id is not None:
+                if (forward and k > 0) or (not forward and k < last):
+                    lane_or_warn(rid, k - 1 if forward else k + 1, back_id,
+                                 f"{where} {'predecessor' if forward else 'successor'}")
+                else:
+                    blink = road.predecessor if forward else road.successor
+                    if (blink is not None and blink.element_type == "road"
+                            and blink.element_id in self.roads):
+                        other = self.roads[blink.element_id]
+                        lane_or_warn(other.id, self._section_of(other, blink.contact_point),
+                                     back_id,
+                                     f"{where} {'predecessor' if forward else 'successor'}")
             seen = set()
             for t in targets:
                 if t not in seen:
