@@ -86,6 +86,39 @@ seed = int_at_least(0)
 """A random seed (numpy's SeedSequence takes integers >= 0)."""
 
 
+def seed_list(text: str) -> tuple[int, ...]:
+    """Seeds as ``A-B`` (inclusive range), ``a,b,c`` (a list) or ``N`` (the first N: 0..N-1).
+
+    ``"0-4"`` → (0, 1, 2, 3, 4); ``"3,8,11"`` → (3, 8, 11); ``"5"`` → (0, 1, 2, 3, 4).
+    Seeds are integers >= 0, given once each; a count is >= 1.
+    """
+    t = text.strip()
+    try:
+        if "," in t:
+            seeds = tuple(int(v) for v in t.split(","))
+        elif "-" in t.lstrip("-"):
+            lo, hi = (int(v) for v in t.split("-"))
+            if hi < lo:
+                raise argparse.ArgumentTypeError(
+                    f"expected a range A-B with A <= B, got {text!r}")
+            seeds = tuple(range(lo, hi + 1))
+        else:
+            n = int(t)
+            if n < 1:
+                raise argparse.ArgumentTypeError(
+                    f"expected an integer >= 1 (a count), a range A-B or a list a,b,c, "
+                    f"got {text!r}")
+            seeds = tuple(range(n))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a count N, a range A-B or a list a,b,c of seeds, got {text!r}") from None
+    if any(s < 0 for s in seeds):
+        raise argparse.ArgumentTypeError(f"expected seeds >= 0, got {text!r}")
+    if len(set(seeds)) != len(seeds):
+        raise argparse.ArgumentTypeError(f"expected each seed once, got {text!r}")
+    return seeds
+
+
 def xy(text: str) -> tuple[float, float]:
     """``"X,Y"`` → (x, y), CARLA world metres, both finite."""
     try:

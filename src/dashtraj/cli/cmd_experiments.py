@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from dashtraj.cli._args import HelpFormatter, positive_int
+from dashtraj.cli._args import HelpFormatter, seed_list
 from dashtraj.outputs import add_output_args
 
 DESCRIPTION = """\
@@ -28,8 +28,8 @@ def register(sub) -> None:
                        formatter_class=HelpFormatter)
     p.add_argument("--towns", nargs="+", default=["town01", "town10"],
                    help="towns (built-in names or .xodr paths)")
-    p.add_argument("--seeds", type=positive_int, default=5,
-                   help="experiments per town (seeds 0..N-1)")
+    p.add_argument("--seeds", type=seed_list, default="0-4",
+                   help="seeds per town: a range A-B, a list a,b,c, or a count N (0..N-1)")
     p.add_argument("--noise", choices=("paper", "none"), default="paper",
                    help="localization noise of the oracle sightings")
     p.add_argument("-o", "--output", default="runs/experiments", help="output folder")
@@ -67,7 +67,7 @@ def run(args) -> int:
     header = False
     with atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:
         for town in args.towns:
-            for seed in range(args.seeds):
+            for seed in args.seeds:
                 cfg = ExperimentConfig(town=town, seed=seed, noise=args.noise)
                 name = f"{town_label(town)}_seed{seed}"
                 res = run_experiment(cfg, tmp / name)
