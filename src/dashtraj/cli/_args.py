@@ -190,3 +190,21 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefau
         if "default" in text or action.default in (None, False, argparse.SUPPRESS):
             return text
         return super()._get_help_string(action)
+
+
+MAX_IMAGE_SIDE_PX = 8192
+"""Largest image side the renderer is asked for (llvmpipe and most GPUs allow 8192+)."""
+
+
+def image_size(text: str) -> str:
+    """``WxH`` in pixels, each side 8 to `MAX_IMAGE_SIDE_PX` (returned as given, for
+    `dashtraj.datasets.frames.parse_size`)."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WxH in pixels, e.g. 640x360, got {text!r}") \
+            from None
+    if not (8 <= w <= MAX_IMAGE_SIDE_PX and 8 <= h <= MAX_IMAGE_SIDE_PX):
+        raise argparse.ArgumentTypeError(
+            f"expected each side of WxH in 8..{MAX_IMAGE_SIDE_PX} pixels, got {text!r}")
+    return text
