@@ -69,6 +69,10 @@ CASES: list[tuple[str, list[str], str]] = [
      "argument --duration: expected a finite number"),
     ("simulate-duration-inf", ["simulate", "--duration", "inf", "-o", "{NEW_DIR}"],
      "argument --duration"),
+    ("simulate-duration-absurd", ["simulate", "--duration", "1e300", "-o", "{NEW_DIR}"],
+     "argument --duration: expected at most 86400 s"),
+    ("simulate-map-is-folder", ["simulate", "--town", "{TMP}", "-o", "{NEW_DIR}"],
+     "is a folder, not an .xodr file"),
     ("simulate-step-longer-than-duration", ["simulate", "--duration", "1", "--step", "5",
                                             "-o", "{NEW_DIR}"], "--step 5 s is longer"),
     ("simulate-agents-fraction", ["simulate", "--agents", "1.5", "-o", "{NEW_DIR}"],
@@ -144,6 +148,8 @@ CASES: list[tuple[str, list[str], str]] = [
                                      "--max-occlusion", "nan"], "argument --max-occlusion"),
     ("detection-size", ["detection-dataset", "{REC}", "-o", "{NEW_DIR}", "--size", "big"],
      "argument --size: expected WxH in pixels"),
+    ("detection-same-recording-twice", ["detection-dataset", "{REC}", "{REC}", "-o",
+                                        "{NEW_DIR}"], "is given twice"),
     ("detection-missing-recording", ["detection-dataset", "{MISSING}", "-o", "{NEW_DIR}"],
      "is not a directory"),
     ("reid-ids-zero", ["reid-dataset", "--ids", "0", "-o", "{NEW_DIR}"], "argument --ids"),
@@ -246,7 +252,7 @@ def test_bad_input_exits_2_with_one_line_and_touches_nothing(argv, fragment, inp
               "OUT_DIR": str(work / "out_dir"), "OUT_FILE": str(work / "out_file.csv"),
               "OUT_PNG": str(work / "out.png"), "NEW_DIR": str(work / "new_dir"),
               "NEW_FILE": str(work / "new_file.csv"), "NEW_PNG": str(work / "new.png"),
-              "MISSING": str(tmp_path / "missing")}
+              "MISSING": str(tmp_path / "missing"), "TMP": str(tmp_path)}
     argv = [a.format(**places) for a in argv]
     before = _tree(work)
 
