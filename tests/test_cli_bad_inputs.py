@@ -79,6 +79,8 @@ CASES: list[tuple[str, list[str], str]] = [
      "argument --parked-fraction"),
     ("simulate-identities", ["simulate", "--identities", "9-2", "-o", "{NEW_DIR}"],
      "argument --identities"),
+    ("simulate-identities-too-few", ["simulate", "--identities", "650-652", "--agents", "3",
+                                     "-o", "{NEW_DIR}"], "only 2 match"),
     ("simulate-unknown-town", ["simulate", "--town", "town99", "-o", "{NEW_DIR}"],
      "valid names: town01, town10"),
     ("simulate-missing-map-file", ["simulate", "--town", "{MISSING}.xodr", "-o", "{NEW_DIR}"],
@@ -128,7 +130,10 @@ CASES: list[tuple[str, list[str], str]] = [
     # --- render and the training sets
     ("render-every-zero", ["render", "{REC}", "-o", "{NEW_DIR}", "--every", "0"],
      "argument --every"),
-    ("render-size", ["render", "{REC}", "-o", "{NEW_DIR}", "--size", "4x4"], "too small"),
+    ("render-size", ["render", "{REC}", "-o", "{NEW_DIR}", "--size", "4x4"],
+     "argument --size: expected each side of WxH in 8..8192"),
+    ("render-size-huge", ["render", "{REC}", "-o", "{NEW_DIR}", "--size", "20000x20000"],
+     "argument --size"),
     ("render-observer-unknown", ["render", "{REC}", "-o", "{NEW_DIR}", "--observer", "999"],
      "--observer 999: not an observer"),
     ("render-observer-negative", ["render", "{REC}", "-o", "{NEW_DIR}", "--observer", "-1"],
@@ -138,12 +143,14 @@ CASES: list[tuple[str, list[str], str]] = [
     ("detection-max-occlusion-nan", ["detection-dataset", "{REC}", "-o", "{NEW_DIR}",
                                      "--max-occlusion", "nan"], "argument --max-occlusion"),
     ("detection-size", ["detection-dataset", "{REC}", "-o", "{NEW_DIR}", "--size", "big"],
-     "bad image size 'big'"),
+     "argument --size: expected WxH in pixels"),
     ("detection-missing-recording", ["detection-dataset", "{MISSING}", "-o", "{NEW_DIR}"],
      "is not a directory"),
     ("reid-ids-zero", ["reid-dataset", "--ids", "0", "-o", "{NEW_DIR}"], "argument --ids"),
     ("reid-test-ids", ["reid-dataset", "--ids", "3", "--test-ids", "3", "-o", "{NEW_DIR}"],
      "--test-ids 3 must be fewer than --ids 3"),
+    ("reid-size-tiny", ["reid-dataset", "--size", "1", "-o", "{NEW_DIR}"],
+     "argument --size: expected an integer >= 16"),
     ("reid-workers-zero", ["reid-dataset", "--workers", "0", "-o", "{NEW_DIR}"],
      "argument --workers"),
     ("reid-unknown-town", ["reid-dataset", "--ids", "3", "--town", "town99", "-o",
@@ -258,7 +265,9 @@ def test_the_table_covers_every_command_that_takes_arguments():
 
     sub = next(a for a in build_parser()._actions if a.dest == "command")
     covered = {c[1][0] for c in CASES if c[1]}
-    assert set(sub.choices) - covered == set()
+    missing = sorted(set(sub.choices) - covered)
+    assert not missing, (f"add bad-input rows to CASES in tests/test_cli_bad_inputs.py for "
+                         f"the new command(s) {', '.join(missing)}")
 
 
 def test_reconstruct_creates_missing_parent_folders(inputs, tmp_path, capsys):
@@ -281,7 +290,7 @@ def test_reconstruct_drops_off_road_sightings_and_says_which(inputs, tmp_path, c
     assert rc == 0, err
     assert err.splitlines() == [err.strip()]
     assert err.startswith("warning: ")
-    assert "dropped 1 of 3 sightings" in err and "line 4 (1e+06, 1e+06)" in err
+    assert "dropped 1 of 3 sightings" in err and "line 4 (1e+06, 1e+06) 14137" in err
     with_far = out.read_text()
     clean = tmp_path / "clean.csv"
     assert main(["reconstruct", "--map", "town01", "--sightings", inputs["SIGHTINGS"], "-o",
@@ -368,3 +377,15 @@ def test_warnings_print_in_one_clean_style(tmp_path, capsys):
     rc, err = _run(["score", "--truth", str(bad), "--estimate", str(bad)], capsys)
     assert rc == 0
     assert err == "warning: s.csv: ignoring unknown column(s) 'colour'\n" * 2  # both files
+
+
+def test_a_recording_with_another_runs_map_is_refused(inputs, tmp_path, capsys):
+    import shutil
+
+    rec = tmp_path / "rec"
+    shutil.copytree(inputs["REC"], rec)
+    (rec / "map.xodr").write_bytes((rec / "map.xodr").read_bytes() + b"\n")
+    rc, err = _run(["sightings", str(rec), "-o", str(tmp_path / "s.csv")], capsys)
+    assert rc == 2
+    assert err.count("\n") == 1 and "is not the map meta.json names" in err
+    assert not (tmp_path / "s.csv").exists()

@@ -97,7 +97,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"dashtraj: error: {where}{exc.strerror or exc}", file=sys.stderr)
             return 2
         except KeyboardInterrupt:
-            print("dashtraj: interrupted", file=sys.stderr)
+            print("dashtraj: interrupted; outputs are written whole or not at all, so an "
+                  "existing output is unchanged", file=sys.stderr)
             return 130
 
 

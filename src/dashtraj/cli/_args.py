@@ -176,3 +176,35 @@ def load_map(arg: str, what: str = "map"):
     if path != Path(arg):
         road_map.name = str(arg).lower()
     return road_map
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
+    """``--help`` with the description's paragraphs kept and every default shown.
+
+    A default already stated in the help text, a flag's False and a None (no default)
+    are not repeated.
+    """
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        if "default" in text or action.default in (None, False, argparse.SUPPRESS):
+            return text
+        return super()._get_help_string(action)
+
+
+MAX_IMAGE_SIDE_PX = 8192
+"""Largest image side the renderer is asked for (llvmpipe and most GPUs allow 8192+)."""
+
+
+def image_size(text: str) -> str:
+    """``WxH`` in pixels, each side 8 to `MAX_IMAGE_SIDE_PX` (returned as given, for
+    `dashtraj.datasets.frames.parse_size`)."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WxH in pixels, e.g. 640x360, got {text!r}") \
+            from None
+    if not (8 <= w <= MAX_IMAGE_SIDE_PX and 8 <= h <= MAX_IMAGE_SIDE_PX):
+        raise argparse.ArgumentTypeError(
+            f"expected each side of WxH in 8..{MAX_IMAGE_SIDE_PX} pixels, got {text!r}")
+    return text

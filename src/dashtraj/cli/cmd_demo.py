@@ -8,15 +8,14 @@ a top view like the paper's Fig. 6.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 
-from dashtraj.cli._args import count, positive_float, seed
+from dashtraj.cli._args import HelpFormatter, count, positive_float, seed
 from dashtraj.outputs import add_output_args
 
 DESCRIPTION = """\
-The main job on a built-in town, end to end, in about ten seconds: simulate one target car
+The main job on a built-in town, end to end: simulate one target car
 driving to a destination with observer cars (dashcams) and agents around it, until it
 arrives; take oracle sightings of the target within 15 m of a dashcam (with the paper's
 localization noise by default); reconstruct its route with the paper's method
@@ -31,7 +30,7 @@ CARLA's assets); a CARLA .xodr file works too."""
 def register(sub) -> None:
     p = sub.add_parser("demo", help="simulate, sight, reconstruct and score on a built-in town",
                        description=DESCRIPTION,
-                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                       formatter_class=HelpFormatter)
     p.add_argument("--town", default="town10", help="built-in town name or .xodr path")
     p.add_argument("--observers", type=count, default=4, help="observer cars with dashcams")
     p.add_argument("--agents", type=count, default=20, help="other cars")

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
-from dashtraj.cli._args import seed_list
+from dashtraj.cli._args import HelpFormatter, seed_list
 from dashtraj.outputs import add_output_args
 
 DESCRIPTION = """\
@@ -26,7 +25,7 @@ def register(sub) -> None:
     p = sub.add_parser("experiments",
                        help="run the paper's ten driving experiments (5 × town01, 5 × town10)",
                        description=DESCRIPTION,
-                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                       formatter_class=HelpFormatter)
     p.add_argument("--towns", nargs="+", default=["town01", "town10"],
                    help="towns (built-in names or .xodr paths)")
     p.add_argument("--seeds", type=seed_list, default="0-4",

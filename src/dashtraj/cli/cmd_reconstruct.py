@@ -103,7 +103,7 @@ def drop_off_road(road_map, sightings, path, max_off_road_m: float):
     if len(far) == 0:
         return list(sightings)
     lines = _data_lines(path)
-    where = ", ".join(f"line {lines[i]} ({xy[i, 0]:g}, {xy[i, 1]:g}) {dist[i]:.0f} m"
+    where = ", ".join(f"line {lines[i]} ({xy[i, 0]:g}, {xy[i, 1]:g}) {dist[i]:.1f} m"
                       for i in far[:3]) + (f" and {len(far) - 3} more" if len(far) > 3 else "")
     if len(far) == len(sightings):
         raise InputFormatError(

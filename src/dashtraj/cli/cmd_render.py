@@ -6,7 +6,15 @@ import argparse
 import json
 import sys
 
-from dashtraj.cli._args import count, fraction, non_negative_float, positive_float, positive_int
+from dashtraj.cli._args import (
+    count,
+    fraction,
+    image_size,
+    int_at_least,
+    non_negative_float,
+    positive_float,
+    positive_int,
+)
 from dashtraj.cli._args import seed as seed_int
 from dashtraj.outputs import add_output_args
 
@@ -29,7 +37,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="only this observer (repeatable; default all)")
     p.add_argument("--every", type=positive_float, default=0.5, metavar="S",
                    help="sampling period, seconds (default 0.5)")
-    p.add_argument("--size", default=None, metavar="WxH",
+    p.add_argument("--size", type=image_size, default=None, metavar="WxH",
                    help="image size (default: the recording's camera)")
     p.add_argument("--preview", action="store_true", help="also write preview pictures")
     add_output_args(p)
@@ -51,7 +59,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     d.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
     d.add_argument("--every", type=positive_float, default=0.5, metavar="S",
                    help="sampling period, seconds (default 0.5)")
-    d.add_argument("--size", default="640x360", metavar="WxH", help="image size (640x360)")
+    d.add_argument("--size", type=image_size, default="640x360", metavar="WxH",
+                   help="image size (640x360)")
     d.add_argument("--min-box-height", type=non_negative_float, default=10.0, metavar="PX",
                    help="smallest labelled visible box height, pixels (default 10)")
     d.add_argument("--max-occlusion", type=fraction, default=0.7,
@@ -80,8 +89,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     r.add_argument("--cameras", type=positive_int, default=85, help="ring cameras (default 85)")
     r.add_argument("--test-ids", type=positive_int, default=None,
                    help="test identities (default round(ids * 50 / 700), at least 1)")
-    r.add_argument("--size", type=positive_int, default=256, metavar="PX",
-                   help="crop long side, pixels (default 256)")
+    r.add_argument("--size", type=int_at_least(16), default=256, metavar="PX",
+                   help="crop long side, pixels, 16 or more (default 256)")
     r.add_argument("--town", default="town10", help="built-in town of the stage (town10)")
     r.add_argument("--seed", type=seed_int, default=0, help="camera and split seed (default 0)")
     r.add_argument("--workers", type=positive_int, default=1, help="render processes (default 1)")

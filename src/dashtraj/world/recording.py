@@ -192,7 +192,13 @@ def _identities(rng: np.random.Generator, n: int, classes, id_range=None):
     from dashtraj.world.catalog import CATALOG_VERSION, sample_identities
 
     out = []
-    for ident in sample_identities(rng, n, classes=classes, id_range=id_range):
+    try:
+        idents = sample_identities(rng, n, classes=classes, id_range=id_range)
+    except ValueError as exc:  # too few identities in the range / classes asked for
+        where = f"identities {id_range[0]}-{id_range[1]}" if id_range else "the catalog"
+        raise RecordingError(f"{where} of classes {', '.join(classes)}: {exc} (one per "
+                             f"vehicle: target, observers and agents)") from None
+    for ident in idents:
         m = ident.model
         out.append({"identity_id": ident.identity_id, "blueprint_id": m.blueprint_id,
                     "vehicle_class": m.vehicle_class, "body_type": m.body_type,
@@ -479,6 +485,12 @@ class Recording:
                 tables[name] = pq.read_table(p)
             except (pa.ArrowInvalid, OSError) as exc:
                 raise RecordingError(f"{p} is corrupt or not parquet: {exc}") from exc
+        want = (meta.get("map") or {}).get("sha256")
+        map_file = root / (meta.get("map") or {}).get("file", "map.xodr")
+        if want and map_file.is_file() and \
+                hashlib.sha256(map_file.read_bytes()).hexdigest() != want:
+            raise RecordingError(f"{map_file} is not the map meta.json names (sha256 differs): "
+                                 f"the folder mixes files of two runs; simulate it again")
         route = read_trajectory(need("target_route.csv"))
         if not meta.get("complete"):
             warnings.warn(f"recording {root} is incomplete: simulated to "
