@@ -946,12 +946,14 @@ class RoadMap:
     def get_topology(self) -> list[tuple[Waypoint, Waypoint]]:
         """(start of a Driving lane, start of one successor lane) pairs, as CARLA's."""
         out = []
+        lanes, make, driving = self.lanes, tuple.__new__, LaneType.Driving
         for lane in self.lane_list:
-            if lane.type != LaneType.Driving:
+            if lane.type != driving or not lane.successors:
                 continue
-            a = self.lane_start(lane.key)
+            a = make(Waypoint, (*lane.key, lane.s0 if lane.key[2] < 0 else lane.s1, self))
             for t in lane.successors:
-                out.append((a, self.lane_start(t)))
+                b = lanes[t]
+                out.append((a, make(Waypoint, (*t, b.s0 if t[2] < 0 else b.s1, self))))
         return out
 
     def generate_waypoints(self, distance: float) -> list[Waypoint]:
@@ -1008,8 +1010,19 @@ class RoadMap:
     def _walk(self, wp: Waypoint, distance: float, forward: bool) -> list[Waypoint]:
         if not distance > 0:
             raise ValueError(f"distance must be positive, got {distance}")
+        key = wp[:3]
+        lane = self.lanes[key]
+        s = wp[3]
+        d = float(distance)
+        if (key[2] < 0) == forward:  # moving towards increasing s
+            if d <= lane.s1 - s + 1e-9:  # the common case: still on this lane
+                return [tuple.__new__(Waypoint, (*key, float(min(max(s + d, lane.s0), lane.s1)),
+                                                 self))]
+        elif d <= s - lane.s0 + 1e-9:
+            return [tuple.__new__(Waypoint, (*key, float(min(max(s - d, lane.s0), lane.s1)),
+                                             self))]
         out: list[Waypoint] = []
-        stack = [(wp.key, wp.s, float(distance), 0)]
+        stack = [(key, s, d, 0)]
         while stack:
             key, s, d, depth = stack.pop()
             lane = self.lanes[key]
