@@ -108,3 +108,20 @@ def test_waypoint_is_an_immutable_record(multi_section):
     with pytest.raises(TypeError):
         _ = a < b
     assert len({a, b, m.waypoint(1, 3, -1, 60.0)}) == 1
+
+
+def test_project_of_no_points_is_empty(multi_section):
+    for shape in ((0, 2), (0, 3)):
+        p = multi_section.project(np.zeros(shape))
+        assert len(p) == 0 and p.s.shape == (0,)
+
+
+def test_get_waypoints_is_get_waypoint_per_point(carla_map):
+    pts = _points(carla_map, 400, seed=5)
+    for project_to_road in (True, False):
+        many = carla_map.get_waypoints(pts, project_to_road=project_to_road)
+        one = [carla_map.get_waypoint((x, y), project_to_road=project_to_road)
+               for x, y in pts.tolist()]
+        assert [None if w is None else (w.key, w.s) for w in many] == \
+            [None if w is None else (w.key, w.s) for w in one]
+        assert all(w is None or (type(w.road_id) is int and type(w.s) is float) for w in many)

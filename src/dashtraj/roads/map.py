@@ -312,7 +312,10 @@ class LaneProjection:
                         float(self.s[i]), self.map)
 
     def waypoints(self) -> list[Waypoint]:
-        return [self.waypoint(i) for i in range(len(self))]
+        make, m = tuple.__new__, self.map
+        return [make(Waypoint, (r, k, lane, s, m)) for r, k, lane, s in
+                zip(self.road_id.tolist(), self.section_id.tolist(), self.lane_id.tolist(),
+                    self.s.tolist(), strict=True)]
 
 
 @dataclass(frozen=True, slots=True)
@@ -634,6 +637,8 @@ class RoadMap:
         """
         three = q.shape[1] == 3
         tree, seg, half = self._index3(lane_type) if three else self._index(lane_type)
+        if len(q) == 0:
+            return np.zeros(0, dtype=np.int64)
         dist_fn = self._segment_distance3 if three else self._segment_distance
         n_seg = len(seg)
         k = min(8, n_seg)
@@ -908,8 +913,10 @@ class RoadMap:
                       lane_type: LaneType = LaneType.Driving) -> list[Waypoint | None]:
         """`get_waypoint` for (N, 2) or (N, 3) points at once (z: see `project`)."""
         p = self.project(points, lane_type)
-        inside = p.inside
-        return [p.waypoint(i) if (project_to_road or inside[i]) else None for i in range(len(p))]
+        wps = p.waypoints()
+        if project_to_road:
+            return wps
+        return [w if ok else None for w, ok in zip(wps, p.inside.tolist(), strict=True)]
 
     def waypoint(self, road_id: int, section_id: int, lane_id: int, s: float) -> Waypoint:
         """The waypoint at (road, section, lane, s); s is clamped into the section.
