@@ -27,7 +27,7 @@ def test_z_round_trips_and_is_written_only_when_some_sighting_has_one(tmp_path):
 
 
 def test_a_non_finite_z_is_refused(tmp_path):
-    with pytest.raises(InputFormatError, match="Sighting.z must be a finite number"):
+    with pytest.raises(InputFormatError, match=r"Sighting\.z must be a finite number"):
         _s(0.0, float("nan"))
     bad = tmp_path / "bad.csv"
     write_sightings(bad, [_s(0.0, 1.0)])
