@@ -547,11 +547,18 @@ class RoadMap:
                             knots.add(sec.s + x)
         if len(knots) == 2:
             return _linspace(s0, s1, max(2, math.ceil((s1 - s0) / step) + 1))
-        ordered = sorted(knots)
-        parts = [_linspace(a, c, max(2, math.ceil((c - a) / step) + 1))[:-1]
-                 for a, c in itertools.pairwise(ordered)]
-        parts.append(np.array([s1]))
-        return np.concatenate(parts)
+        # Between consecutive knots a < c: _linspace(a, c, n) without its last point,
+        # all intervals at once (the same products and sums, so the same bits).
+        ordered = np.array(sorted(knots))
+        a, c = ordered[:-1], ordered[1:]
+        n = np.maximum(2, np.ceil((c - a) / step).astype(np.int64) + 1)
+        m = n - 1
+        first = np.cumsum(m) - m
+        i = np.arange(int(m.sum())) - np.repeat(first, m)
+        out = np.empty(len(i) + 1)
+        np.add(i * np.repeat((c - a) / m, m), np.repeat(a, m), out=out[:-1])
+        out[-1] = s1
+        return out
 
     def _sample_lanes(self) -> None:
         xs, ys, zs, hs, ss, ws, owner, lane_n = [], [], [], [], [], [], [], []
@@ -582,8 +589,8 @@ class RoadMap:
                 xs.append((xr - t * sn).ravel())
                 ys.append((-(yr + t * cs)).ravel())
                 hs.append((-(hr + np.arctan2(dt, 1.0 - t * kr))).ravel())
-                zs.append(np.tile(z, len(lids)))
-                ss.append(np.tile(s, len(lids)))
+                zs += [z] * len(lids)  # the section's samples, once per lane
+                ss += [s] * len(lids)
                 ws.append(np.concatenate([centres[i][2] for i in lids]))
         self._vx = np.concatenate(xs)
         self._vy = np.concatenate(ys)
