@@ -33,7 +33,6 @@ from __future__ import annotations
 import contextlib
 import gc
 import hashlib
-import itertools
 import math
 import warnings
 from bisect import bisect_left, bisect_right
