@@ -65,7 +65,6 @@ def main(argv=None) -> int:
     os.environ["LP_NUM_THREADS"] = str(args.threads)
 
     from conftest import STRAIGHT_XODR
-
     from dashtraj.render.gl import context_info, create_context
     from dashtraj.render.scene import Renderer
     from dashtraj.roads import RoadMap

@@ -47,24 +47,37 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     s = subparsers.add_parser(
         "sightings",
-        help="turn a recording's ground truth into a sightings CSV (oracle detector)",
+        help="sightings CSV from a recording (oracle or camera pipeline) or a sightings DB",
         description=(
-            "Oracle sightings of one vehicle from a recording: truth within --max-distance "
-            "of a camera, one per observer track every 0.5 s, with no noise or the paper's "
-            "localization errors; positions from camera pose + distance along "
-            "(yaw + signed bearing)."
+            "Sightings of one vehicle from a recording: with --oracle, the truth within "
+            "--max-distance of a camera, one per observer track every 0.5 s, with no noise or "
+            "the paper's localization errors; with --detector, the camera pipeline "
+            "(dashtraj perceive: render, detect, track, localize) and the detections that "
+            "the truth assigns to the vehicle. 'dashtraj sightings export DB -o S.csv' "
+            "writes a sightings database (dashtraj perceive) as the same CSV."
         ),
     )
-    s.add_argument("recording", metavar="RUN", help="recording directory")
-    s.add_argument("--oracle", action="store_true", required=True,
-                   help="use the ground truth as a perfect detector (the only source for now)")
+    s.add_argument("recording", metavar="RUN", help="recording directory, or 'export'")
+    s.add_argument("db", nargs="?", metavar="DB",
+                   help="with 'export': the sightings database (dashtraj perceive -o DB)")
+    s.add_argument("--oracle", action="store_true",
+                   help="use the ground truth as a perfect detector and localizer")
+    s.add_argument("--detector", metavar="oracle|M.onnx",
+                   help="run the camera pipeline with this detector instead (see perceive)")
+    s.add_argument("--tracker", default="ego", help="with --detector: sort or ego (default ego)")
+    s.add_argument("--localizer", default="fused",
+                   help="with --detector: paper, ground or fused (default fused)")
     s.add_argument("--noise", default="none", help="none or paper (default none)")
-    s.add_argument("--vehicle", default="target", metavar="ID|target",
-                   help="vehicle to report (default: the target)")
+    s.add_argument("--vehicle", default="target", metavar="ID|target|all",
+                   help="vehicle to report (default: the target; 'all' with export)")
     s.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     s.add_argument("--max-distance", type=float, default=15.0, metavar="M",
                    help="keep detections this close to the camera, metres (default 15)")
+    s.add_argument("--sample", type=float, default=0.5, metavar="S",
+                   help="detections/export: one sighting per track every S seconds (default 0.5)")
     s.add_argument("-o", "--output", required=True, metavar="CSV", help="sightings CSV to write")
+    s.add_argument("--overwrite", action="store_true",
+                   help="export/--detector: replace an existing CSV (default: refuse)")
     s.set_defaults(func=run_sightings)
 
 
@@ -139,6 +152,15 @@ def run_sightings(args: argparse.Namespace) -> int:
     from dashtraj.world.oracle import OracleConfig, oracle_sightings
     from dashtraj.world.recording import Recording
 
+    if args.recording == "export" or args.detector is not None:
+        from dashtraj.cli.sightings_db import run_sightings_db
+
+        return run_sightings_db(args)
+    if not args.oracle:
+        from dashtraj.errors import DashtrajError
+
+        raise DashtrajError("sightings: choose a source: --oracle, --detector oracle|M.onnx, "
+                            "or 'dashtraj sightings export DB'")
     rec = Recording.open(args.recording)
     cfg = OracleConfig(vehicle=args.vehicle, max_distance_m=args.max_distance, noise=args.noise,
                        seed=args.seed)
