@@ -26,12 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "render"))
+# the synthetic straight town and vehicle models of the render tests (as main imports them)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 
 def scene_vehicles(n: int, rng: np.random.Generator):
     """``n`` vehicles on the straight town's four lanes, 8–90 m ahead of a camera at x=-95."""
-    from conftest import BIKE, BUS, MOTO, SEDAN, SUV, TRUCK, VAN, identity
+    from render_scene import BIKE, BUS, MOTO, SEDAN, SUV, TRUCK, VAN, identity
 
     models = [SEDAN, SEDAN, SUV, SUV, VAN, TRUCK, BUS, MOTO, BIKE, SEDAN]
     lanes = [(-5.25, 180.0), (-1.75, 180.0), (1.75, 0.0), (5.25, 0.0)]
@@ -64,11 +65,10 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     os.environ["LP_NUM_THREADS"] = str(args.threads)
 
-    from conftest import STRAIGHT_XODR
-
     from dashtraj.render.gl import context_info, create_context
     from dashtraj.render.scene import Renderer
     from dashtraj.roads import RoadMap
+    from render_scene import STRAIGHT_XODR
 
     ctx = create_context(args.threads)
     m = RoadMap.from_string(STRAIGHT_XODR, name="straight")
