@@ -54,6 +54,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     d.add_argument("--val-fraction", type=float, default=0.2,
                    help="share of recordings in val (default 0.2)")
     d.add_argument("--seed", type=int, default=0, help="split seed (default 0)")
+    _randomize_args(d, "image")
     d.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     d.add_argument("--json", action="store_true", help="print the summary as JSON")
     d.set_defaults(func=run_detection)
@@ -78,12 +79,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="crop long side, pixels (default 256)")
     r.add_argument("--town", default="town10", help="built-in town of the stage (town10)")
     r.add_argument("--seed", type=int, default=0, help="camera and split seed (default 0)")
+    _randomize_args(r, "identity (scene) and camera (effects)")
     r.add_argument("--workers", type=int, default=1, help="render processes (default 1)")
     r.add_argument("--from-recordings", nargs="+", default=(), metavar="RUN",
                    help="recordings whose observers' crops make image_query_moving/")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     r.add_argument("--json", action="store_true", help="print the summary as JSON")
     r.set_defaults(func=run_reid)
+
+
+def _randomize_args(p: argparse.ArgumentParser, per: str) -> None:
+    p.add_argument("--randomize", action="store_true",
+                   help=f"domain randomization: draw weather, sun, scene colours, textures and "
+                        f"camera effects per {per} within the ranges of "
+                        "dashtraj.render.randomize; the draws go to looks.parquet")
+    p.add_argument("--randomize-seed", type=int, default=0, metavar="N",
+                   help="seed of the --randomize draws (default 0)")
 
 
 def _bar(args, total: int, unit: str):
@@ -142,7 +153,8 @@ def run_detection(args: argparse.Namespace) -> int:
     cfg = DetectionConfig(every_s=args.every, size=parse_size(args.size),
                           min_box_height_px=args.min_box_height,
                           max_occlusion=args.max_occlusion, val_fraction=args.val_fraction,
-                          seed=args.seed)
+                          seed=args.seed, randomize=args.randomize,
+                          randomize_seed=args.randomize_seed)
     bar = _bar(args, _frame_total(recs, args.every), "frame")
     try:
         info = build_detection_dataset(recs, args.output, cfg,
@@ -169,7 +181,8 @@ def run_reid(args: argparse.Namespace) -> int:
 
     recs = [Recording.open(p) for p in args.from_recordings]
     cfg = ReidConfig(n_ids=args.ids, n_cameras=args.cameras, size=args.size, seed=args.seed,
-                     n_test_ids=args.test_ids, town=args.town)
+                     n_test_ids=args.test_ids, town=args.town, randomize=args.randomize,
+                     randomize_seed=args.randomize_seed)
     bar = _bar(args, args.ids, "id")
     try:
         info = build_reid_dataset(cfg, args.output, workers=args.workers, recordings=recs,
