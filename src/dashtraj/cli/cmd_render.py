@@ -68,6 +68,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     d.add_argument("--val-fraction", type=fraction, default=0.2,
                    help="share of recordings in val (default 0.2)")
     d.add_argument("--seed", type=seed_int, default=0, help="split seed (default 0)")
+    _randomize_args(d, "image")
     add_output_args(d)
     d.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     d.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -93,6 +94,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="crop long side, pixels, 16 or more (default 256)")
     r.add_argument("--town", default="town10", help="built-in town of the stage (town10)")
     r.add_argument("--seed", type=seed_int, default=0, help="camera and split seed (default 0)")
+    _randomize_args(r, "identity (scene) and camera (effects)")
     r.add_argument("--workers", type=positive_int, default=1, help="render processes (default 1)")
     r.add_argument("--from-recordings", nargs="+", default=(), metavar="RUN",
                    help="recordings whose observers' crops make image_query_moving/")
@@ -100,6 +102,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     r.add_argument("--json", action="store_true", help="print the summary as JSON")
     r.set_defaults(func=run_reid)
+
+
+def _randomize_args(p: argparse.ArgumentParser, per: str) -> None:
+    p.add_argument("--randomize", action="store_true",
+                   help=f"domain randomization: draw weather, sun, scene colours, textures and "
+                        f"camera effects per {per} within the ranges of "
+                        "dashtraj.render.randomize; the draws go to looks.parquet")
+    p.add_argument("--randomize-seed", type=seed_int, default=0, metavar="N",
+                   help="seed of the --randomize draws (default 0)")
 
 
 def _bar(args, total: int, unit: str):
@@ -183,7 +194,8 @@ def run_detection(args: argparse.Namespace) -> int:
     cfg = DetectionConfig(every_s=args.every, size=parse_size(args.size),
                           min_box_height_px=args.min_box_height,
                           max_occlusion=args.max_occlusion, val_fraction=args.val_fraction,
-                          seed=args.seed)
+                          seed=args.seed, randomize=args.randomize,
+                          randomize_seed=args.randomize_seed)
     seen: dict = {}
     for p in args.recordings:  # one recording twice would put the same frames in train and val
         key = Path(p).resolve()
@@ -229,7 +241,8 @@ def run_reid(args: argparse.Namespace) -> int:
         raise ArgumentError(f"--test-ids {args.test_ids} must be fewer than --ids {args.ids} "
                             "(at least one train identity)")
     cfg = ReidConfig(n_ids=args.ids, n_cameras=args.cameras, size=args.size, seed=args.seed,
-                     n_test_ids=args.test_ids, town=args.town)
+                     n_test_ids=args.test_ids, town=args.town, randomize=args.randomize,
+                     randomize_seed=args.randomize_seed)
     recs = [Recording.open(p) for p in args.from_recordings]
     bar = _bar(args, args.ids, "id")
     try:

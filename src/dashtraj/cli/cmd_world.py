@@ -58,28 +58,38 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     s = subparsers.add_parser(
         "sightings",
-        help="turn a recording's ground truth into a sightings CSV (oracle detector)",
+        help="sightings CSV from a recording (oracle or camera pipeline) or a sightings DB",
         description=(
-            "Sightings of one vehicle from a recording. Source 'oracle' (the default, and "
-            "for now the only one): truth within --max-distance "
-            "of a camera, one per observer track every 0.5 s, with no noise or the paper's "
-            "localization errors; positions from camera pose + distance along "
-            "(yaw + signed bearing)."
+            "Sightings of one vehicle from a recording. Source 'oracle' (the default): the "
+            "truth within --max-distance of a camera, one per observer track every 0.5 s, with "
+            "no noise or the paper's localization errors; positions from camera pose + distance "
+            "along (yaw + signed bearing). With --detector oracle|M.onnx: the camera pipeline "
+            "(dashtraj perceive: render, detect, track, localize) and the detections that the "
+            "truth assigns to the vehicle. 'dashtraj sightings export DB -o S.csv' writes a "
+            "sightings database (dashtraj perceive) as the same CSV."
         ),
     )
-    s.add_argument("recording", metavar="RUN", help="recording directory")
-    s.add_argument("--source", choices=("oracle",), default="oracle",
-                   help="where sightings come from: oracle = the ground truth as a perfect "
-                        "detector (default, the only source for now)")
-    s.add_argument("--oracle", dest="source", action="store_const", const="oracle",
-                   help="same as --source oracle (kept for old scripts)")
+    s.add_argument("recording", metavar="RUN", help="recording directory, or 'export'")
+    s.add_argument("db", nargs="?", metavar="DB",
+                   help="with 'export': the sightings database (dashtraj perceive -o DB)")
+    s.add_argument("--oracle", action="store_true",
+                   help="the ground truth as a perfect detector and localizer (the default "
+                        "source; the flag is kept for old scripts)")
+    s.add_argument("--detector", metavar="oracle|M.onnx",
+                   help="run the camera pipeline with this detector instead (see perceive)")
+    s.add_argument("--tracker", choices=("sort", "ego"), default="ego",
+                   help="with --detector: the tracker (default ego)")
+    s.add_argument("--localizer", default="fused",
+                   help="with --detector: paper, ground or fused (default fused)")
     s.add_argument("--noise", choices=("none", "paper"), default="none",
-                   help="localization noise: none or paper (default none)")
-    s.add_argument("--vehicle", default="target", metavar="ID|target",
-                   help="vehicle to report (default: the target)")
+                   help="oracle localization noise: none or paper (default none)")
+    s.add_argument("--vehicle", default="target", metavar="ID|target|all",
+                   help="vehicle to report (default: the target; 'all' with export)")
     s.add_argument("--seed", type=seed, default=0, help="noise seed (default 0)")
     s.add_argument("--max-distance", type=positive_float, default=15.0, metavar="M",
                    help="keep detections this close to the camera, metres (default 15)")
+    s.add_argument("--sample", type=positive_float, default=0.5, metavar="S",
+                   help="detections/export: one sighting per track every S seconds (default 0.5)")
     s.add_argument("-o", "--output", required=True, metavar="CSV", help="sightings CSV to write")
     add_output_args(s)
     s.set_defaults(func=run_sightings)
@@ -153,11 +163,18 @@ def run_simulate(args: argparse.Namespace) -> int:
 
 def run_sightings(args: argparse.Namespace) -> int:
     """Write oracle sightings of one vehicle to a CSV and print how many; returns 0."""
+    from dashtraj.cli._args import ArgumentError
     from dashtraj.outputs import atomic_output, check_output
     from dashtraj.trajectory.io import write_sightings
     from dashtraj.world.oracle import OracleConfig, oracle_sightings
     from dashtraj.world.recording import Recording
 
+    if args.recording == "export" or args.detector is not None:
+        if args.oracle:
+            raise ArgumentError("--oracle cannot be combined with --detector or 'export'")
+        from dashtraj.cli.sightings_db import run_sightings_db
+
+        return run_sightings_db(args)
     check_output(args.output, overwrite=args.overwrite, kind="file")
     rec = Recording.open(args.recording)
     cfg = OracleConfig(vehicle=args.vehicle, max_distance_m=args.max_distance, noise=args.noise,

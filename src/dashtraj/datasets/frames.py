@@ -134,7 +134,7 @@ def open_renderer(map_path, width: int, height: int, fov_deg: float, msaa: int =
 
 def recording_frames(recording, every_s: float = 0.5, size: tuple[int, int] | None = None,
                      observers: Iterable[int] | None = None, msaa: int = 4,
-                     renderer=None) -> Iterator[RecordingFrame]:
+                     renderer=None, look_for=None) -> Iterator[RecordingFrame]:
     """Render a recording's observer frames, observer by observer, time ascending.
 
     Args:
@@ -146,6 +146,9 @@ def recording_frames(recording, every_s: float = 0.5, size: tuple[int, int] | No
         msaa: colour-pass samples.
         renderer: a ``Renderer`` of this map with the right size and FOV to reuse;
             None opens one (and releases it when the iterator is exhausted).
+        look_for: None, or ``look_for(observer_id, frame) -> LookConfig`` called before
+            each frame is rendered (domain randomization); the renderer keeps the
+            last look.
 
     Yields:
         ``RecordingFrame`` per (observer, sampled time) at which the observer has a state.
@@ -198,6 +201,8 @@ def recording_frames(recording, every_s: float = 0.5, size: tuple[int, int] | No
                 vehicles = [(int(cols["vehicle_id"][j]) + 1, idents[int(cols["vehicle_id"][j])],
                              float(cols["x"][j]), float(cols["y"][j]), float(cols["z"][j]),
                              float(cols["yaw"][j])) for j in others]
+                if look_for is not None:
+                    renderer.set_look(look_for(o, int(k_all[a])))
                 frame = renderer.render(pose, vehicles, labels=True)
                 ids = tuple(v[0] - 1 for v in vehicles)
                 k = int(k_all[a])

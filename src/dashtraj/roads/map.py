@@ -33,10 +33,13 @@ from __future__ import annotations
 import contextlib
 import gc
 import hashlib
-import itertools
 import math
 import warnings
+from bisect import bisect_left, bisect_right
 from dataclasses import dataclass, field
+from functools import partial
+from itertools import chain, repeat
+from operator import itemgetter
 from pathlib import Path
 
 import numpy as np
@@ -147,23 +150,55 @@ class Lane:
         return self.s1 if self.forward else self.s0
 
 
-@dataclass(frozen=True, slots=True)
-class Waypoint:
+class Waypoint(tuple):
     """A point on a lane centre: CARLA's (road_id, section_id, lane_id, s).
 
     `s` is metres from the road start (reference line), whatever the lane's
     driving direction. The pose is computed exactly from the road geometry.
+
+    An immutable record with fields `road_id`, `section_id`, `lane_id`, `s` and
+    `map`; equality and hash use the first four only. It is a tuple underneath
+    (so that maps build thousands of them at C speed, as `generate_waypoints`
+    does), but treat it as a record: its fields are its interface.
     """
 
-    road_id: int
-    section_id: int
-    lane_id: int
-    s: float
-    map: RoadMap = field(repr=False, compare=False, hash=False)
+    __slots__ = ()
 
-    @property
-    def key(self) -> LaneKey:
-        return (self.road_id, self.section_id, self.lane_id)
+    def __new__(cls, road_id: int, section_id: int, lane_id: int, s: float, map: RoadMap):
+        return tuple.__new__(cls, (road_id, section_id, lane_id, s, map))
+
+    road_id: int = property(itemgetter(0), doc="OpenDRIVE road id.")  # type: ignore[assignment]
+    section_id: int = property(itemgetter(1), doc="0-based lane section index.")  # type: ignore[assignment]
+    lane_id: int = property(itemgetter(2), doc="Signed OpenDRIVE lane id.")  # type: ignore[assignment]
+    s: float = property(itemgetter(3), doc="Metres from the road start.")  # type: ignore[assignment]
+    map: RoadMap = property(itemgetter(4), doc="The map it lies on.")  # type: ignore[assignment]
+    key: LaneKey = property(itemgetter(0, 1, 2),  # type: ignore[assignment]
+                            doc="(road_id, section_id, lane_id).")
+
+    def __eq__(self, other) -> bool:
+        if other.__class__ is not Waypoint:
+            return NotImplemented
+        return self[:4] == other[:4]
+
+    def __ne__(self, other) -> bool:
+        if other.__class__ is not Waypoint:
+            return NotImplemented
+        return self[:4] != other[:4]
+
+    def __hash__(self) -> int:
+        return hash(self[:4])
+
+    def __lt__(self, other):  # no ordering, as a record
+        return NotImplemented
+
+    __le__ = __gt__ = __ge__ = __lt__
+
+    def __repr__(self) -> str:
+        return (f"Waypoint(road_id={self[0]!r}, section_id={self[1]!r}, lane_id={self[2]!r}, "
+                f"s={self[3]!r})")
+
+    def __getnewargs__(self):
+        return tuple(self)
 
     @property
     def lane(self) -> Lane:
@@ -276,7 +311,10 @@ class LaneProjection:
                         float(self.s[i]), self.map)
 
     def waypoints(self) -> list[Waypoint]:
-        return [self.waypoint(i) for i in range(len(self))]
+        make, m = tuple.__new__, self.map
+        return [make(Waypoint, (r, k, lane, s, m)) for r, k, lane, s in
+                zip(self.road_id.tolist(), self.section_id.tolist(), self.lane_id.tolist(),
+                    self.s.tolist(), strict=True)]
 
 
 @dataclass(frozen=True, slots=True)
@@ -330,9 +368,15 @@ class RoadMap:
     path: Path | None = None
 
     def _build_lanes(self) -> None:
+        driving = LaneType.Driving
+        # Per road, for generate_waypoints: (id, length, section starts, Driving lane
+        # ids of each section in id order).
+        self._road_driving: list[tuple[int, float, list[float], list[list[int]]]] = []
         for road in self.roads.values():
+            per_section = []
             for k, sec in enumerate(road.sections):
                 s1 = road.section_ends[k]
+                ids = []
                 for lid in sorted(sec.lanes):
                     rec = sec.lanes[lid]
                     lane = Lane((road.id, k, lid), len(self.lane_list),
@@ -340,6 +384,11 @@ class RoadMap:
                                 road.junction)
                     self.lanes[lane.key] = lane
                     self.lane_list.append(lane)
+                    if lane.type == driving:
+                        ids.append(lid)
+                per_section.append(ids)
+            self._road_driving.append((road.id, float(road.length),
+                                       [sec.s for sec in road.sections], per_section))
 
     def _section_of(self, road: RoadRecord, contact: str | None) -> int:
         return 0 if contact == "start" else len(road.sections) - 1
@@ -497,11 +546,18 @@ class RoadMap:
                             knots.add(sec.s + x)
         if len(knots) == 2:
             return _linspace(s0, s1, max(2, math.ceil((s1 - s0) / step) + 1))
-        ordered = sorted(knots)
-        parts = [_linspace(a, c, max(2, math.ceil((c - a) / step) + 1))[:-1]
-                 for a, c in itertools.pairwise(ordered)]
-        parts.append(np.array([s1]))
-        return np.concatenate(parts)
+        # Between consecutive knots a < c: _linspace(a, c, n) without its last point,
+        # all intervals at once (the same products and sums, so the same bits).
+        ordered = np.array(sorted(knots))
+        a, c = ordered[:-1], ordered[1:]
+        n = np.maximum(2, np.ceil((c - a) / step).astype(np.int64) + 1)
+        m = n - 1
+        first = np.cumsum(m) - m
+        i = np.arange(int(m.sum())) - np.repeat(first, m)
+        out = np.empty(len(i) + 1)
+        np.add(i * np.repeat((c - a) / m, m), np.repeat(a, m), out=out[:-1])
+        out[-1] = s1
+        return out
 
     def _sample_lanes(self) -> None:
         xs, ys, zs, hs, ss, ws, owner, lane_n = [], [], [], [], [], [], [], []
@@ -532,8 +588,8 @@ class RoadMap:
                 xs.append((xr - t * sn).ravel())
                 ys.append((-(yr + t * cs)).ravel())
                 hs.append((-(hr + np.arctan2(dt, 1.0 - t * kr))).ravel())
-                zs.append(np.tile(z, len(lids)))
-                ss.append(np.tile(s, len(lids)))
+                zs += [z] * len(lids)  # the section's samples, once per lane
+                ss += [s] * len(lids)
                 ws.append(np.concatenate([centres[i][2] for i in lids]))
         self._vx = np.concatenate(xs)
         self._vy = np.concatenate(ys)
@@ -587,6 +643,8 @@ class RoadMap:
         """
         three = q.shape[1] == 3
         tree, seg, half = self._index3(lane_type) if three else self._index(lane_type)
+        if len(q) == 0:
+            return np.zeros(0, dtype=np.int64)
         dist_fn = self._segment_distance3 if three else self._segment_distance
         n_seg = len(seg)
         k = min(8, n_seg)
@@ -760,17 +818,111 @@ class RoadMap:
             lane_type: `LaneType` flag of the lanes to consider.
         """
         x, y, z = as_xyz(location)
-        p = self.project(np.array([[x, y]] if z is None else [[x, y, z]]), lane_type)
-        if not project_to_road and not p.inside[0]:
+        i = self._nearest_segment_one([x, y] if z is None else [x, y, z], lane_type)
+        s, lateral, width = self._refine_one(x, y, i)
+        if not project_to_road and not abs(lateral) <= 0.5 * width + 1e-9:
             return None
-        return p.waypoint(0)
+        rid, k, lid = self.lane_list[int(self._vlane[i])].key
+        return tuple.__new__(Waypoint, (rid, k, lid, s, self))
+
+    def _nearest_segment_one(self, q: list[float], lane_type: LaneType) -> int:
+        """`_nearest_segments` for one point (x, y[, z]), with less overhead; same answer.
+
+        One k-d query for the 32 nearest midpoints settles ~99 % of points: when no
+        unseen segment can be nearer and the nearest is unique, it is the answer of
+        any exact search. Otherwise (a possible nearer segment, or an exact tie
+        between overlapping lanes) `_nearest_segments`' own steps run, so ties
+        break the same way in both.
+        """
+        three = len(q) == 3
+        tree, seg, half = self._index3(lane_type) if three else self._index(lane_type)
+        dist_fn = self._segment_distance3 if three else self._segment_distance
+        n_seg = len(seg)
+        qa = np.array(q)
+        k = min(32, n_seg)
+        d, j = tree.query(q, k=k)
+        if k == 1:  # the k-d tree answers scalars for k = 1
+            d, j = np.atleast_1d(d), np.atleast_1d(j)
+        cand = seg[j]
+        dist = dist_fn(qa, cand)
+        a = int(dist.argmin())
+        best_d = dist[a]
+        if (k == n_seg or float(d[-1]) - half >= best_d) and \
+                np.count_nonzero(dist == best_d) == 1:
+            return int(cand[a])
+        k = min(8, n_seg)  # _nearest_segments' steps, for one point (the k-d tree
+        d, j = tree.query(q, k=k)  # orders equal midpoint distances by k)
+        d, j = np.atleast_1d(d), np.atleast_1d(j)
+        cand = seg[j]
+        dist = dist_fn(qa, cand)
+        a = int(dist.argmin())
+        best, best_d = int(cand[a]), float(dist[a])
+        if k < n_seg and float(d[k - 1]) - half < best_d:
+            idx = tree.query_ball_point(q, best_d + half + 1e-9, return_sorted=False)
+            flat = seg[np.asarray(idx, dtype=np.int64)]
+            dd = dist_fn(qa, flat)
+            f = int(dd.argmin())
+            if float(dd[f]) < best_d:
+                best = int(flat[f])
+        return best
+
+    def _refine_one(self, x: float, y: float, i: int) -> tuple[float, float, float]:
+        """`_refine` for one point in plain floats: (s, lateral offset, lane width).
+
+        The same Newton steps on the same Hermite curve as `_refine`, operation for
+        operation, so the answers agree to the last bits of a double.
+        """
+        vx, vy, vh = self._vx, self._vy, self._vh
+        ax, ay, bx, by = float(vx[i]), float(vy[i]), float(vx[i + 1]), float(vy[i + 1])
+        h0, h1 = float(vh[i]), float(vh[i + 1])
+        dx, dy = bx - ax, by - ay
+        chord = math.sqrt(dx * dx + dy * dy)
+        t0x, t0y = math.cos(h0) * chord, math.sin(h0) * chord
+        t1x, t1y = math.cos(h1) * chord, math.sin(h1) * chord
+        t = ((x - ax) * dx + (y - ay) * dy) / max(chord * chord, 1e-18)
+        t = min(max(t, 0.0), 1.0)
+        for _ in range(3):
+            t2 = t * t
+            t3 = t2 * t
+            b0, b1, b2, b3 = 2 * t3 - 3 * t2 + 1, t3 - 2 * t2 + t, -2 * t3 + 3 * t2, t3 - t2
+            d0, d1, d2, d3 = (6 * t2 - 6 * t, 3 * t2 - 4 * t + 1, -6 * t2 + 6 * t,
+                              3 * t2 - 2 * t)
+            e0, e1, e2, e3 = 12 * t - 6, 6 * t - 4, 6 - 12 * t, 6 * t - 2
+            rx = ax * b0 + t0x * b1 + bx * b2 + t1x * b3 - x
+            ry = ay * b0 + t0y * b1 + by * b2 + t1y * b3 - y
+            c1x = ax * d0 + t0x * d1 + bx * d2 + t1x * d3
+            c1y = ay * d0 + t0y * d1 + by * d2 + t1y * d3
+            c2x = ax * e0 + t0x * e1 + bx * e2 + t1x * e3
+            c2y = ay * e0 + t0y * e1 + by * e2 + t1y * e3
+            g = rx * c1x + ry * c1y
+            dg = (c1x * c1x + c1y * c1y) + (rx * c2x + ry * c2y)
+            t = min(max(t - g / (dg if abs(dg) > 1e-12 else 1e-12), 0.0), 1.0)
+        t2 = t * t
+        t3 = t2 * t
+        b0, b1, b2, b3 = 2 * t3 - 3 * t2 + 1, t3 - 2 * t2 + t, -2 * t3 + 3 * t2, t3 - t2
+        d0, d1, d2, d3 = 6 * t2 - 6 * t, 3 * t2 - 4 * t + 1, -6 * t2 + 6 * t, 3 * t2 - 2 * t
+        cx = ax * b0 + t0x * b1 + bx * b2 + t1x * b3
+        cy = ay * b0 + t0y * b1 + by * b2 + t1y * b3
+        c1x = ax * d0 + t0x * d1 + bx * d2 + t1x * d3
+        c1y = ay * d0 + t0y * d1 + by * d2 + t1y * d3
+        s0 = float(self._vs[i])
+        s = s0 + t * (float(self._vs[i + 1]) - s0)
+        heading = math.atan2(c1y, c1x)
+        rx, ry = x - cx, y - cy
+        lateral = -rx * math.sin(heading) + ry * math.cos(heading)
+        if self._lane_keys[self._vlane[i], 2] > 0:
+            lateral = -lateral
+        w0 = float(self._vw[i])
+        return s, lateral, w0 + t * (float(self._vw[i + 1]) - w0)
 
     def get_waypoints(self, points, project_to_road: bool = True,
                       lane_type: LaneType = LaneType.Driving) -> list[Waypoint | None]:
         """`get_waypoint` for (N, 2) or (N, 3) points at once (z: see `project`)."""
         p = self.project(points, lane_type)
-        inside = p.inside
-        return [p.waypoint(i) if (project_to_road or inside[i]) else None for i in range(len(p))]
+        wps = p.waypoints()
+        if project_to_road:
+            return wps
+        return [w if ok else None for w, ok in zip(wps, p.inside.tolist(), strict=True)]
 
     def waypoint(self, road_id: int, section_id: int, lane_id: int, s: float) -> Waypoint:
         """The waypoint at (road, section, lane, s); s is clamped into the section.
@@ -807,34 +959,83 @@ class RoadMap:
     def get_topology(self) -> list[tuple[Waypoint, Waypoint]]:
         """(start of a Driving lane, start of one successor lane) pairs, as CARLA's."""
         out = []
+        lanes, make, driving = self.lanes, tuple.__new__, LaneType.Driving
         for lane in self.lane_list:
-            if lane.type != LaneType.Driving:
+            if lane.type != driving or not lane.successors:
                 continue
-            a = self.lane_start(lane.key)
+            a = make(Waypoint, (*lane.key, lane.s0 if lane.key[2] < 0 else lane.s1, self))
             for t in lane.successors:
-                out.append((a, self.lane_start(t)))
+                b = lanes[t]
+                out.append((a, make(Waypoint, (*t, b.s0 if t[2] < 0 else b.s1, self))))
         return out
 
     def generate_waypoints(self, distance: float) -> list[Waypoint]:
-        """Per road, s = ε, ε + d, … < length − ε; one waypoint per Driving lane at s."""
-        if distance <= 0:
+        """Per road, s = ε, ε + d, … < length − ε; one waypoint per Driving lane at s.
+
+        s accumulates as CARLA's loop does (s += d, not s = ε + i·d); every road
+        starts from the same ε, so one accumulated sequence serves all roads.
+        """
+        if not distance > 0:
             raise ValueError(f"distance must be positive, got {distance}")
-        out = []
-        for road in self.roads.values():
-            s = _EPS
-            while s < road.length - _EPS:  # accumulated as CARLA does (s += d), not s = ε + i·d
-                k = self.section_at(road, s)
-                for lid in sorted(road.sections[k].lanes):
-                    if self.lanes[(road.id, k, lid)].type == LaneType.Driving:
-                        out.append(Waypoint(road.id, k, lid, s, self))
-                s += distance
+        eps = float(_EPS)
+        longest = max((r[1] for r in self._road_driving), default=0.0)
+        n = int((longest - 2.0 * eps) / distance) + 3
+        steps = np.full(max(n, 1), float(distance))
+        steps[0] = eps
+        acc = np.cumsum(steps)  # sequential, as s += d
+        while acc[-1] < longest - eps:  # rounding left the bound short: go on adding d
+            more = np.full(n + 1, float(distance))
+            more[0] = acc[-1]
+            acc = np.concatenate([acc, np.cumsum(more)[1:]])
+        svals = acc.tolist()
+        out: list[Waypoint] = []
+        make = partial(tuple.__new__, Waypoint)
+        for rid, length, starts, per_section in self._road_driving:
+            count = bisect_left(svals, length - eps)  # s < length - ε
+            if count == 0:
+                continue
+            if len(per_section) == 1:
+                runs = [(0, 0, count)]
+            else:  # runs of s in one lane section (section_at's rule)
+                runs = []
+                for i in range(count):
+                    k = max(0, bisect_right(starts, svals[i]) - 1)
+                    if runs and runs[-1][0] == k:
+                        runs[-1][2] = i + 1
+                    else:
+                        runs.append([k, i, i + 1])
+            for k, a, b in runs:
+                ids = per_section[k]
+                m = len(ids)
+                if m == 0:
+                    continue
+                ss = svals[a:b]
+                c = b - a
+                if m == 1:
+                    out += map(make, zip(repeat(rid, c), repeat(k, c), repeat(ids[0], c), ss,
+                                         repeat(self, c), strict=True))
+                else:
+                    s_rep = chain.from_iterable(zip(*([ss] * m), strict=True))  # s, s, …
+                    out += map(make, zip(repeat(rid, c * m), repeat(k, c * m), ids * c, s_rep,
+                                         repeat(self, c * m), strict=True))
         return out
 
     def _walk(self, wp: Waypoint, distance: float, forward: bool) -> list[Waypoint]:
         if not distance > 0:
             raise ValueError(f"distance must be positive, got {distance}")
+        key = wp[:3]
+        lane = self.lanes[key]
+        s = wp[3]
+        d = float(distance)
+        if (key[2] < 0) == forward:  # moving towards increasing s
+            if d <= lane.s1 - s + 1e-9:  # the common case: still on this lane
+                return [tuple.__new__(Waypoint, (*key, float(min(max(s + d, lane.s0), lane.s1)),
+                                                 self))]
+        elif d <= s - lane.s0 + 1e-9:
+            return [tuple.__new__(Waypoint, (*key, float(min(max(s - d, lane.s0), lane.s1)),
+                                             self))]
         out: list[Waypoint] = []
-        stack = [(wp.key, wp.s, float(distance), 0)]
+        stack = [(key, s, d, 0)]
         while stack:
             key, s, d, depth = stack.pop()
             lane = self.lanes[key]

@@ -307,10 +307,12 @@ def _parse_road(el, source: str) -> RoadRecord | None:
             if kind == "paramPoly3":
                 params["pRange"] = kind_el.get("pRange", "normalized")
         gx, gy, hdg = _f(g, "x", 0.0), _f(g, "y", 0.0), _f(g, "hdg", 0.0)
-        nums = {k: v for k, v in params.items() if v.__class__ is float}
-        _check_finite(source, where, f"geometry <{kind}> at s={gs:g} (line {g.sourceline})",
-                      (gs, gx, gy, hdg, gl, *nums.values()),
-                      ("s", "x", "y", "hdg", "length", *nums))
+        if not math.isfinite(gs + gx + gy + hdg + gl
+                             + sum(v for v in params.values() if v.__class__ is float)):
+            nums = {k: v for k, v in params.items() if v.__class__ is float}
+            _check_finite(source, where, f"geometry <{kind}> at s={gs:g} (line {g.sourceline})",
+                          (gs, gx, gy, hdg, gl, *nums.values()),
+                          ("s", "x", "y", "hdg", "length", *nums))
         if gl < 0:
             _warn(source, f"{where} geometry <{kind}> at s={gs:g} has negative length "
                   f"{gl:g} m; skipped")
