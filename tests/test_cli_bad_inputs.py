@@ -206,6 +206,8 @@ CASES: list[tuple[str, list[str], str]] = [
      "valid names: town01, town10"),
     ("score-resample-zero", ["score", "--truth", "{TRUTH}", "--estimate", "{TRUTH}",
                              "--resample-m", "0"], "--resample-m"),
+    ("score-resample-inf", ["score", "--truth", "{TRUTH}", "--estimate", "{TRUTH}",
+                            "--resample-m", "inf"], "--resample-m must be a positive"),
     ("score-missing-file", ["score", "--truth", "{MISSING}.csv", "--estimate", "{TRUTH}"],
      "cannot open"),
     ("bench-reconstruct-trips-zero", ["bench-reconstruct", "--map", "town01", "--trips", "0"],
