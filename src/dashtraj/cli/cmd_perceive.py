@@ -10,6 +10,7 @@ import sys
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `perceive` command."""
+    from dashtraj.cli._args import image_size, int_at_least, positive_float, positive_int
     from dashtraj.outputs import add_output_args
 
     p = subparsers.add_parser(
@@ -29,19 +30,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", required=True, metavar="DB", help="database file to write")
     p.add_argument("--detector", default="oracle", metavar="oracle|M.onnx",
                    help="detector (default oracle: the renderer's exact visible boxes)")
-    p.add_argument("--tracker", default="ego", help="sort or ego (default ego)")
+    p.add_argument("--tracker", choices=("sort", "ego"), default="ego",
+                   help="sort or ego (default ego)")
     p.add_argument("--localizer", default="fused", help="paper, ground or fused (default fused)")
-    p.add_argument("--mu-h", type=float, metavar="PX",
+    p.add_argument("--mu-h", type=positive_float, metavar="PX",
                    help="Eq. 3's calibrated sensor constant (dashtraj localization calibrate)")
-    p.add_argument("--every", type=float, default=0.1, metavar="S",
+    p.add_argument("--every", type=positive_float, default=0.1, metavar="S",
                    help="frame period, seconds (default 0.1 = 10 fps)")
-    p.add_argument("--size", metavar="WxH", help="image size (default: the recording's camera)")
-    p.add_argument("--msaa", type=int, default=0, help="renderer colour samples (default 0)")
-    p.add_argument("--observers", type=int, nargs="+", metavar="ID",
+    p.add_argument("--size", type=image_size, metavar="WxH",
+                   help="image size (default: the recording's camera)")
+    p.add_argument("--msaa", type=int_at_least(0), default=0,
+                   help="renderer colour samples (default 0)")
+    p.add_argument("--observers", type=int_at_least(0), nargs="+", metavar="ID",
                    help="observer vehicle ids (default all)")
-    p.add_argument("--reid-range", type=float, default=15.0, metavar="M",
+    p.add_argument("--reid-range", type=positive_float, default=15.0, metavar="M",
                    help="keep image crops of detections this close, metres (default 15)")
-    p.add_argument("--workers", type=int, default=1, metavar="N",
+    p.add_argument("--workers", type=positive_int, default=1, metavar="N",
                    help="observers processed in parallel processes (default 1)")
     p.add_argument("--save-frames", metavar="DIR",
                    help="also write the rendered frames as DIR/<observer>/<frame>.jpg")
