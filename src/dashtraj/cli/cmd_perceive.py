@@ -10,7 +10,7 @@ import sys
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `perceive` command."""
-    from dashtraj.cli._args import count, image_size, positive_float, positive_int
+    from dashtraj.cli._args import image_size, int_at_least, positive_float, positive_int
     from dashtraj.outputs import add_output_args
 
     p = subparsers.add_parser(
@@ -30,7 +30,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", required=True, metavar="DB", help="database file to write")
     p.add_argument("--detector", default="oracle", metavar="oracle|M.onnx",
                    help="detector (default oracle: the renderer's exact visible boxes)")
-    p.add_argument("--tracker", default="ego", help="sort or ego (default ego)")
+    p.add_argument("--tracker", choices=("sort", "ego"), default="ego",
+                   help="sort or ego (default ego)")
     p.add_argument("--localizer", default="fused", help="paper, ground or fused (default fused)")
     p.add_argument("--mu-h", type=positive_float, metavar="PX",
                    help="Eq. 3's calibrated sensor constant (dashtraj localization calibrate)")
@@ -38,8 +39,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="frame period, seconds (default 0.1 = 10 fps)")
     p.add_argument("--size", type=image_size, metavar="WxH",
                    help="image size (default: the recording's camera)")
-    p.add_argument("--msaa", type=count, default=0, help="renderer colour samples (default 0)")
-    p.add_argument("--observers", type=count, nargs="+", metavar="ID",
+    p.add_argument("--msaa", type=int_at_least(0), default=0,
+                   help="renderer colour samples (default 0)")
+    p.add_argument("--observers", type=int_at_least(0), nargs="+", metavar="ID",
                    help="observer vehicle ids (default all)")
     p.add_argument("--reid-range", type=positive_float, default=15.0, metavar="M",
                    help="keep image crops of detections this close, metres (default 15)")

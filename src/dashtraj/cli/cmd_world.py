@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from dashtraj.cli._args import count, duration, fraction, positive_float, seed
+from dashtraj.cli._args import count, duration, fraction, non_negative_float, positive_float, seed
 from dashtraj.outputs import add_output_args
 
 
@@ -88,7 +88,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     s.add_argument("--seed", type=seed, default=0, help="noise seed (default 0)")
     s.add_argument("--max-distance", type=positive_float, default=15.0, metavar="M",
                    help="keep detections this close to the camera, metres (default 15)")
-    s.add_argument("--sample", type=positive_float, default=0.5, metavar="S",
+    s.add_argument("--sample", type=non_negative_float, default=0.5, metavar="S",
                    help="detections/export: one sighting per track every S seconds (default 0.5)")
     s.add_argument("-o", "--output", required=True, metavar="CSV", help="sightings CSV to write")
     add_output_args(s)

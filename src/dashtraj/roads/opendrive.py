@@ -159,6 +159,8 @@ def _check_finite(source: str, where: str, what: str, values, names=None) -> Non
         names = names or ("s", "a", "b", "c", "d")[:len(values)]
         bad = ", ".join(f"{n}={v!r}" for n, v in zip(names, values, strict=False)
                         if not math.isfinite(v))
+        if not bad:  # finite numbers whose sum overflowed
+            return
         raise OpenDriveError(f"{source}: {where}: {what} has a non-finite value ({bad}); "
                              "the map's geometry must be finite numbers")
 
