@@ -69,6 +69,10 @@ CASES: list[tuple[str, list[str], str]] = [
      "argument --duration: expected a finite number"),
     ("simulate-duration-inf", ["simulate", "--duration", "inf", "-o", "{NEW_DIR}"],
      "argument --duration"),
+    ("simulate-duration-absurd", ["simulate", "--duration", "1e300", "-o", "{NEW_DIR}"],
+     "argument --duration: expected at most 86400 s"),
+    ("simulate-map-is-folder", ["simulate", "--town", "{TMP}", "-o", "{NEW_DIR}"],
+     "is a folder, not an .xodr file"),
     ("simulate-step-longer-than-duration", ["simulate", "--duration", "1", "--step", "5",
                                             "-o", "{NEW_DIR}"], "--step 5 s is longer"),
     ("simulate-agents-fraction", ["simulate", "--agents", "1.5", "-o", "{NEW_DIR}"],
@@ -93,6 +97,12 @@ CASES: list[tuple[str, list[str], str]] = [
      "argument --noise: invalid choice"),
     ("sightings-vehicle", ["sightings", "{REC}", "--vehicle", "999", "-o", "{NEW_FILE}"],
      "no vehicle 999"),
+    ("sightings-export-csv-as-db", ["sightings", "export", "{SIGHTINGS}", "-o", "{NEW_FILE}"],
+     "is not a sightings database"),
+    ("sightings-detector-missing", ["sightings", "{REC}", "--detector", "{MISSING}.onnx",
+                                    "-o", "{NEW_FILE}"], "no such model file"),
+    ("sightings-sample-negative", ["sightings", "{REC}", "--sample", "-1", "-o", "{NEW_FILE}"],
+     "argument --sample"),
     ("sightings-missing-recording", ["sightings", "{MISSING}", "-o", "{NEW_FILE}"],
      "is not a directory"),
     ("sightings-export-missing-db", ["sightings", "export", "{MISSING}.db", "-o", "{NEW_FILE}"],
@@ -167,6 +177,8 @@ CASES: list[tuple[str, list[str], str]] = [
                                      "--max-occlusion", "nan"], "argument --max-occlusion"),
     ("detection-size", ["detection-dataset", "{REC}", "-o", "{NEW_DIR}", "--size", "big"],
      "argument --size: expected WxH in pixels"),
+    ("detection-same-recording-twice", ["detection-dataset", "{REC}", "{REC}", "-o",
+                                        "{NEW_DIR}"], "is given twice"),
     ("detection-missing-recording", ["detection-dataset", "{MISSING}", "-o", "{NEW_DIR}"],
      "is not a directory"),
     ("reid-ids-zero", ["reid-dataset", "--ids", "0", "-o", "{NEW_DIR}"], "argument --ids"),
@@ -178,6 +190,13 @@ CASES: list[tuple[str, list[str], str]] = [
      "argument --workers"),
     ("reid-unknown-town", ["reid-dataset", "--ids", "3", "--town", "town99", "-o",
                            "{OUT_DIR}", "--overwrite"], "valid names: town01, town10"),
+    # --- perceive (recording → sightings database)
+    ("perceive-mu-h-nan", ["perceive", "{REC}", "-o", "{NEW_FILE}", "--mu-h", "nan"],
+     "argument --mu-h"),
+    ("perceive-frames-exist", ["perceive", "{REC}", "-o", "{NEW_FILE}", "--save-frames",
+                               "{OUT_DIR}"], "--overwrite"),
+    ("perceive-observers", ["perceive", "{REC}", "-o", "{NEW_FILE}", "--observers", "99"],
+     "not observers of"),
     # --- experiments, demo, score, bench-reconstruct, the top level
     ("experiments-seeds-negative", ["experiments", "--seeds", "-1", "-o", "{NEW_DIR}"],
      "argument --seeds"),
@@ -197,6 +216,8 @@ CASES: list[tuple[str, list[str], str]] = [
      "valid names: town01, town10"),
     ("score-resample-zero", ["score", "--truth", "{TRUTH}", "--estimate", "{TRUTH}",
                              "--resample-m", "0"], "--resample-m"),
+    ("score-resample-inf", ["score", "--truth", "{TRUTH}", "--estimate", "{TRUTH}",
+                            "--resample-m", "inf"], "--resample-m must be a positive"),
     ("score-missing-file", ["score", "--truth", "{MISSING}.csv", "--estimate", "{TRUTH}"],
      "cannot open"),
     ("bench-reconstruct-trips-zero", ["bench-reconstruct", "--map", "town01", "--trips", "0"],
@@ -269,7 +290,7 @@ def test_bad_input_exits_2_with_one_line_and_touches_nothing(argv, fragment, inp
               "OUT_DIR": str(work / "out_dir"), "OUT_FILE": str(work / "out_file.csv"),
               "OUT_PNG": str(work / "out.png"), "NEW_DIR": str(work / "new_dir"),
               "NEW_FILE": str(work / "new_file.csv"), "NEW_PNG": str(work / "new.png"),
-              "MISSING": str(tmp_path / "missing")}
+              "MISSING": str(tmp_path / "missing"), "TMP": str(tmp_path)}
     argv = [a.format(**places) for a in argv]
     before = _tree(work)
 

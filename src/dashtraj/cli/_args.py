@@ -46,6 +46,19 @@ def positive_float(text: str) -> float:
     return value
 
 
+MAX_DURATION_S = 86400.0
+"""Longest simulated run, seconds (a day); longer is surely a typo."""
+
+
+def duration(text: str) -> float:
+    """Simulated seconds: finite, > 0 and at most `MAX_DURATION_S`."""
+    value = positive_float(text)
+    if value > MAX_DURATION_S:
+        raise argparse.ArgumentTypeError(
+            f"expected at most {MAX_DURATION_S:g} s (a day), got {text!r}")
+    return value
+
+
 def non_negative_float(text: str) -> float:
     """A finite float >= 0."""
     value = _number(text)

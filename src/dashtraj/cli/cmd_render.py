@@ -179,6 +179,8 @@ def run_render(args: argparse.Namespace) -> int:
 
 def run_detection(args: argparse.Namespace) -> int:
     """Build a YOLO detection set; prints a summary; returns 0."""
+    from pathlib import Path
+
     from dashtraj.datasets.detection import (
         DetectionConfig,
         build_detection_dataset,
@@ -194,6 +196,15 @@ def run_detection(args: argparse.Namespace) -> int:
                           max_occlusion=args.max_occlusion, val_fraction=args.val_fraction,
                           seed=args.seed, randomize=args.randomize,
                           randomize_seed=args.randomize_seed)
+    seen: dict = {}
+    for p in args.recordings:  # one recording twice would put the same frames in train and val
+        key = Path(p).resolve()
+        if key in seen:
+            from dashtraj.cli._args import ArgumentError
+
+            raise ArgumentError(f"recording {p} is given twice (also as {seen[key]}); "
+                                "each recording once, or its frames leak between train and val")
+        seen[key] = p
     recs = [Recording.open(p) for p in args.recordings]
     bar = _bar(args, _frame_total(recs, args.every), "frame")
     try:
