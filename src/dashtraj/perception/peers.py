@@ -39,7 +39,7 @@ class _BoxmotAdapter:
             out = np.asarray(out)
             di = out[:, 7].astype(np.int64)
             ok = (di >= 0) & (di < n)
-            ids[di[ok]] = out[ok, 4].astype(np.int64)
+            ids[di[ok]] = out[ok, 4].astype(np.int64) + 1  # BoxMOT counts ids from 0
         return ids
 
 
@@ -48,8 +48,6 @@ def boxmot_peers(names=PEER_NAMES) -> tuple[dict, str | None]:
     boxmot, why = _import_boxmot()
     if boxmot is None:
         return {}, why
-    from pathlib import Path
-
     factories = {}
     for name in names:
         if name == "bytetrack":
@@ -61,11 +59,7 @@ def boxmot_peers(names=PEER_NAMES) -> tuple[dict, str | None]:
         elif name == "botsort":
             cls = getattr(boxmot, "BotSort", None) or getattr(boxmot, "BoTSORT", None)
 
-            def make(spec, c=cls):
-                import torch
-
-                return _BoxmotAdapter(c(reid_weights=Path("none.pt"), device=torch.device("cpu"),
-                                        half=False, with_reid=False, cmc_method="ecc"),
-                                      "botsort")
+            def make(spec, c=cls):  # no ReID model: motion, IoU and ECC camera compensation
+                return _BoxmotAdapter(c(use_embeddings=False, cmc_method="ecc"), "botsort")
             factories[name] = make
     return factories, None
