@@ -8,6 +8,7 @@ import json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from dashtraj.cli._args import image_size, picture_path, positive_float, positive_int, seed
     from dashtraj.outputs import add_output_args
 
     p = subparsers.add_parser(
@@ -26,11 +27,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     e.add_argument("--detector", default="oracle", metavar="oracle|M.onnx")
     e.add_argument("--localizers", nargs="+", default=["paper", "ground", "fused"],
                    metavar="NAME")
-    e.add_argument("--mu-h", type=float, metavar="PX", help="Eq. 3's constant (default ours)")
-    e.add_argument("--every", type=float, default=0.5, metavar="S",
+    e.add_argument("--mu-h", type=positive_float, metavar="PX",
+                   help="Eq. 3's constant (default ours)")
+    e.add_argument("--every", type=positive_float, default=0.5, metavar="S",
                    help="frame period, seconds (default 0.5)")
-    e.add_argument("--size", metavar="WxH", help="image size (default: the recording's camera)")
-    e.add_argument("--plot", metavar="PNG", help="write the scatter plot here")
+    e.add_argument("--size", type=image_size, metavar="WxH",
+                   help="image size (default: the recording's camera)")
+    e.add_argument("--plot", type=picture_path, metavar="PNG", help="write the scatter plot here")
     e.add_argument("--json", action="store_true", help="print the result as JSON")
     add_output_args(e)
     e.set_defaults(func=run_eval)
@@ -43,10 +46,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "recordings' oracle boxes."),
     )
     c.add_argument("recordings", nargs="+", metavar="RUN")
-    c.add_argument("-n", type=int, default=51, help="known distances used (default 51)")
-    c.add_argument("--seed", type=int, default=0)
-    c.add_argument("--every", type=float, default=0.5, metavar="S")
-    c.add_argument("--max-distance", type=float, default=60.0, metavar="M")
+    c.add_argument("-n", type=positive_int, default=51, help="known distances used (default 51)")
+    c.add_argument("--seed", type=seed, default=0)
+    c.add_argument("--every", type=positive_float, default=0.5, metavar="S")
+    c.add_argument("--max-distance", type=positive_float, default=60.0, metavar="M")
     c.add_argument("--json", action="store_true")
     c.set_defaults(func=run_calibrate)
 

@@ -7,6 +7,8 @@ import json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from dashtraj.cli._args import image_size, positive_float
+
     p = subparsers.add_parser(
         "tracker", help="evaluate the trackers (HOTA, IDF1, MOTA) against the renderer's truth")
     sub = p.add_subparsers(dest="tracker_command", metavar="SUBCOMMAND")
@@ -27,9 +29,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     e.add_argument("--peers", nargs="*", default=None, metavar="NAME",
                    help="BoxMOT peers (default: bytetrack ocsort botsort when boxmot imports; "
                         "give none to skip)")
-    e.add_argument("--every", type=float, default=0.1, metavar="S",
+    e.add_argument("--every", type=positive_float, default=0.1, metavar="S",
                    help="frame period, seconds (default 0.1)")
-    e.add_argument("--size", metavar="WxH", help="image size (default: the recording's camera)")
+    e.add_argument("--size", type=image_size, metavar="WxH",
+                   help="image size (default: the recording's camera)")
     e.add_argument("--json", action="store_true", help="print the result as JSON")
     e.set_defaults(func=run_eval)
 
@@ -46,8 +49,14 @@ def run_eval(args: argparse.Namespace) -> int:
         from dashtraj.datasets.frames import parse_size
 
         size = parse_size(args.size)
-    recs = [open_recording(r) for r in args.recordings]
     wanted = list(PEER_NAMES) if args.peers is None else list(args.peers)
+    unknown = [n for n in wanted if n not in PEER_NAMES]
+    if unknown:
+        from dashtraj.cli._args import ArgumentError
+
+        raise ArgumentError(f"--peers {unknown[0]!r} is not a BoxMOT peer; valid: "
+                            f"{', '.join(PEER_NAMES)}")
+    recs = [open_recording(r) for r in args.recordings]
     peers, why = boxmot_peers(wanted) if wanted else ({}, None)
     res = tracker_eval(recs, args.trackers, peers, args.detector, args.every, size)
     res["detector"] = args.detector
