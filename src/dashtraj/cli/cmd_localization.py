@@ -8,6 +8,7 @@ import json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from dashtraj.cli._args import image_size, positive_float, positive_int, seed
     from dashtraj.outputs import add_output_args
 
     p = subparsers.add_parser(
@@ -26,10 +27,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     e.add_argument("--detector", default="oracle", metavar="oracle|M.onnx")
     e.add_argument("--localizers", nargs="+", default=["paper", "ground", "fused"],
                    metavar="NAME")
-    e.add_argument("--mu-h", type=float, metavar="PX", help="Eq. 3's constant (default ours)")
-    e.add_argument("--every", type=float, default=0.5, metavar="S",
+    e.add_argument("--mu-h", type=positive_float, metavar="PX",
+                   help="Eq. 3's constant (default ours)")
+    e.add_argument("--every", type=positive_float, default=0.5, metavar="S",
                    help="frame period, seconds (default 0.5)")
-    e.add_argument("--size", metavar="WxH", help="image size (default: the recording's camera)")
+    e.add_argument("--size", type=image_size, metavar="WxH",
+                   help="image size (default: the recording's camera)")
     e.add_argument("--plot", metavar="PNG", help="write the scatter plot here")
     e.add_argument("--json", action="store_true", help="print the result as JSON")
     add_output_args(e)
@@ -43,10 +46,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "recordings' oracle boxes."),
     )
     c.add_argument("recordings", nargs="+", metavar="RUN")
-    c.add_argument("-n", type=int, default=51, help="known distances used (default 51)")
-    c.add_argument("--seed", type=int, default=0)
-    c.add_argument("--every", type=float, default=0.5, metavar="S")
-    c.add_argument("--max-distance", type=float, default=60.0, metavar="M")
+    c.add_argument("-n", type=positive_int, default=51, help="known distances used (default 51)")
+    c.add_argument("--seed", type=seed, default=0)
+    c.add_argument("--every", type=positive_float, default=0.5, metavar="S")
+    c.add_argument("--max-distance", type=positive_float, default=60.0, metavar="M")
     c.add_argument("--json", action="store_true")
     c.set_defaults(func=run_calibrate)
 
@@ -98,8 +101,6 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from dashtraj.perception.localize import calibrate_paper_constant
     from dashtraj.perception.pipeline import image_camera
 
-    if args.n < 1:
-        raise DashtrajError(f"-n must be >= 1, got {args.n}")
     boxes, cls, dist, spec = [], [], [], None
     for path in args.recordings:
         rec = open_recording(path)
@@ -116,10 +117,11 @@ def run_calibrate(args: argparse.Namespace) -> int:
             boxes.append(d.boxes[ok])
             cls.append(d.class_ids[ok])
             dist.append(td[ok])
-    b, c, td = np.concatenate(boxes), np.concatenate(cls), np.concatenate(dist)
-    if len(td) < args.n:
-        raise DashtrajError(f"only {len(td)} detections within {args.max_distance:g} m; "
+    n_found = sum(len(t) for t in dist)
+    if n_found < args.n:
+        raise DashtrajError(f"only {n_found} detections within {args.max_distance:g} m; "
                             f"-n {args.n} needs more")
+    b, c, td = np.concatenate(boxes), np.concatenate(cls), np.concatenate(dist)
     pick = np.random.default_rng(args.seed).choice(len(td), args.n, replace=False)
     mu = calibrate_paper_constant(spec, b[pick], c[pick], td[pick])
     scaled = mu * 720.0 / spec.height_px

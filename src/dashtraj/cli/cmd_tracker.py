@@ -7,6 +7,8 @@ import json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from dashtraj.cli._args import image_size, positive_float
+
     p = subparsers.add_parser(
         "tracker", help="evaluate the trackers (HOTA, IDF1, MOTA) against the renderer's truth")
     sub = p.add_subparsers(dest="tracker_command", metavar="SUBCOMMAND")
@@ -27,9 +29,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     e.add_argument("--peers", nargs="*", default=None, metavar="NAME",
                    help="BoxMOT peers (default: bytetrack ocsort botsort when boxmot imports; "
                         "give none to skip)")
-    e.add_argument("--every", type=float, default=0.1, metavar="S",
+    e.add_argument("--every", type=positive_float, default=0.1, metavar="S",
                    help="frame period, seconds (default 0.1)")
-    e.add_argument("--size", metavar="WxH", help="image size (default: the recording's camera)")
+    e.add_argument("--size", type=image_size, metavar="WxH",
+                   help="image size (default: the recording's camera)")
     e.add_argument("--json", action="store_true", help="print the result as JSON")
     e.set_defaults(func=run_eval)
 
