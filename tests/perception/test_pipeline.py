@@ -87,7 +87,7 @@ def test_perceive_cli_refuses_existing_output_and_replaces_whole(small_run, gl_a
 
 
 @pytest.mark.parametrize("bad, msg", [
-    (["--tracker", "kalman"], "argument --tracker: invalid choice: 'kalman'"),
+    (["--tracker", "kalman"], "unknown tracker 'kalman'; valid: sort, ego"),
     (["--localizer", "lidar"], "unknown localizer 'lidar'; valid: paper, ground, fused"),
     (["--detector", "yolo"], "unknown detector 'yolo'"),
     (["--observers", "0"], "not observers"),

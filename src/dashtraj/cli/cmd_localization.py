@@ -101,8 +101,6 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from dashtraj.perception.localize import calibrate_paper_constant
     from dashtraj.perception.pipeline import image_camera
 
-    if args.n < 1:
-        raise DashtrajError(f"-n must be >= 1, got {args.n}")
     boxes, cls, dist, spec = [], [], [], None
     for path in args.recordings:
         rec = open_recording(path)
@@ -119,10 +117,11 @@ def run_calibrate(args: argparse.Namespace) -> int:
             boxes.append(d.boxes[ok])
             cls.append(d.class_ids[ok])
             dist.append(td[ok])
-    b, c, td = np.concatenate(boxes), np.concatenate(cls), np.concatenate(dist)
-    if len(td) < args.n:
-        raise DashtrajError(f"only {len(td)} detections within {args.max_distance:g} m; "
+    n_found = sum(len(t) for t in dist)
+    if n_found < args.n:
+        raise DashtrajError(f"only {n_found} detections within {args.max_distance:g} m; "
                             f"-n {args.n} needs more")
+    b, c, td = np.concatenate(boxes), np.concatenate(cls), np.concatenate(dist)
     pick = np.random.default_rng(args.seed).choice(len(td), args.n, replace=False)
     mu = calibrate_paper_constant(spec, b[pick], c[pick], td[pick])
     scaled = mu * 720.0 / spec.height_px
