@@ -205,6 +205,16 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefau
         return super()._get_help_string(action)
 
 
+PICTURE_SUFFIXES = ("png", "svg", "pdf", "jpg", "jpeg")
+
+
+def picture_path(text: str) -> str:
+    """A path for a matplotlib figure: .png, .svg, .pdf or .jpg."""
+    if text.rsplit(".", 1)[-1].lower() not in PICTURE_SUFFIXES or "." not in text:
+        raise argparse.ArgumentTypeError(f"name a .png, .svg, .pdf or .jpg file, got {text!r}")
+    return text
+
+
 MAX_IMAGE_SIDE_PX = 8192
 """Largest image side the renderer is asked for (llvmpipe and most GPUs allow 8192+)."""
 

@@ -8,7 +8,7 @@ import json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from dashtraj.cli._args import image_size, positive_float, positive_int, seed
+    from dashtraj.cli._args import image_size, picture_path, positive_float, positive_int, seed
     from dashtraj.outputs import add_output_args
 
     p = subparsers.add_parser(
@@ -33,7 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="frame period, seconds (default 0.5)")
     e.add_argument("--size", type=image_size, metavar="WxH",
                    help="image size (default: the recording's camera)")
-    e.add_argument("--plot", metavar="PNG", help="write the scatter plot here")
+    e.add_argument("--plot", type=picture_path, metavar="PNG", help="write the scatter plot here")
     e.add_argument("--json", action="store_true", help="print the result as JSON")
     add_output_args(e)
     e.set_defaults(func=run_eval)

@@ -49,8 +49,14 @@ def run_eval(args: argparse.Namespace) -> int:
         from dashtraj.datasets.frames import parse_size
 
         size = parse_size(args.size)
-    recs = [open_recording(r) for r in args.recordings]
     wanted = list(PEER_NAMES) if args.peers is None else list(args.peers)
+    unknown = [n for n in wanted if n not in PEER_NAMES]
+    if unknown:
+        from dashtraj.cli._args import ArgumentError
+
+        raise ArgumentError(f"--peers {unknown[0]!r} is not a BoxMOT peer; valid: "
+                            f"{', '.join(PEER_NAMES)}")
+    recs = [open_recording(r) for r in args.recordings]
     peers, why = boxmot_peers(wanted) if wanted else ({}, None)
     res = tracker_eval(recs, args.trackers, peers, args.detector, args.every, size)
     res["detector"] = args.detector
