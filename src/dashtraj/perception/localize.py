@@ -20,7 +20,7 @@ Estimators (`LOCALIZERS`, chosen by name with `build_localizer`):
   height, f = W / (2 tan(FOV/2)) (Eq. 4) and μ_h the sensor constant calibrated the
   paper's way: the mean of H_real f I_H / (D_true h_px) over N detections with known
   distances (`calibrate_paper_constant`; the paper used 51 and got 599.46 for its
-  camera; `PAPER_MU_H` is ours for the default camera at 1280 x 720).
+  camera; `PAPER_MU_H` = 583.96 is ours, from 51, for the default camera).
 - ``ground``: the box's bottom edge is where the vehicle touches the road: the ray
   through (box centre column, bottom row) is intersected with the road plane (camera
   height and pitch from the mount; road elevation = the observer's ground z), and the
@@ -58,9 +58,12 @@ CLASS_WIDTH_M: tuple[float, ...] = (1.87, 2.38, 2.52, 0.77, 0.56)
 the lowest pixel of a vehicle is where its nearest wheels touch the road, half a
 wheelbase from its centre along its length and half a width across it."""
 
-PAPER_MU_H: float = 599.46
-"""μ_h of Eq. 3 for a 720-pixel-high image; replaced by `calibrate_paper_constant`'s value
-for our camera where one is given (scaled with the image height)."""
+PAPER_MU_H: float = 583.96
+"""μ_h of Eq. 3 for our 1280 x 720 camera (scaled with the image height), calibrated the
+paper's way from 51 known distances (the paper got 599.46 for its camera):
+``dashtraj simulate --town town01 --seed 1 --duration 60 -o cal`` then
+``dashtraj localization calibrate cal -n 51 --seed 0`` (seed 1 is a calibration seed,
+never an evaluation one)."""
 
 PAPER_SIGMA_REL = 0.20
 GROUND_SIGMA_PX = 1.0
