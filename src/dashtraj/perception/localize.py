@@ -35,7 +35,9 @@ Estimators (`LOCALIZERS`, chosen by name with `build_localizer`):
   inverse-variance weights: σ_paper = 20 % of D, the spread of real heights around
   the class height; σ_ground =
   D² / (f h_cam) × 1 px + 0.3 m), falling back to the other estimate where one is
-  unusable (bottom edge cut by the image border or above the horizon; top edge cut).
+  unusable (bottom edge cut by the image border or above the horizon; top edge cut);
+  where a nearer detection hides a box's bottom edge, the distance from the box width
+  replaces both (see `FusedLocalizer._occluded_bottoms`).
 """
 
 from __future__ import annotations
@@ -53,6 +55,7 @@ CLASS_HEIGHT_M: tuple[float, ...] = (1.6, 3.5, 3.5, 1.45, 1.45)
 """Eq. 3's real heights per vehicle class (car, truck, bus, motorcycle, bicycle), metres."""
 
 CLASS_WHEELBASE_M: tuple[float, ...] = (2.85, 4.15, 5.72, 1.43, 1.06)
+CLASS_LENGTH_M: tuple[float, ...] = (4.76, 7.32, 11.2, 2.07, 1.77)
 CLASS_WIDTH_M: tuple[float, ...] = (1.87, 2.38, 2.52, 0.77, 0.56)
 """Typical wheelbase and width per vehicle class, metres (means of the vehicle catalog):
 the lowest pixel of a vehicle is where its nearest wheels touch the road, half a
@@ -221,8 +224,41 @@ class FusedLocalizer:
         d = np.where(both, (wp * p_dist + wg * dg) / np.where(both, wp + wg, 1.0), p_dist)
         sigma = np.where(both, 1.0 / np.sqrt(np.where(both, wp + wg, 1.0)),
                          PAPER_SIGMA_REL * p_dist)
+        d = self._occluded_bottoms(boxes, class_ids, spec, p.bearing_deg, d)
         x, y = place(pose, d, p.bearing_deg)
         return Localized(d, p.bearing_deg, x, y, sigma, np.ones(len(d), bool))
+
+
+    def _occluded_bottoms(self, boxes, class_ids, spec, bearing_deg, d):
+        """Boxes whose bottom edge is hidden by a nearer detection of the same frame: the
+        visible bottom is too high and both the ground and Eq. 3 estimates are too far.
+        Unless the box is also cut sideways by that detection, use the distance from the
+        box width (class width for back views, the vehicle seen straight; the geometric
+        mean with the fused value for front and side views, seen obliquely), never more
+        than the fused value and at least 1 m beyond the occluder."""
+        n = len(boxes)
+        if n < 2:
+            return d
+        b = boxes
+        uc = 0.5 * (b[:, 0] + b[:, 2])
+        below = (b[None, :, 3] > b[:, None, 3]) & (b[None, :, 1] <= b[:, None, 3] + 2.0)
+        covers = below & (b[None, :, 0] <= uc[:, None]) & (uc[:, None] <= b[None, :, 2])
+        np.fill_diagonal(covers, False)
+        cut = below & ((np.abs(b[:, None, 0] - b[None, :, 2]) <= 2.0)
+                       | (np.abs(b[:, None, 2] - b[None, :, 0]) <= 2.0))
+        cut = cut.any(1) | (b[:, 0] <= self.border_px) | (b[:, 2] >= spec.width_px - self.border_px)
+        hit = covers.any(1) & ~cut
+        if not hit.any():
+            return d
+        vc = VEHICLE_CLASS_INDEX[np.asarray(class_ids)]
+        back = np.array([ORIENTATION_OF_CLASS[c] == "back" for c in np.asarray(class_ids)])
+        side = np.array([ORIENTATION_OF_CLASS[c] == "side" for c in np.asarray(class_ids)])
+        extent = np.where(side, np.asarray(CLASS_LENGTH_M)[vc], np.asarray(CLASS_WIDTH_M)[vc])
+        w_px = np.maximum(b[:, 2] - b[:, 0], 1.0)
+        d_w = spec.focal_px * extent / w_px / np.cos(np.radians(bearing_deg))
+        est = np.minimum(np.where(back, d_w, np.sqrt(d_w * d)), d)
+        occluder = np.where(covers, d[None, :], 0.0).max(1)
+        return np.where(hit, np.maximum(est, occluder + 1.0), d)
 
 
 LOCALIZERS: dict[str, type] = {"paper": PaperLocalizer, "ground": GroundLocalizer,
