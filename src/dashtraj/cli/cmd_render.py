@@ -27,7 +27,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="sampling period, seconds (default 0.5)")
     p.add_argument("--size", default=None, metavar="WxH",
                    help="image size (default: the recording's camera)")
-    p.add_argument("--preview", action="store_true", help="also write preview pictures")
+    p.add_argument("--preview", action="store_true",
+                   help="also write preview pictures, and preview/look_sheet.png: frames before "
+                        "and after the realistic look (and a randomized one)")
+    p.add_argument("--compare", metavar="DIR", default=None,
+                   help="with --preview: reference frames (e.g. CARLA's) shown beside ours, "
+                        "the nearest layout for each row")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=run_render)
@@ -122,10 +127,18 @@ def run_render(args: argparse.Namespace) -> int:
 
     rec = Recording.open(args.recording)
     size = parse_size(args.size) if args.size else None
+    if args.compare is not None:  # checked before hours of rendering, not after
+        from dashtraj.datasets.frames import DatasetError
+        from dashtraj.datasets.look_sheet import reference_images
+
+        if not args.preview:
+            raise DatasetError("--compare needs --preview (it adds a column to the look sheet)")
+        reference_images(args.compare)
     bar = _bar(args, _frame_total([rec], args.every, args.observer), "frame")
     try:
         s = export_frames(rec, args.output, args.every, size, args.observer, args.preview,
-                          progress=bar.update if bar is not None else None)
+                          progress=bar.update if bar is not None else None,
+                          compare_dir=args.compare)
     finally:
         if bar is not None:
             bar.close()

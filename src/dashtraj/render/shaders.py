@@ -61,7 +61,7 @@ uniform float fog_start;
 uniform float cloud;
 uniform vec3 cam_pos;
 uniform vec3 wb;
-uniform float inv_gamma;
+uniform vec4 gamma_fit;
 uniform float vig_mult;
 uniform float vig_falloff;
 uniform float noise_std;
@@ -89,7 +89,8 @@ vec3 sky_color(vec3 d) {
 vec3 camera_response(vec3 c) {
     c *= wb;
     c = clamp((c * (2.51 * c + 0.03)) / (c * (2.43 * c + 0.59) + 0.14), 0.0, 1.0);
-    c = pow(c, vec3(inv_gamma));
+    vec3 r = sqrt(c);  // c^(1/gamma) as a fit in c, c^1/2, c^1/4, c^2 (error < 1.3 levels)
+    c = gamma_fit.x * c + gamma_fit.y * r + gamma_fit.z * sqrt(r) + gamma_fit.w * c * c;
     vec2 q = (gl_FragCoord.xy - 0.5 * img_size) / (0.5 * img_size.x);
     float r2 = dot(q, q);
     c *= 1.0 / (1.0 + vig_mult * 0.25 * pow(r2, 0.5 * vig_falloff) * 4.0);
@@ -150,9 +151,9 @@ vec3 shade() {
 #ifdef TEXTURES
     vec4 t1 = texture(noise_tex, uv * 0.08);
     float patch = 1.0 + road_wear * (0.5 * (t1.g - 0.5) + 0.25 * (t1.b - 0.5));
-    vec3 road = asphalt_rgb * (0.88 + 0.24 * t1.r) * patch;
+    vec3 road = asphalt_rgb * (0.91 + 0.18 * t1.r) * patch;
 #ifdef WET
-    float pth = 1.0 - 0.4 * deposits;  // puddles cover up to ~40 % of the road
+    float pth = 1.0 - 0.3 * deposits;  // puddles cover up to ~30 % of the road
     puddle = deposits > 0.0 ? smoothstep(pth, pth + 0.12, t1.g) : 0.0;
 #endif
 #else
