@@ -274,7 +274,11 @@ class Renderer:
         self._prog_sil = ctx.program(vertex_shader=vs, fragment_shader=shaders.FS_SIL)
         self._prog_depth = ctx.program(vertex_shader=vs, fragment_shader=shaders.FS_DEPTH)
         self._progs = (self._prog_id, self._prog_sil, self._prog_depth)
-        self._variants: dict[tuple, Any] = {}  # (which, group, flags) -> program
+        # (which, group, flags) -> program, shared by the renderers of one context (each
+        # variant is compiled and JIT-ed once per context); ``prog.extra`` holds the token
+        # of the renderer whose look its uniforms hold
+        self._variants: dict[tuple, Any] = _shared_programs(ctx)
+        self._token = object()
         self._cvaos: dict[tuple, Any] = {}  # (which, group, flags, buffer id) -> vao
         self._uniforms: dict[str, Any] = {}
         self._flags: tuple = ()
@@ -374,7 +378,10 @@ class Renderer:
                 if name in prog:
                     prog[name].value = unit
             self._variants[key] = prog
+            prog.extra = None
+        if prog.extra is not self._token:  # last used by another renderer (or new)
             self._set_uniforms(prog, self._uniforms)
+            prog.extra = self._token
         return prog
 
     def _colour_vao(self, which, group: str, buf):
@@ -445,7 +452,8 @@ class Renderer:
         values = {k: (tuple(float(x) for x in v) if np.ndim(v) else v) for k, v in values.items()}
         self._uniforms.update(values)
         for prog in self._current_colour_progs():
-            self._set_uniforms(prog, values)
+            if prog.extra is self._token:
+                self._set_uniforms(prog, values)
 
     def _frame_uniforms(self, pose, world, starts) -> None:
         """Per-frame uniforms (camera position, sky rays, noise seed) and the shadow pass."""
@@ -458,10 +466,10 @@ class Renderer:
                                   else np.eye(4, dtype="f4").tobytes())
         self._uniforms.update(per_frame)
         self._noise.use(1)
-        self._colour_prog("sky", "sky")
-        for g in (*{e[3] for e in self._static}, "vehicle"):
-            self._colour_prog(2 if not self.msaa else 0, g)
-        for prog in self._current_colour_progs():
+        progs = [self._colour_prog("sky", "sky")]
+        for g in sorted({e[3] for e in self._static} | {"vehicle"}):
+            progs.append(self._colour_prog(2 if not self.msaa else 0, g))
+        for prog in progs:
             self._set_uniforms(prog, per_frame)
 
     def light_matrix(self, pose) -> np.ndarray:
@@ -861,12 +869,21 @@ class Renderer:
             for vao in self._vveh.values():
                 vao.release()
             self._vbuf.release()
-        for p in (*self._progs, *self._variants.values()):
-            p.release()
+        for p in self._progs:
+            p.release()  # the shared colour variants live as long as the context
         self._sky_buf.release()
         self._fbo_shadow.release()
         self._shadow_tex.release()
         self._noise.release()
+
+
+def _shared_programs(ctx) -> dict:
+    """The colour-variant programs of a context (kept in ``ctx.extra``)."""
+    store = ctx.extra if isinstance(ctx.extra, dict) else None
+    if store is None:
+        store = {}
+        ctx.extra = store
+    return store.setdefault("dashtraj.render.colour_variants", {})
 
 
 def _subset(mesh: Mesh, tri_mask: np.ndarray) -> Mesh:
