@@ -156,7 +156,7 @@ def effect_looks():
     ]
 
 
-def effect_costs(ctx, road_map, vehicles, rounds: int = 6, per_round: int = 6) -> list[dict]:
+def effect_costs(ctx, road_map, vehicles, rounds: int = 10, per_round: int = 5) -> list[dict]:
     """Median CPU ms per frame of each effect row (module docstring); prints the table."""
     from dashtraj.render.randomize import frame_rng, random_look
     from dashtraj.render.scene import Renderer
