@@ -63,6 +63,7 @@ FAR_M = 2000.0
 SKY_RGB = (0.62, 0.74, 0.88)  # the legacy look's flat sky
 FRONT_FACE = "ccw"  # meshes wind CCW seen from outside (image rows run along GL's +y)
 NOISE_PX = 1024  # side of the tileable noise texture of the procedural materials
+SKY_MARGIN = 0.03  # sky pass: share of the rows drawn below the horizon (map edge, rounding)
 SHADOW_MAP_PX = 512  # side of the sun's shadow map, texels
 SHADOW_RANGE_M = 45.0  # shadows are drawn this far along the optical axis
 SHADOW_CASTER_REACH_M = 60.0  # casters up to this far toward the sun from the shadowed area
@@ -523,15 +524,45 @@ class Renderer:
         self._shadow_tex.use(2)
         return lmb
 
-    def _draw_sky(self) -> None:
-        """Fill the pixels no geometry covered (depth still 1) with the sky."""
+    def _draw_sky(self, pose) -> None:
+        """Fill the pixels no geometry covered (depth still 1) with the sky, in the rows
+        above ``SKY_MARGIN`` × H below the lowest point of the horizon (beneath it the
+        ground plane covers every pixel)."""
         mgl = self._moderngl
         ctx = self.ctx
+        rows = self._sky_rows(pose)
+        if rows <= 0:
+            return
         ctx.depth_func = "<="
+        ctx.depth_mask = False
         ctx.disable(mgl.CULL_FACE)
+        ctx.scissor = (0, 0, self.width, rows)
         self._colour_vao("sky", "sky", self._sky_buf).render(mgl.TRIANGLES)
+        ctx.scissor = None
         ctx.depth_func = "<"
+        ctx.depth_mask = True
         ctx.enable(mgl.CULL_FACE)
+
+    def _sky_rows(self, pose) -> int:
+        """Image rows from the top that can show sky: up to the lowest row where a ray
+        through the left or right image edge points above the horizon (ray z is linear
+        in the pixel coordinates), plus a margin of ``SKY_MARGIN`` × H; 0 when the
+        camera sees no sky."""
+        m = world_to_opencv(pose)
+        a = m[:3, :3].T @ np.linalg.inv(self.k)  # pixel (u, v, 1) -> world ray
+        zr = a[2]  # ray z = zr[0] u + zr[1] v + zr[2]
+        h = self.height
+        best = -1.0
+        for u in (0.0, float(self.width)):
+            c = zr[0] * u + zr[2]
+            if abs(zr[1]) < 1e-12:
+                best = max(best, h if c > 0 else -1.0)
+                continue
+            v0 = -c / zr[1]  # z = 0 on this edge
+            best = max(best, v0 if zr[1] < 0 else (h if v0 < h else -1.0))
+        if best < 0:
+            return 0
+        return int(min(h, math.ceil(best + SKY_MARGIN * h)))
 
     def _post(self, rgb: np.ndarray, pose) -> np.ndarray:
         from dashtraj.render.post import camera_post
@@ -672,7 +703,7 @@ class Renderer:
             self._fbo_ms.use()
             self._fbo_ms.clear(*SKY_RGB, 1.0, depth=1.0)
             self._draw_scene(0, mvp, vruns)
-            self._draw_sky()
+            self._draw_sky(pose)
             region = None  # without depth, ids are only needed where vehicles can be
             if not depth:
                 if proj is None and n:
@@ -712,7 +743,7 @@ class Renderer:
             fbo.use()
             self._clear_buffers(True)
             self._draw_scene(2, mvp, vruns)
-            self._draw_sky()
+            self._draw_sky(pose)
             fbo.read_into(rgb, components=3, attachment=0, alignment=1)
             rgb = self._post(rgb, pose)
             a_id, a_depth = 1, 2

@@ -30,8 +30,8 @@ in vec4 in_color;
 in int in_id;
 out vec3 v_light;
 out vec3 v_world;
-out vec3 v_normal;
-out vec3 v_color;
+flat out vec3 v_normal;
+flat out vec3 v_color;
 flat out int v_mat;
 out float v_depth;
 flat out int v_id;
@@ -40,7 +40,7 @@ void main() {
     v_world = in_pos;
     v_normal = in_normal;
     // the shadow map's projection is affine: interpolating it per vertex is exact
-    v_light = (light_mvp * vec4(in_pos + in_normal * 0.06, 1.0)).xyz * 0.5 + 0.5;
+    v_light = (light_mvp * vec4(in_pos + in_normal * 0.2, 1.0)).xyz * 0.5 + 0.5;
     v_color = in_color.rgb;
     v_mat = int(in_color.a + 0.5);
     v_depth = gl_Position.w;
@@ -118,8 +118,8 @@ uniform float shadow_px;
 
 in vec3 v_light;
 in vec3 v_world;
-in vec3 v_normal;
-in vec3 v_color;
+flat in vec3 v_normal;
+flat in vec3 v_color;
 flat in int v_mat;
 
 #if defined(G_VEHICLE) || defined(G_FACADE) || defined(WET)
@@ -260,7 +260,7 @@ vec3 shade() {
     float sh = 1.0;
 #ifdef SHADOWS
     if (v_light.x > 0.0 && v_light.y > 0.0 && v_light.x < 1.0 && v_light.y < 1.0 && v_light.z < 1.0)
-        sh = step(v_light.z - 0.0015, texelFetch(shadow_map, ivec2(v_light.xy * shadow_px), 0).r);
+        sh = step(v_light.z - 0.002, texelFetch(shadow_map, ivec2(v_light.xy * shadow_px), 0).r);
 #endif
     sh *= step(0.0, ndl);
     float direct = lam * (1.0 - shadow_strength * (1.0 - sh));
