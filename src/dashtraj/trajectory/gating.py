@@ -1,0 +1,277 @@
+"""Spatio-temporal gating of re-identified tracks on the road network.
+
+The paper accepts every gallery match whose appearance distance is small enough
+and lists "spatio-temporal constraints" as future work (§V). This module is that
+constraint: among candidate tracks of the target (each an observer's track whose
+appearance matched), keep the largest set the target could physically have
+produced, driving on the lane graph at a plausible speed.
+
+The rule (`gate_tracks`):
+
+1. **Reachability of one pair.** Track B can follow track A when, from A's last
+   sighting at or before B's first sighting (time ``t_a``, position ``p_a``), the
+   target could drive to B's first sighting (``t_b``, ``p_b``) in time::
+
+       route_cost(p_a → p_b)  ≤  max_speed_mps · (t_b − t_a) + slack_m
+
+   and, when the two tracks overlap in time, the same from B back to A's last
+   sighting (both tracks describe one car at once, so each must be able to reach
+   the other). ``route_cost`` is the lane graph's shortest route in metres with
+   no lane-change penalty (a distance, not a preference). A localized position
+   is ambiguous, so each sighting stands for several lane points and the cost is
+   the least over all pairs of them:
+
+   - every driving lane whose centre passes within `radius_m` of the estimated
+     position (localization error),
+   - the lane Algorithm 1 (`correct_position`) assigns from the seen orientation,
+     and the lane of the other sign at the same road, section and s (the lane
+     correction's own ambiguity: a front/back label read wrongly, or a position
+     pushed across the road centre, must not make a true match look like a
+     U-turn).
+
+   So the gate is lenient by construction: it drops only candidates that are
+   impossible under every reading of the positions; `slack_m` absorbs the
+   remaining localization error at both ends.
+
+2. **The chain.** Candidates are ordered by their first sighting time. Among all
+   chains in which each consecutive pair is reachable, the chain of greatest total
+   weight is kept (a longest path in the DAG of reachable pairs, solved exactly by
+   dynamic programming -- Viterbi with 0/−inf transitions). Greedy filtering ("keep a
+   candidate if reachable from the last accepted one") lets one early false match
+   reject every true one after it; the best chain cannot be poisoned that way: a
+   false match is dropped whenever keeping it would cost more weight than it adds.
+   With an `anchor` (the track that holds the query crop, the target by definition)
+   the best chain *through* the anchor is kept.
+
+Weights are the caller's: 1 per track (the most tracks), the track's sighting
+count, or its ReID margin (threshold − distance). Ties go to the chain found first
+in time order (deterministic).
+
+Units: seconds, metres, metres per second; positions in CARLA world coordinates.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from dashtraj.errors import DashtrajError
+from dashtraj.roads import RoadMap, Waypoint
+from dashtraj.trajectory.correction import _other_side_lane, correct_position
+from dashtraj.trajectory.records import Sighting
+
+
+class GatingError(DashtrajError, ValueError):
+    """Bad gating input: an empty track, a bad weight, an anchor out of range."""
+
+
+@dataclass(frozen=True, slots=True)
+class GateConfig:
+    """Settings of the spatio-temporal gate.
+
+    Attributes:
+        max_speed_mps: the fastest plausible mean speed between two sightings, m/s.
+            25 m/s = 90 km/h, well above the towns' 30-50 km/h limits (a lenient gate).
+        slack_m: metres added to the reachable distance: the localization error
+            of both sightings (the paper's noise is a few metres) and lane-centre
+            snapping.
+        radius_m: driving lanes within this distance of an estimated position are
+            candidate lanes of that sighting, metres.
+    """
+
+    max_speed_mps: float = 25.0
+    slack_m: float = 20.0
+    radius_m: float = 5.0
+
+    def __post_init__(self) -> None:
+        for name in ("max_speed_mps", "slack_m", "radius_m"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+                raise GatingError(f"GateConfig.{name} must be a finite number >= 0, got {v!r}")
+
+
+@dataclass(frozen=True, slots=True)
+class GateResult:
+    """The outcome of `gate_tracks`.
+
+    Attributes:
+        accepted: indices of the kept tracks (into the input), in chain (time) order.
+        rejected: indices of the dropped tracks, ascending.
+        weight: total weight of the kept chain.
+        order: all track indices in the time order the chain was built in.
+    """
+
+    accepted: tuple[int, ...]
+    rejected: tuple[int, ...]
+    weight: float
+    order: tuple[int, ...]
+
+
+class _Lanes:
+    """Candidate lane points of sightings, and route costs between them (cached)."""
+
+    def __init__(self, road_map: RoadMap, config: GateConfig):
+        self.map = road_map
+        self.cfg = config
+        self.graph = road_map.lane_graph(0.0)
+        self._points: dict[Sighting, list[Waypoint]] = {}
+
+    def points(self, s: Sighting) -> list[Waypoint]:
+        key = s
+        hit = self._points.get(key)
+        if hit is not None:
+            return hit
+        out: list[Waypoint] = []
+        c = self.map.candidates((s.x, s.y), self.cfg.radius_m)
+        out.extend(c.waypoints())
+        corrected = correct_position(self.map, s).after
+        out.append(corrected)
+        other = _other_side_lane(self.map, corrected)
+        if other is not None:
+            out.append(self.map.waypoint(corrected.road_id, corrected.section_id, other,
+                                         corrected.s))
+        seen, unique = set(), []
+        for wp in out:
+            k = (wp.key, round(wp.s, 3))
+            if k not in seen and wp.key in self.graph._length:
+                seen.add(k)
+                unique.append(wp)
+        self._points[key] = unique
+        return unique
+
+    def cost(self, a: Sighting, b: Sighting, budget_m: float) -> float:
+        """Least route cost from any lane point of a to any of b, metres (inf above budget)."""
+        pa, pb = self.points(a), self.points(b)
+        if not pa or not pb:
+            return math.inf
+        # The route is never shorter than the straight line between lane points.
+        reach = 2.0 * self.cfg.radius_m + 10.0
+        if math.hypot(a.x - b.x, a.y - b.y) - reach > budget_m:
+            return math.inf
+        best = math.inf
+        for wa in pa:
+            c = self.graph.route_costs(wa, pb, max_cost_m=budget_m)
+            best = min(best, float(c.min()))
+        return best
+
+
+def reachable(road_map: RoadMap, a: Sighting, b: Sighting,
+              config: GateConfig = GateConfig(), _lanes: _Lanes | None = None) -> bool:
+    """Whether a vehicle seen at `a` could be seen at `b` (b.t >= a.t; see the module rule).
+
+    Args:
+        road_map: the map (CARLA world, metres).
+        a, b: two sightings, a no later than b (seconds).
+        config: speed, slack and lane radius.
+
+    Returns:
+        True when the least route cost over the candidate lane points is at most
+        ``max_speed_mps · (b.t − a.t) + slack_m``.
+
+    Raises:
+        GatingError: b is earlier than a.
+    """
+    if b.t < a.t:
+        raise GatingError(f"reachable: b (t={b.t:g} s) is earlier than a (t={a.t:g} s)")
+    lanes = _lanes if _lanes is not None else _Lanes(road_map, config)
+    budget = config.max_speed_mps * (b.t - a.t) + config.slack_m
+    return lanes.cost(a, b, budget) <= budget
+
+
+def _follows(road_map, lanes, cfg, a_track: list[Sighting], b_track: list[Sighting]) -> bool:
+    """Track B can follow track A in one car's chain (A starts no later than B)."""
+    b0 = b_track[0]
+    a_ref = [s for s in a_track if s.t <= b0.t][-1]  # A starts first: never empty
+    if not reachable(road_map, a_ref, b0, cfg, lanes):
+        return False
+    a_last = a_track[-1]
+    if a_last.t > b0.t:  # overlap in time: B must reach A's last sighting too
+        back = [s for s in b_track if s.t <= a_last.t]
+        if not reachable(road_map, back[-1], a_last, cfg, lanes):
+            return False
+    return True
+
+
+def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
+                weights: Sequence[float] | None = None, anchor: int | None = None,
+                config: GateConfig = GateConfig()) -> GateResult:
+    """Keep the heaviest chain of candidate tracks one vehicle could have produced.
+
+    Args:
+        road_map: the map (CARLA world, metres).
+        tracks: candidate tracks of the target, each a non-empty sequence of
+            `Sighting` (any order within a track; one sighting is a track of one).
+        weights: one weight (>= 0, finite) per track; None: 1 each.
+        anchor: index of a track that must be kept (the query's own track), or None.
+        config: `GateConfig`.
+
+    Returns:
+        `GateResult` (accepted indices in time order, rejected indices).
+
+    Raises:
+        GatingError: an empty track, a weight that is negative or not finite, the
+            wrong number of weights, or an anchor out of range.
+
+    Example:
+        >>> r = gate_tracks(town01, [track_a, twin_track, track_b])  # doctest: +SKIP
+        >>> r.accepted, r.rejected  # doctest: +SKIP
+        ((0, 2), (1,))
+    """
+    n = len(tracks)
+    w = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64)
+    if w.shape != (n,):
+        raise GatingError(f"gate_tracks: {n} tracks but {w.size} weights")
+    if n and not (np.isfinite(w).all() and (w >= 0).all()):
+        bad = int(np.flatnonzero(~(np.isfinite(w) & (w >= 0)))[0])
+        raise GatingError(f"gate_tracks: weight {bad} must be finite and >= 0, got {w[bad]!r}")
+    if anchor is not None and not 0 <= anchor < n:
+        raise GatingError(f"gate_tracks: anchor {anchor} is not a track index (0..{n - 1})")
+    ts: list[list[Sighting]] = []
+    for i, tr in enumerate(tracks):
+        if len(tr) == 0:
+            raise GatingError(f"gate_tracks: track {i} has no sightings")
+        ts.append(sorted(tr, key=lambda s: s.t))
+    if n == 0:
+        return GateResult((), (), 0.0, ())
+    order = sorted(range(n), key=lambda i: (ts[i][0].t, i))
+    lanes = _Lanes(road_map, config)
+    ok = np.zeros((n, n), dtype=bool)  # ok[p, q]: order[q] can follow order[p]
+    for q in range(n):
+        for p in range(q):
+            ok[p, q] = _follows(road_map, lanes, config, ts[order[p]], ts[order[q]])
+    wo = w[order]
+    # forward: best chain ending at q; backward: best chain starting at q
+    fwd, fprev = wo.copy(), np.full(n, -1)
+    for q in range(n):
+        for p in range(q):
+            if ok[p, q] and fwd[p] + wo[q] > fwd[q]:
+                fwd[q], fprev[q] = fwd[p] + wo[q], p
+    bwd, bnext = wo.copy(), np.full(n, -1)
+    for p in range(n - 1, -1, -1):
+        for q in range(p + 1, n):
+            if ok[p, q] and bwd[q] + wo[p] > bwd[p]:
+                bwd[p], bnext[p] = bwd[q] + wo[p], q
+    if anchor is None:
+        k = int(np.argmax(fwd))  # first maximum: earliest end on a tie
+        chain, j = [], k
+        while j >= 0:
+            chain.append(j)
+            j = int(fprev[j])
+        chain.reverse()
+    else:
+        k = order.index(anchor)
+        head, j = [], int(fprev[k])
+        while j >= 0:
+            head.append(j)
+            j = int(fprev[j])
+        tail, j = [], int(bnext[k])
+        while j >= 0:
+            tail.append(j)
+            j = int(bnext[j])
+        chain = [*reversed(head), k, *tail]
+    accepted = tuple(order[j] for j in chain)
+    rejected = tuple(sorted(set(range(n)) - set(accepted)))
+    return GateResult(accepted, rejected, float(wo[chain].sum()), tuple(order))
