@@ -23,6 +23,16 @@ scoring after them are the same code for every source):
   construction (a track is picked exactly when its truth is the target); a track
   that switched identity still brings its other vehicle's detections along.
 
+How the target's tracks are picked among the candidates (`REID_MODES`):
+
+- ``identity``: by truth (above): the reference.
+- ``look-alike``: every track of the target and of its twins (`twins`) is a
+  candidate: an appearance model that tells every vehicle apart except exact
+  look-alikes (same model and colour). With `gate` the spatio-temporal gate
+  (`dashtraj.trajectory.gating`) keeps the heaviest chain of candidates the target
+  could have driven, through the track of its first sighting (the query). This
+  measures what the gate does to precision when appearance cannot help.
+
 Per method the summary holds the issue's keys ``sspd_whole_m``, ``sspd_seen_m``,
 ``hausdorff_seen_m`` (and ``hausdorff_whole_m``) beside the older ``sspd_m``,
 ``hausdorff_m``, ``seen_sspd_m``, ``seen_hausdorff_m`` (same numbers); per experiment
@@ -47,6 +57,9 @@ METHODS = ("shortest-path", "hmm")
 SIGHTINGS = ("oracle", "detections")
 """Sources of the target's sightings (module docstring)."""
 
+REID_MODES = ("identity", "look-alike")
+"""How the target's tracks are picked (`target_sightings`)."""
+
 SAMPLE_S = 0.5
 """One sighting per track every this many seconds (both sources), seconds."""
 
@@ -67,6 +80,9 @@ class ExperimentConfig:
         twins: agents of the target's exact model and colour in the traffic.
         image_size: (W, H) pixels of the rendered frames for ``detections`` (None:
             the recording's camera).
+        reid: how the target's tracks are picked, one of `REID_MODES` (see
+            `target_sightings`).
+        gate: with ``look-alike``, the spatio-temporal gate on the lane graph.
     """
 
     town: str = "town10"
@@ -80,8 +96,13 @@ class ExperimentConfig:
     sightings: str = "oracle"
     twins: int = 0
     image_size: tuple[int, int] | None = None
+    reid: str = "identity"
+    gate: bool = True
 
     def __post_init__(self) -> None:
+        if self.reid not in REID_MODES:
+            raise ExperimentError(f"unknown reid mode {self.reid!r}; valid: "
+                                  f"{', '.join(REID_MODES)}")
         if self.sightings not in SIGHTINGS:
             raise ExperimentError(f"unknown sightings source {self.sightings!r}; valid: "
                                   f"{', '.join(SIGHTINGS)}")
@@ -136,11 +157,11 @@ def run_experiment(config: ExperimentConfig, out: str | Path,
                            n_twins=config.twins, until_target_arrives=True)
     run = simulate(run_config, out / "recording", progress=progress)
     rec = Recording.open(out / "recording")
-    sightings, reid = target_sightings(config, rec, out)
+    road_map = RoadMap.from_file(rec.map_path)
+    sightings, reid = target_sightings(config, rec, out, road_map)
     write_sightings(out / "sightings.csv", sightings)
     truth = rec.target_route
     write_trajectory(out / "truth.csv", truth)
-    road_map = RoadMap.from_file(rec.map_path)
 
     results: dict = {}
     estimates: dict = {}
@@ -176,7 +197,7 @@ def run_experiment(config: ExperimentConfig, out: str | Path,
         "sightings": len(sightings),
         "observers_that_saw_target": len({s.observer_id for s in sightings}),
         "target_tracks": len({(s.observer_id, s.track_id) for s in sightings}),
-        **reid.to_dict(),
+        **reid,
         "true_route_m": truth.length_m,
         "seen_route_m": seen.length_m,
         "methods": results,
@@ -185,38 +206,71 @@ def run_experiment(config: ExperimentConfig, out: str | Path,
     return ExperimentResult(config, summary, truth, seen, sightings, estimates, road_map)
 
 
-def target_sightings(config: ExperimentConfig, rec, out: Path):
-    """The target's sightings from the configured source, and the ReID score of the
-    tracks they come from (both sources pick by identity: 1.0 by construction).
+def target_sightings(config: ExperimentConfig, rec, out: Path, road_map) -> tuple[list, dict]:
+    """The target's sightings from the configured source and re-identification mode.
+
+    Candidate tracks: ``identity`` mode: the target's own (by truth: precision and
+    recall 1.0 by construction); ``look-alike`` mode: every track of the target and
+    of its twins (an appearance model that cannot tell vehicles of one model and
+    colour apart, and tells every other vehicle apart), then, with `gate`, the
+    spatio-temporal gate anchored on the track of the target's first sighting (the
+    query crop, as ``calc_traj`` takes ``veh_t1.image``).
 
     Returns:
-        (sightings, `dashtraj.reidentify.scoring.ReidScore`).
+        (sightings of the accepted tracks, summary entries: reid_precision,
+        reid_recall, their counts, reid_candidates, reid_gated_out).
     """
     from dashtraj.reidentify.scoring import reid_score
+    from dashtraj.trajectory.gating import gate_tracks
 
     target = int(rec.meta.get("target_vehicle_id", 0))
+    wanted = [target] + ([int(v) for v in rec.meta.get("twin_vehicle_ids", [])]
+                         if config.reid == "look-alike" else [])
+    tracks: dict[tuple, list] = {}
+    truth: dict[tuple, int | None] = {}
     if config.sightings == "oracle":
+        from dataclasses import replace as _replace
+
         from dashtraj.world.oracle import OracleConfig, oracle_sightings
 
-        sightings = oracle_sightings(rec, OracleConfig(noise=config.noise, seed=config.seed,
-                                                       max_distance_m=config.max_distance_m,
-                                                       sample_s=SAMPLE_S))
-        # the oracle's tracks are the target's by definition: the truth of each is the target
-        truth = {(s.observer_id, s.track_id): target for s in sightings}
-        return sightings, reid_score(truth, truth, target)
-    from dashtraj.perception.pipeline import PerceiveConfig, perceive
-    from dashtraj.reidentify.scoring import truth_of_tracks
-    from dashtraj.store import SightingsDB
+        for rank, vid in enumerate(wanted):
+            ss = oracle_sightings(rec, OracleConfig(vehicle=vid, noise=config.noise,
+                                                    seed=config.seed,
+                                                    max_distance_m=config.max_distance_m,
+                                                    sample_s=SAMPLE_S))
+            for s in ss:  # one observer's track ids are per vehicle: keep them apart
+                s = s if rank == 0 else _replace(s, track_id=s.track_id + 1000 * rank)
+                tracks.setdefault((s.observer_id, s.track_id), []).append(s)
+                truth[(s.observer_id, s.track_id)] = vid
+    else:
+        from dashtraj.perception.pipeline import PerceiveConfig, perceive
+        from dashtraj.reidentify.scoring import truth_of_tracks
+        from dashtraj.store import SightingsDB
 
-    db_path = out / "sightings.db"
-    perceive(rec, db_path, PerceiveConfig(detector="oracle", size=config.image_size,
-                                          reid_range_m=config.max_distance_m))
-    with SightingsDB.open(db_path) as db:
-        truth = truth_of_tracks(db, config.max_distance_m)
-        accepted = {k for k, v in truth.items() if v == target}  # the identity oracle
-        every = db.sightings(max_distance_m=config.max_distance_m, sample_s=SAMPLE_S)
-    sightings = [s for s in every if (s.observer_id, s.track_id) in accepted]
-    return sightings, reid_score(accepted, truth, target)
+        db_path = out / "sightings.db"
+        perceive(rec, db_path, PerceiveConfig(detector="oracle", size=config.image_size,
+                                              reid_range_m=config.max_distance_m))
+        with SightingsDB.open(db_path) as db:
+            truth = truth_of_tracks(db, config.max_distance_m)
+            every = db.sightings(max_distance_m=config.max_distance_m, sample_s=SAMPLE_S)
+        for s in every:
+            if truth.get((s.observer_id, s.track_id)) in wanted:
+                tracks.setdefault((s.observer_id, s.track_id), []).append(s)
+    candidates = list(tracks)
+    accepted = candidates
+    if config.reid == "look-alike" and config.gate and candidates:
+        own = [k for k in candidates if truth.get(k) == target]
+        anchor = None
+        if own:
+            first = min(own, key=lambda k: (min(s.t for s in tracks[k]), k))
+            anchor = candidates.index(first)
+        res = gate_tracks(road_map, [tracks[k] for k in candidates], anchor=anchor)
+        accepted = [candidates[i] for i in res.accepted]
+    keep = set(accepted)
+    sightings = sorted((s for k in accepted for s in tracks[k]), key=lambda s: (s.t, s.observer_id))
+    return sightings, {**reid_score(keep, truth, target).to_dict(),
+                       "reid_candidates": len(candidates),
+                       "reid_gated_out": len(candidates) - len(keep)}
 
 
 def plot_experiment(result: ExperimentResult, path: str | Path) -> Path:

@@ -67,9 +67,9 @@ def test_speed_bound_exact(town01):
     dt_exact = (cost - cfg.slack_m) / cfg.max_speed_mps   # 6.4 s
     assert reachable(town01, a, sight(town01, dt_exact + 0.01, 12, 200.0), cfg)
     assert not reachable(town01, a, sight(town01, dt_exact - 0.01, 12, 200.0), cfg)
-    # A 90 km/h gate rejects 180 m in 2 s; the same pair at 8 s is fine.
-    assert not reachable(town01, a, sight(town01, 2.0, 12, 200.0))
-    assert reachable(town01, a, sight(town01, 8.0, 12, 200.0))
+    # The default 54 km/h gate rejects 180 m in 8 s; the same pair at 11 s is fine.
+    assert not reachable(town01, a, sight(town01, 8.0, 12, 200.0))
+    assert reachable(town01, a, sight(town01, 11.0, 12, 200.0))
     # The route, not the straight line: road 4 runs parallel 66 m away, but the way
     # there goes through a junction at the end of the block (> 250 m).
     a100, b = sight(town01, 0.0, 12, 100.0), sight(town01, 3.0, 4, 100.0)
@@ -91,10 +91,10 @@ def test_lane_ambiguity_handled_like_algorithm_1(town01):
     g = town01.lane_graph(0.0)
     naive = g.route_cost(town01.waypoint(12, 0, 1, 40.0), town01.waypoint(12, 0, -1, 120.0))
     cfg = GateConfig(radius_m=0.5)
-    budget = cfg.max_speed_mps * 4.0 + cfg.slack_m           # 120 m
+    budget = cfg.max_speed_mps * 6.0 + cfg.slack_m           # 110 m
     assert naive > budget
     a = sight(town01, 0.0, 12, 40.0, lane=1, orientation="back")
-    b = sight(town01, 4.0, 12, 120.0)
+    b = sight(town01, 6.0, 12, 120.0)
     assert reachable(town01, a, b, cfg)
     # a side view carries no direction, yet the other-side lane is still a reading
     assert reachable(town01, sight(town01, 0.0, 12, 40.0, lane=1, orientation="side"), b, cfg)
@@ -117,8 +117,12 @@ def test_weights_decide_between_exclusive_chains(town01):
     twin = drive(town01, 11.0, 12.0, 4, 120.0, obs=3)
     assert gate_tracks(town01, [t1, t2, twin]).accepted == (0, 1)
     heavy = gate_tracks(town01, [t1, t2, twin], weights=[1.0, 1.0, 5.0])
-    # t1 (ends at s=40, t=2) can reach road 4 in 9 s, so the heavy chain is t1 -> twin
-    assert heavy.accepted == (0, 2) and heavy.weight == 6.0 and heavy.rejected == (1,)
+    # road 4 is > 300 m from t1's end by road: the twin stands alone, and outweighs both
+    assert heavy.accepted == (2,) and heavy.weight == 5.0 and heavy.rejected == (0, 1)
+    # at 90 km/h t1 (ends at s=40, t=2) could reach it in 9 s: the chain t1 -> twin
+    fast = gate_tracks(town01, [t1, t2, twin], weights=[1.0, 1.0, 5.0],
+                       config=GateConfig(max_speed_mps=40.0))
+    assert fast.accepted == (0, 2) and fast.weight == 6.0
 
 
 def test_empty_and_bad_input(town01):
