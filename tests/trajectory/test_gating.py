@@ -9,6 +9,8 @@ missing.
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from dashtraj.trajectory.gating import (
@@ -119,10 +121,15 @@ def test_weights_decide_between_exclusive_chains(town01):
     heavy = gate_tracks(town01, [t1, t2, twin], weights=[1.0, 1.0, 5.0])
     # road 4 is > 300 m from t1's end by road: the twin stands alone, and outweighs both
     assert heavy.accepted == (2,) and heavy.weight == 5.0 and heavy.rejected == (0, 1)
-    # at 90 km/h t1 (ends at s=40, t=2) could reach it in 9 s: the chain t1 -> twin
+    # at 144 km/h, with lane directions free, t1 (ends at s=40, t=2) could reach road 4's
+    # lane 1 (driving -x) in 9 s: the set t1 + twin; the twin's own displacement (+x,
+    # 10 m) says it drives lane -1, which is a whole block further: alone again
+    free = GateConfig(max_speed_mps=40.0, heading_min_m=math.inf)
+    fast = gate_tracks(town01, [t1, t2, twin], weights=[1.0, 1.0, 5.0], config=free)
+    assert fast.accepted == (0, 2) and fast.weight == 6.0
     fast = gate_tracks(town01, [t1, t2, twin], weights=[1.0, 1.0, 5.0],
                        config=GateConfig(max_speed_mps=40.0))
-    assert fast.accepted == (0, 2) and fast.weight == 6.0
+    assert fast.accepted == (2,)
 
 
 def test_empty_and_bad_input(town01):
@@ -140,3 +147,22 @@ def test_empty_and_bad_input(town01):
         GateConfig(max_speed_mps=-1.0)
     with pytest.raises(GatingError, match="earlier"):
         reachable(town01, t[1], t[0])
+
+
+def test_clique_checks_every_pair_the_chain_only_neighbours(town01):
+    # The target on road 12 (observer 1's long track, t 0-12, s 20 -> 140; observer 2's
+    # short one, t 1-2; observer 4's, t 20-21 at s 220). A look-alike 50 m ahead of it on
+    # the same lane at t 10-11: reachable from the short track's end (130 m in 8 s) and
+    # on to the last one, so a chain of consecutive pairs keeps it; but it is not where
+    # the long track is at the same moment, so the consistent set drops it.
+    long_ = drive(town01, 0.0, 12.0, 12, 20.0, obs=1)
+    short = drive(town01, 1.0, 2.0, 12, 30.0, obs=2)
+    twin = drive(town01, 10.0, 11.0, 12, 170.0, obs=3)
+    last = drive(town01, 20.0, 21.0, 12, 220.0, obs=4)
+    tracks = [long_, short, twin, last]
+    chain = gate_tracks(town01, tracks, anchor=0, method="chain")
+    assert chain.accepted == (0, 1, 2, 3)
+    clique = gate_tracks(town01, tracks, anchor=0)
+    assert clique.accepted == (0, 1, 3) and clique.rejected == (2,)
+    with pytest.raises(GatingError, match="unknown gating method 'greedy'; valid: clique, chain"):
+        gate_tracks(town01, tracks, method="greedy")

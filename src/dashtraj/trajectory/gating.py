@@ -29,19 +29,29 @@ The rule (`gate_tracks`):
      pushed across the road centre, must not make a true match look like a
      U-turn).
 
+   A track that moved at least `heading_min_m` between its first and last
+   sighting shows which way it drives: its lane points are then only those whose
+   driving direction is within 90° of that displacement (all of them if none is).
    So the gate is lenient by construction: it drops only candidates that are
    impossible under every reading of the positions; `slack_m` absorbs the
    remaining localization error at both ends.
 
-2. **The chain.** Candidates are ordered by their first sighting time. Among all
-   chains in which each consecutive pair is reachable, the chain of greatest total
-   weight is kept (a longest path in the DAG of reachable pairs, solved exactly by
-   dynamic programming -- Viterbi with 0/−inf transitions). Greedy filtering ("keep a
-   candidate if reachable from the last accepted one") lets one early false match
-   reject every true one after it; the best chain cannot be poisoned that way: a
-   false match is dropped whenever keeping it would cost more weight than it adds.
+2. **The consistent set** (``method="clique"``, the default). Every pair of the
+   target's own tracks is reachable one from the other in time order (route costs
+   obey the triangle inequality), so the target's tracks form a clique of the
+   "reachable" graph over all candidate pairs. The clique of greatest total weight
+   is kept (exact: `networkx.max_weight_clique`, a branch and bound; candidate
+   sets after the appearance threshold are tens of tracks). A look-alike seen at
+   the same time as one of the target's tracks, or anywhere the target could not
+   be between two of its sightings, is dropped, whichever track comes first: one
+   early false match cannot poison the rest, as it would a greedy filter ("keep a
+   candidate when reachable from the last accepted one").
+   ``method="chain"`` keeps the heaviest chain in which each *consecutive* pair is
+   reachable (a longest path in the DAG, by dynamic programming, as a Viterbi pass
+   with 0/−inf transitions): weaker, since a look-alike between two true tracks is
+   checked against its neighbours only, not against a true track it overlaps.
    With an `anchor` (the track that holds the query crop, the target by definition)
-   the best chain *through* the anchor is kept.
+   the best set *containing* the anchor is kept.
 
 Weights are the caller's: 1 per track (the most tracks), the track's sighting
 count, or its ReID margin (threshold − distance). Ties go to the chain found first
@@ -68,6 +78,10 @@ class GatingError(DashtrajError, ValueError):
     """Bad gating input: an empty track, a bad weight, an anchor out of range."""
 
 
+GATE_METHODS: tuple[str, ...] = ("clique", "chain")
+"""How `gate_tracks` picks the consistent tracks (module docstring)."""
+
+
 @dataclass(frozen=True, slots=True)
 class GateConfig:
     """Settings of the spatio-temporal gate.
@@ -83,17 +97,23 @@ class GateConfig:
             snapping.
         radius_m: driving lanes within this distance of an estimated position are
             candidate lanes of that sighting, metres.
+        heading_min_m: a track that moved this far (first to last sighting) keeps only
+            lanes driving its way, metres (inf: never).
     """
 
     max_speed_mps: float = 15.0
     slack_m: float = 20.0
     radius_m: float = 5.0
+    heading_min_m: float = 8.0
 
     def __post_init__(self) -> None:
         for name in ("max_speed_mps", "slack_m", "radius_m"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
                 raise GatingError(f"GateConfig.{name} must be a finite number >= 0, got {v!r}")
+        h = self.heading_min_m
+        if not (isinstance(h, int | float) and h >= 0 and not math.isnan(h)):
+            raise GatingError(f"GateConfig.heading_min_m must be a number >= 0, got {h!r}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,10 +121,10 @@ class GateResult:
     """The outcome of `gate_tracks`.
 
     Attributes:
-        accepted: indices of the kept tracks (into the input), in chain (time) order.
+        accepted: indices of the kept tracks (into the input), in time order.
         rejected: indices of the dropped tracks, ascending.
-        weight: total weight of the kept chain.
-        order: all track indices in the time order the chain was built in.
+        weight: total weight of the kept tracks.
+        order: all track indices in time order (first sighting, then index).
     """
 
     accepted: tuple[int, ...]
@@ -120,10 +140,12 @@ class _Lanes:
         self.map = road_map
         self.cfg = config
         self.graph = road_map.lane_graph(0.0)
-        self._points: dict[Sighting, list[Waypoint]] = {}
+        self._points: dict[tuple, list[Waypoint]] = {}
 
-    def points(self, s: Sighting) -> list[Waypoint]:
-        key = s
+    def points(self, s: Sighting, heading: tuple[float, float] | None = None) -> list[Waypoint]:
+        """Lane points of one sighting; with a heading (unit vector, CARLA world) only
+        those of lanes driving within 90° of it (all when none does)."""
+        key = (s, heading)
         hit = self._points.get(key)
         if hit is not None:
             return hit
@@ -142,12 +164,22 @@ class _Lanes:
             if k not in seen and wp.key in self.graph._length:
                 seen.add(k)
                 unique.append(wp)
+        if heading is not None:
+            hx, hy = heading
+            ways = []
+            for wp in unique:
+                yaw = math.radians(wp.transform.rotation.yaw)
+                if math.cos(yaw) * hx + math.sin(yaw) * hy > 0.0:
+                    ways.append(wp)
+            unique = ways or unique
         self._points[key] = unique
         return unique
 
-    def cost(self, a: Sighting, b: Sighting, budget_m: float) -> float:
+    def cost(self, a: Sighting, b: Sighting, budget_m: float,
+             heading_a: tuple[float, float] | None = None,
+             heading_b: tuple[float, float] | None = None) -> float:
         """Least route cost from any lane point of a to any of b, metres (inf above budget)."""
-        pa, pb = self.points(a), self.points(b)
+        pa, pb = self.points(a, heading_a), self.points(b, heading_b)
         if not pa or not pb:
             return math.inf
         # The route is never shorter than the straight line between lane points.
@@ -162,13 +194,17 @@ class _Lanes:
 
 
 def reachable(road_map: RoadMap, a: Sighting, b: Sighting,
-              config: GateConfig = GateConfig(), _lanes: _Lanes | None = None) -> bool:
+              config: GateConfig = GateConfig(), _lanes: _Lanes | None = None,
+              heading_a: tuple[float, float] | None = None,
+              heading_b: tuple[float, float] | None = None) -> bool:
     """Whether a vehicle seen at `a` could be seen at `b` (b.t >= a.t; see the module rule).
 
     Args:
         road_map: the map (CARLA world, metres).
         a, b: two sightings, a no later than b (seconds).
         config: speed, slack and lane radius.
+        heading_a, heading_b: unit vectors (CARLA world) of the way each vehicle was
+            seen driving, or None (any lane direction).
 
     Returns:
         True when the least route cost over the candidate lane points is at most
@@ -181,27 +217,36 @@ def reachable(road_map: RoadMap, a: Sighting, b: Sighting,
         raise GatingError(f"reachable: b (t={b.t:g} s) is earlier than a (t={a.t:g} s)")
     lanes = _lanes if _lanes is not None else _Lanes(road_map, config)
     budget = config.max_speed_mps * (b.t - a.t) + config.slack_m
-    return lanes.cost(a, b, budget) <= budget
+    return lanes.cost(a, b, budget, heading_a, heading_b) <= budget
+
+
+def _heading(track: list[Sighting], min_m: float) -> tuple[float, float] | None:
+    """Unit vector of a track's displacement, first to last sighting, or None if shorter
+    than `min_m` metres."""
+    dx, dy = track[-1].x - track[0].x, track[-1].y - track[0].y
+    n = math.hypot(dx, dy)
+    return (dx / n, dy / n) if n >= min_m and n > 0 else None
 
 
 def _follows(road_map, lanes, cfg, a_track: list[Sighting], b_track: list[Sighting]) -> bool:
-    """Track B can follow track A in one car's chain (A starts no later than B)."""
+    """One car can have made both tracks, A starting no later than B."""
+    ha, hb = _heading(a_track, cfg.heading_min_m), _heading(b_track, cfg.heading_min_m)
     b0 = b_track[0]
     a_ref = [s for s in a_track if s.t <= b0.t][-1]  # A starts first: never empty
-    if not reachable(road_map, a_ref, b0, cfg, lanes):
+    if not reachable(road_map, a_ref, b0, cfg, lanes, ha, hb):
         return False
     a_last = a_track[-1]
     if a_last.t > b0.t:  # overlap in time: B must reach A's last sighting too
         back = [s for s in b_track if s.t <= a_last.t]
-        if not reachable(road_map, back[-1], a_last, cfg, lanes):
+        if not reachable(road_map, back[-1], a_last, cfg, lanes, hb, ha):
             return False
     return True
 
 
 def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
                 weights: Sequence[float] | None = None, anchor: int | None = None,
-                config: GateConfig = GateConfig()) -> GateResult:
-    """Keep the heaviest chain of candidate tracks one vehicle could have produced.
+                config: GateConfig = GateConfig(), method: str = "clique") -> GateResult:
+    """Keep the heaviest set of candidate tracks one vehicle could have produced.
 
     Args:
         road_map: the map (CARLA world, metres).
@@ -210,19 +255,23 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
         weights: one weight (>= 0, finite) per track; None: 1 each.
         anchor: index of a track that must be kept (the query's own track), or None.
         config: `GateConfig`.
+        method: "clique" (every pair consistent) or "chain" (consecutive pairs);
+            see the module docstring.
 
     Returns:
         `GateResult` (accepted indices in time order, rejected indices).
 
     Raises:
         GatingError: an empty track, a weight that is negative or not finite, the
-            wrong number of weights, or an anchor out of range.
+            wrong number of weights, an anchor out of range, an unknown method.
 
     Example:
         >>> r = gate_tracks(town01, [track_a, twin_track, track_b])  # doctest: +SKIP
         >>> r.accepted, r.rejected  # doctest: +SKIP
         ((0, 2), (1,))
     """
+    if method not in GATE_METHODS:
+        raise GatingError(f"unknown gating method {method!r}; valid: {', '.join(GATE_METHODS)}")
     n = len(tracks)
     w = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64)
     if w.shape != (n,):
@@ -246,6 +295,11 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
         for p in range(q):
             ok[p, q] = _follows(road_map, lanes, config, ts[order[p]], ts[order[q]])
     wo = w[order]
+    if method == "clique":
+        chain = _best_clique(ok, wo, None if anchor is None else order.index(anchor))
+        accepted = tuple(order[j] for j in chain)
+        rejected = tuple(sorted(set(range(n)) - set(accepted)))
+        return GateResult(accepted, rejected, float(wo[chain].sum()), tuple(order))
     # forward: best chain ending at q; backward: best chain starting at q
     fwd, fprev = wo.copy(), np.full(n, -1)
     for q in range(n):
@@ -278,3 +332,30 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
     accepted = tuple(order[j] for j in chain)
     rejected = tuple(sorted(set(range(n)) - set(accepted)))
     return GateResult(accepted, rejected, float(wo[chain].sum()), tuple(order))
+
+
+def _best_clique(ok: np.ndarray, w: np.ndarray, anchor: int | None) -> list[int]:
+    """Positions (time order) of the heaviest set whose every pair is consistent.
+
+    `ok[p, q]` (p < q) says positions p and q are consistent. Weights are scaled to
+    integers (1e-6 resolution) for `networkx.max_weight_clique`; nodes are added in
+    time order, so the answer is deterministic.
+    """
+    import networkx as nx
+
+    n = len(w)
+    nodes = range(n) if anchor is None else \
+        [j for j in range(n) if j != anchor and (ok[min(j, anchor), max(j, anchor)])]
+    g = nx.Graph()
+    for j in nodes:
+        g.add_node(j, weight=round(float(w[j]) * 1e6))
+    for p in nodes:
+        for q in nodes:
+            if p < q and ok[p, q]:
+                g.add_edge(p, q)
+    best, _ = nx.max_weight_clique(g, weight="weight") if len(g) else ([], 0)
+    if anchor is not None:
+        best = [*best, anchor]
+    if not best:  # every weight 0 and no anchor: the first track alone
+        best = [0]
+    return sorted(best)
