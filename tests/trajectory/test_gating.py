@@ -166,3 +166,17 @@ def test_clique_checks_every_pair_the_chain_only_neighbours(town01):
     assert clique.accepted == (0, 1, 3) and clique.rejected == (2,)
     with pytest.raises(GatingError, match="unknown gating method 'greedy'; valid: clique, chain"):
         gate_tracks(town01, tracks, method="greedy")
+
+
+def test_jitter_behind_is_not_a_loop(town01):
+    # Driving +x on road 12 (lane -1): an estimate 5 m behind the previous one half a
+    # second later is localization jitter; 30 m behind is not (> slack_m = 20 m), and
+    # with the heading known the opposite lane is no reading either.
+    east = (1.0, 0.0)
+    a = sight(town01, 0.0, 12, 100.0)
+    assert reachable(town01, a, sight(town01, 0.5, 12, 95.0), heading_a=east, heading_b=east)
+    assert not reachable(town01, a, sight(town01, 0.5, 12, 70.0), heading_a=east,
+                         heading_b=east)
+    # without the heading, lane 1 (driving -x) explains 30 m "backwards" in 0.5 s at
+    # 15 m/s + 20 m slack
+    assert reachable(town01, a, sight(town01, 0.5, 12, 75.0))

@@ -16,8 +16,10 @@ The rule (`gate_tracks`):
 
    and, when the two tracks overlap in time, the same from B back to A's last
    sighting (both tracks describe one car at once, so each must be able to reach
-   the other). ``route_cost`` is the lane graph's shortest route in metres with
-   no lane-change penalty (a distance, not a preference). A localized position
+   the other). A sighting at most ``slack_m`` *behind* the other along the lanes
+   counts as reachable (cost 0): localization jitter, not a loop around the block.
+   ``route_cost`` is the lane graph's shortest route in metres with no lane-change
+   penalty (a distance, not a preference). A localized position
    is ambiguous, so each sighting stands for several lane points and the cost is
    the least over all pairs of them:
 
@@ -29,9 +31,10 @@ The rule (`gate_tracks`):
      pushed across the road centre, must not make a true match look like a
      U-turn).
 
-   A track that moved at least `heading_min_m` between its first and last
-   sighting shows which way it drives: its lane points are then only those whose
-   driving direction is within 90° of that displacement (all of them if none is).
+   A track that moved at least `heading_min_m` within `heading_window_s` of a
+   sighting shows which way it drives there: that sighting's lane points are then
+   only those whose driving direction is within 90° of the displacement (all of
+   them if none is).
    So the gate is lenient by construction: it drops only candidates that are
    impossible under every reading of the positions; `slack_m` absorbs the
    remaining localization error at both ends.
@@ -97,17 +100,19 @@ class GateConfig:
             snapping.
         radius_m: driving lanes within this distance of an estimated position are
             candidate lanes of that sighting, metres.
-        heading_min_m: a track that moved this far (first to last sighting) keeps only
-            lanes driving its way, metres (inf: never).
+        heading_min_m: a track that moved this far within `heading_window_s` of a
+            sighting keeps only lanes driving its way there, metres (inf: never).
+        heading_window_s: half-width of that time window, seconds.
     """
 
     max_speed_mps: float = 15.0
     slack_m: float = 20.0
     radius_m: float = 5.0
     heading_min_m: float = 8.0
+    heading_window_s: float = 3.0
 
     def __post_init__(self) -> None:
-        for name in ("max_speed_mps", "slack_m", "radius_m"):
+        for name in ("max_speed_mps", "slack_m", "radius_m", "heading_window_s"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
                 raise GatingError(f"GateConfig.{name} must be a finite number >= 0, got {v!r}")
@@ -190,6 +195,13 @@ class _Lanes:
         for wa in pa:
             c = self.graph.route_costs(wa, pb, max_cost_m=budget_m)
             best = min(best, float(c.min()))
+        if best > budget_m and self.cfg.slack_m > 0:
+            # b at most slack_m *behind* a along the lanes: localization jitter, not a
+            # loop around the block (the route from b forward to a is that short)
+            for wb in pb:
+                c = self.graph.route_costs(wb, pa, max_cost_m=self.cfg.slack_m)
+                if float(c.min()) <= self.cfg.slack_m:
+                    return 0.0
         return best
 
 
@@ -220,25 +232,31 @@ def reachable(road_map: RoadMap, a: Sighting, b: Sighting,
     return lanes.cost(a, b, budget, heading_a, heading_b) <= budget
 
 
-def _heading(track: list[Sighting], min_m: float) -> tuple[float, float] | None:
-    """Unit vector of a track's displacement, first to last sighting, or None if shorter
-    than `min_m` metres."""
-    dx, dy = track[-1].x - track[0].x, track[-1].y - track[0].y
+def _heading(track: list[Sighting], at: Sighting, min_m: float,
+             window_s: float) -> tuple[float, float] | None:
+    """Unit vector of a track's displacement around one of its sightings: from the first
+    to the last of its sightings within `window_s` seconds of it; None if that is
+    shorter than `min_m` metres (a turn further along the track does not count)."""
+    near = [s for s in track if abs(s.t - at.t) <= window_s]
+    dx, dy = near[-1].x - near[0].x, near[-1].y - near[0].y
     n = math.hypot(dx, dy)
     return (dx / n, dy / n) if n >= min_m and n > 0 else None
 
 
 def _follows(road_map, lanes, cfg, a_track: list[Sighting], b_track: list[Sighting]) -> bool:
     """One car can have made both tracks, A starting no later than B."""
-    ha, hb = _heading(a_track, cfg.heading_min_m), _heading(b_track, cfg.heading_min_m)
+    def head(track, s):
+        return _heading(track, s, cfg.heading_min_m, cfg.heading_window_s)
+
     b0 = b_track[0]
     a_ref = [s for s in a_track if s.t <= b0.t][-1]  # A starts first: never empty
-    if not reachable(road_map, a_ref, b0, cfg, lanes, ha, hb):
+    if not reachable(road_map, a_ref, b0, cfg, lanes, head(a_track, a_ref), head(b_track, b0)):
         return False
     a_last = a_track[-1]
     if a_last.t > b0.t:  # overlap in time: B must reach A's last sighting too
-        back = [s for s in b_track if s.t <= a_last.t]
-        if not reachable(road_map, back[-1], a_last, cfg, lanes, hb, ha):
+        b_ref = [s for s in b_track if s.t <= a_last.t][-1]
+        if not reachable(road_map, b_ref, a_last, cfg, lanes, head(b_track, b_ref),
+                         head(a_track, a_last)):
             return False
     return True
 
