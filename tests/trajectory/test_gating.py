@@ -180,3 +180,18 @@ def test_jitter_behind_is_not_a_loop(town01):
     # without the heading, lane 1 (driving -x) explains 30 m "backwards" in 0.5 s at
     # 15 m/s + 20 m slack
     assert reachable(town01, a, sight(town01, 0.5, 12, 75.0))
+
+
+def test_one_cameras_simultaneous_tracks_are_two_vehicles(town01):
+    # observer 1 follows the target (track 1) and, for a second, also sees a look-alike
+    # beside it (track 2): close enough for any position reading, but one camera's two
+    # tracks at one moment are two vehicles; the same look-alike seen by another
+    # observer (3) could be the target's own track
+    target = drive(town01, 0.0, 6.0, 12, 20.0, obs=1, track=1)
+    beside = [sight(town01, t, 12, 20.0 + 10.0 * t + 3.0, lane=1, obs=1, track=2)
+              for t in (2.0, 2.5)]
+    r = gate_tracks(town01, [target, beside], anchor=0)
+    assert r.accepted == (0,) and r.rejected == (1,)
+    other_cam = [sight(town01, t, 12, 20.0 + 10.0 * t + 3.0, lane=1, obs=3, track=2)
+                 for t in (2.0, 2.5)]
+    assert gate_tracks(town01, [target, other_cam], anchor=0).accepted == (0, 1)

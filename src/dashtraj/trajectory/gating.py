@@ -16,7 +16,9 @@ The rule (`gate_tracks`):
 
    and, when the two tracks overlap in time, the same from B back to A's last
    sighting (both tracks describe one car at once, so each must be able to reach
-   the other). A sighting at most ``slack_m`` *behind* the other along the lanes
+   the other). Two tracks of one observer that overlap in time are two vehicles
+   (its tracker kept them apart in the same frames), so never both the target.
+   A sighting at most ``slack_m`` *behind* the other along the lanes
    counts as reachable (cost 0): localization jitter, not a loop around the block.
    ``route_cost`` is the lane graph's shortest route in metres with no lane-change
    penalty (a distance, not a preference). A localized position
@@ -245,10 +247,13 @@ def _heading(track: list[Sighting], at: Sighting, min_m: float,
 
 def _follows(road_map, lanes, cfg, a_track: list[Sighting], b_track: list[Sighting]) -> bool:
     """One car can have made both tracks, A starting no later than B."""
+    b0 = b_track[0]
+    if (a_track[-1].t >= b0.t and a_track[0].observer_id == b0.observer_id
+            and a_track[0].track_id != b0.track_id):
+        return False  # one camera's two tracks at one moment are two vehicles
     def head(track, s):
         return _heading(track, s, cfg.heading_min_m, cfg.heading_window_s)
 
-    b0 = b_track[0]
     a_ref = [s for s in a_track if s.t <= b0.t][-1]  # A starts first: never empty
     if not reachable(road_map, a_ref, b0, cfg, lanes, head(a_track, a_ref), head(b_track, b0)):
         return False
