@@ -29,9 +29,10 @@ How the target's tracks are picked among the candidates (`REID_MODES`):
 - ``look-alike``: every track of the target and of its twins (`twins`) is a
   candidate: an appearance model that tells every vehicle apart except exact
   look-alikes (same model and colour). With `gate` the spatio-temporal gate
-  (`dashtraj.trajectory.gating`) keeps the heaviest chain of candidates the target
-  could have driven, through the track of its first sighting (the query). This
-  measures what the gate does to precision when appearance cannot help.
+  (`dashtraj.trajectory.gating`) keeps the heaviest consistent set of candidates
+  (weight: sightings per track) containing the track of the target's first
+  sighting (the query). This measures what the gate does to precision when
+  appearance cannot help.
 
 Per method the summary holds the issue's keys ``sspd_whole_m``, ``sspd_seen_m``,
 ``hausdorff_seen_m`` (and ``hausdorff_whole_m``) beside the older ``sspd_m``,
@@ -264,7 +265,8 @@ def target_sightings(config: ExperimentConfig, rec, out: Path, road_map) -> tupl
         if own:
             first = min(own, key=lambda k: (min(s.t for s in tracks[k]), k))
             anchor = candidates.index(first)
-        res = gate_tracks(road_map, [tracks[k] for k in candidates], anchor=anchor)
+        res = gate_tracks(road_map, [tracks[k] for k in candidates], anchor=anchor,
+                          weights=[len(tracks[k]) for k in candidates])
         accepted = [candidates[i] for i in res.accepted]
     keep = set(accepted)
     sightings = sorted((s for k in accepted for s in tracks[k]), key=lambda s: (s.t, s.observer_id))

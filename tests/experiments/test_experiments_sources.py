@@ -76,3 +76,20 @@ def test_detections_source_from_pixels(tmp_path):
         truth = truth_of_tracks(db, 15.0)
     assert all(truth[(x.observer_id, x.track_id)] == 0 for x in res.sightings)
     assert s["methods"]["hmm"]["sspd_seen_m"] < 5.0
+
+
+def test_look_alikes_gate_raises_precision(tmp_path):
+    # three exact twins of the target; appearance that cannot tell them apart accepts
+    # every twin track it saw; the gate drops those the target could not have made
+    # (town01, seed 0: 11 candidate tracks, 6 of them the target's)
+    runs = {}
+    for gate in (False, True):
+        cfg = ExperimentConfig(town="town01", seed=0, twins=3, reid="look-alike", gate=gate)
+        runs[gate] = run_experiment(cfg, tmp_path / str(gate)).summary
+    off, on = runs[False], runs[True]
+    assert off["reid_candidates"] == on["reid_candidates"] == 11
+    assert (off["reid_true_matches"], off["reid_false_matches"]) == (6, 5)
+    assert off["reid_gated_out"] == 0
+    assert (on["reid_true_matches"], on["reid_false_matches"], on["reid_misses"]) == (6, 0, 0)
+    assert on["reid_precision"] == 1.0 and on["reid_gated_out"] == 5
+    assert on["methods"]["hmm"]["sspd_whole_m"] < off["methods"]["hmm"]["sspd_whole_m"]

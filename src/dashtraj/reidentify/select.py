@@ -8,11 +8,13 @@
    chain one vehicle could have driven on the lane graph, through the query's own
    track when it is a candidate (the anchor).
 
-Chain weights: 1 per track plus a tie-breaker below 1 that grows with the
-appearance margin, ``(threshold − distance) / threshold / 2`` clipped to [0, 0.5):
-the gate keeps the most tracks that fit together, and among equally long chains
-the one that looks more like the query. (A track's number of sightings is not its
-weight: a look-alike's long track must not outweigh two short true ones.)
+Weights: a track's number of sightings (sampled at a fixed period, so: how long
+it was seen) times ``1 + margin``, the appearance margin
+``(threshold − distance) / threshold / 2`` clipped to [0, 0.5). The gate keeps the
+consistent set that explains the most observation time; appearance breaks near
+ties. (One per track was tried first: with exact look-alikes, several short
+look-alike tracks then outvoted one long track of the target's; see the README's
+look-alike figures.)
 """
 
 from __future__ import annotations
@@ -80,7 +82,8 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
         return Selection(tuple(decisions), cand_keys, cand_keys, ())
     placed = [d for d in cand if len(sightings.get(d.key, ())) > 0]
     scale = threshold if threshold > 0 else 1.0
-    weights = [1.0 + float(np.clip((threshold - d.distance) / scale / 2, 0.0, 0.499))
+    weights = [len(sightings[d.key])
+               * (1.0 + float(np.clip((threshold - d.distance) / scale / 2, 0.0, 0.499)))
                for d in placed]
     idx = {d.key: i for i, d in enumerate(placed)}
     res = gate_tracks(road_map, [sightings[d.key] for d in placed], weights=weights,
