@@ -54,6 +54,7 @@ def test_config_round_trip_and_bad_source():
         ExperimentConfig(sightings="vision")
 
 
+@pytest.mark.slow
 def test_detections_source_from_pixels(tmp_path):
     # A short run from rendered frames: perceive (oracle detector, ego tracker, fused
     # localizer) into sightings.db, the target's tracks picked by true identity, then
