@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
-from dashtraj.cli._args import HelpFormatter, seed_list
+from dashtraj.cli._args import HelpFormatter, count, seed_list
 from dashtraj.outputs import add_output_args
 
 DESCRIPTION = """\
@@ -16,6 +17,16 @@ noise by default), reconstruct its route with the paper's method (shortest-path)
 dashtraj's HMM, and score both against the true route with SSPD and Hausdorff distance
 (metres), over the whole trip and over the stretch between the first and last sighting.
 The default is the paper's set: five seeds in town01 and five in town10.
+
+--sightings detections runs the camera pipeline instead of the oracle (perceive with the
+oracle detector: render, track, localize, map-match into OUT/<run>/sightings.db) and picks
+the target's tracks by their true identity: the error of tracking and localization alone
+(no appearance ReID yet). ReID precision/recall are reported per experiment and over all
+tracks; with both sources the target's tracks are picked by identity, so they are 1.0 by
+construction. --twins N adds N agents of the target's exact model and colour; with
+--reid look-alike every track of the target and its twins is a candidate (appearance that
+cannot tell exact look-alikes apart) and the spatio-temporal gate on the lane graph keeps
+the chain the target could have driven (--no-gate: keep all, the paper's way).
 
 Writes OUT/<town>_seed<N>/ (recording/, sightings.csv, truth.csv, estimate_<method>.csv,
 summary.json) and OUT/summary.json (every experiment and the means)."""
@@ -32,6 +43,16 @@ def register(sub) -> None:
                    help="seeds per town: a range A-B, a list a,b,c, or a count N (0..N-1)")
     p.add_argument("--noise", choices=("paper", "none"), default="paper",
                    help="localization noise of the oracle sightings")
+    p.add_argument("--sightings", choices=("oracle", "detections"), default="oracle",
+                   help="the target's sightings: the oracle with --noise, or the camera pipeline "
+                        "(oracle detector) with the target's tracks picked by true identity")
+    p.add_argument("--twins", type=count, default=0, metavar="N",
+                   help="agents of the target's exact model and colour (default 0)")
+    p.add_argument("--reid", choices=("identity", "look-alike"), default="identity",
+                   help="pick the target's tracks by identity (reference) or among every "
+                        "look-alike's (target and twins) with the gate")
+    p.add_argument("--gate", action=argparse.BooleanOptionalAction, default=True,
+                   help="with --reid look-alike: the spatio-temporal gate (default on)")
     p.add_argument("-o", "--output", default="runs/experiments", help="output folder")
     add_output_args(p)
     p.add_argument("--plots", action="store_true", help="also save a picture per experiment")
@@ -50,6 +71,8 @@ def run(args) -> int:
         PAPER_SSPD_M,
         ExperimentConfig,
         aggregate,
+        aggregate_reid,
+        figures,
         plot_experiment,
         run_experiment,
     )
@@ -64,16 +87,20 @@ def run(args) -> int:
             raise ArgumentError(f"--towns {town!r} is neither a file nor a built-in town "
                                 f"({exc})") from None
     summaries = []
+    names = []
     header = False
     with atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:
         for town in args.towns:
             for seed in args.seeds:
-                cfg = ExperimentConfig(town=town, seed=seed, noise=args.noise)
+                cfg = ExperimentConfig(town=town, seed=seed, noise=args.noise,
+                                       sightings=args.sightings, twins=args.twins,
+                                       reid=args.reid, gate=args.gate)
                 name = f"{town_label(town)}_seed{seed}"
                 res = run_experiment(cfg, tmp / name)
                 if args.plots:
                     plot_experiment(res, tmp / name / "trajectory.png")
                 summaries.append(res.summary)
+                names.append(name)
                 if args.json:
                     continue
                 m = res.summary["methods"]
@@ -86,15 +113,29 @@ def run(args) -> int:
                 print(f"{name:16s} {res.summary['sightings']:9d} "
                       f"{res.summary['observers_that_saw_target']:9d}   {row}", flush=True)
         agg = aggregate(summaries)
+        reid = aggregate_reid(summaries)
         (tmp / "summary.json").write_text(
-            json.dumps({"experiments": summaries, "aggregate": agg}, indent=2) + "\n")
+            json.dumps({"experiments": summaries, "aggregate": agg, "reid": reid}, indent=2)
+            + "\n")
     if args.json:
-        print(json.dumps(agg, indent=2))
+        mean = {"methods": {m: {k: a[k] for k in ("sspd_whole_m", "sspd_seen_m",
+                                                  "hausdorff_whole_m", "hausdorff_seen_m")}
+                            for m, a in agg.items()},
+                "experiments": len(summaries), **reid}
+        print(json.dumps({"experiments": [figures(n, s) for n, s in zip(names, summaries,
+                                                                          strict=True)],
+                          "mean": mean, "aggregate": agg}, indent=2))
         return 0
     print(f"\nmean over {len(summaries)} experiments (SSPD whole trip / seen stretch; "
           f"the paper: {PAPER_SSPD_M} m whole trip):")
     for method, a in agg.items():
         print(f"  {method:14s} SSPD {a['mean_sspd_m']:6.2f} m / {a['mean_seen_sspd_m']:5.2f} m"
               f"   Hausdorff {a['mean_hausdorff_m']:6.2f} m / {a['mean_seen_hausdorff_m']:6.2f} m")
+    how = ("by construction: tracks picked by their true identity" if args.reid == "identity"
+           else f"look-alikes of the target, gate {'on' if args.gate else 'off'}")
+    p_, r_ = reid["reid_precision"], reid["reid_recall"]
+    print(f"  ReID over {reid['reid_true_matches'] + reid['reid_false_matches']} accepted "
+          f"tracks: precision {'-' if p_ is None else f'{p_:.3f}'}, recall "
+          f"{'-' if r_ is None else f'{r_:.3f}'} ({how})")
     print(f"files: {out}/")
     return 0

@@ -27,6 +27,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--agents", type=count, default=20,
                    help="other cars (default 20; a town holds about one vehicle per 20 m of "
                         "lane, e.g. town01 about 230)")
+    p.add_argument("--twins", type=count, default=0, metavar="N",
+                   help="N more agents of the target's exact model and colour (look-alikes "
+                        "for re-identification; default 0)")
     p.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
     p.add_argument("--identities", type=_id_range, metavar="LO-HI",
                    help="draw vehicle identities with LO <= identity_id < HI only (e.g. "
@@ -120,7 +123,7 @@ def run_simulate(args: argparse.Namespace) -> int:
                             f"{args.duration:g} s")
     config = RunConfig(map=args.town, seed=args.seed, duration_s=args.duration,
                        n_observers=args.observers, n_agents=args.agents,
-                       until_target_arrives=args.until_target_arrives,
+                       n_twins=args.twins, until_target_arrives=args.until_target_arrives,
                        identity_range=args.identities,
                        traffic=replace(TrafficConfig(), step_s=args.step,
                                        observer_placement=args.observer_placement,

@@ -6,7 +6,9 @@ A recording is a directory:
     format ("dashtraj-recording") and format_version (1); map (source as given,
     "map.xodr", sha256 of the .xodr bytes); seed; step_s; duration_s asked for;
     simulated_to_t (s); complete (false until the run ended normally);
-    target_arrived_t (s or null); camera (the `CameraSpec`); catalog_version;
+    target_arrived_t (s or null); target_vehicle_id (0); observer_ids;
+    twin_vehicle_ids (agents of the target's exact identity, `RunConfig.n_twins`);
+    camera (the `CameraSpec`); catalog_version;
     observer_roles ({vehicle id: "oncoming" | "following" | "crossing" | "parked"}
     with "meet" placement, empty otherwise); parked_observer_ids (the observers
     that stand still at the roadside for the whole run, with either placement;
@@ -103,6 +105,11 @@ class RunConfig:
         seed: seed of every random choice.
         duration_s: simulated time, seconds (the longest, with `until_target_arrives`).
         n_observers, n_agents: vehicle counts (plus one target).
+        n_twins: extra agents of the target's exact catalog identity (model and
+            colour): look-alikes that appearance alone cannot tell apart. They come
+            after the other vehicles (the last ids), drive as agents, and are listed
+            in meta.json's ``twin_vehicle_ids``; the others' identities are the same
+            as with no twins (drawn first, from the same seed).
         until_target_arrives: stop as soon as the target reaches its destination.
         truth_step_s: camera frame period for the ground truth, seconds.
         max_range_m: truth is kept for vehicles this close to a camera, metres.
@@ -123,6 +130,7 @@ class RunConfig:
     duration_s: float = 180.0
     n_observers: int = 4
     n_agents: int = 20
+    n_twins: int = 0
     until_target_arrives: bool = False
     truth_step_s: float = 0.1
     max_range_m: float = 60.0
@@ -247,7 +255,7 @@ def _check_config(config: RunConfig) -> None:
     if not (math.isfinite(step) and 0 < step <= config.duration_s):
         raise RecordingError(f"run config: step_s must be > 0 and at most duration_s "
                              f"({config.duration_s:g} s), got {step!r}")
-    for name in ("n_observers", "n_agents"):
+    for name in ("n_observers", "n_agents", "n_twins"):
         v = getattr(config, name)
         if not (isinstance(v, int) and v >= 0):
             raise RecordingError(f"run config: {name} must be an integer >= 0, got {v!r}")
@@ -282,10 +290,13 @@ def simulate(config: RunConfig, out_dir: str | Path,
     road_map = RoadMap.from_string(xodr, name=name)
     seeds = np.random.SeedSequence(config.seed).spawn(2)
     rng_ids, rng_traffic = (np.random.default_rng(s) for s in seeds)
-    n = 1 + config.n_observers + config.n_agents
-    rows, catalog_version = _identities(rng_ids, n, config.vehicle_classes,
+    n_own = 1 + config.n_observers + config.n_agents
+    rows, catalog_version = _identities(rng_ids, n_own, config.vehicle_classes,
                                         config.identity_range)
-    roles = ["target"] + ["observer"] * config.n_observers + ["agent"] * config.n_agents
+    rows += [dict(rows[0]) for _ in range(config.n_twins)]  # the target's identity again
+    n = len(rows)
+    roles = (["target"] + ["observer"] * config.n_observers
+             + ["agent"] * (config.n_agents + config.n_twins))
     for vid, (row, role) in enumerate(zip(rows, roles, strict=True)):
         row["vehicle_id"] = vid
         row["role"] = role
@@ -302,7 +313,8 @@ def simulate(config: RunConfig, out_dir: str | Path,
         raise RecordingError(
             f"{name} has room for about {capacity} vehicles (one per "
             f"{CAPACITY_HINT_M:g} m of lane outside junctions); asked for {n} (1 target + "
-            f"{config.n_observers} observers + {config.n_agents} agents): ask for fewer agents")
+            f"{config.n_observers} observers + {config.n_agents} agents"
+            f"{f' + {config.n_twins} twins' if config.n_twins else ''}): ask for fewer agents")
     sim = TrafficSim(net, specs, config.traffic, rng_traffic, target_route=config.target_route)
     out.mkdir(parents=True, exist_ok=True)
     (out / "map.xodr").write_bytes(xodr)
@@ -322,6 +334,7 @@ def simulate(config: RunConfig, out_dir: str | Path,
         "seed": config.seed, "step_s": step, "duration_s": config.duration_s,
         "simulated_to_t": 0.0, "complete": False, "target_arrived_t": None,
         "target_vehicle_id": 0, "observer_ids": obs_idx.tolist(),
+        "twin_vehicle_ids": list(range(n_own, n)),
         "observer_roles": {str(int(sim.ids[i])): role
                            for i, role in sorted(sim.meet_roles.items())},
         "parked_observer_ids": [int(sim.ids[i]) for i in np.flatnonzero(sim.parked)],
