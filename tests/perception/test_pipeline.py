@@ -122,5 +122,6 @@ def test_sightings_command_takes_the_camera_pipeline(small_run, gl_available, tm
     rows = read_sightings(out)
     assert rows and {r.observer_id for r in rows} <= {1, 2, 3}
     assert "from" in capsys.readouterr().out
-    assert main(["sightings", str(small_run.path), "-o", str(tmp_path / "x.csv")]) == 2
-    assert "choose a source" in capsys.readouterr().err
+    # no source flag: the oracle is the default source (issue 8)
+    assert main(["sightings", str(small_run.path), "-o", str(tmp_path / "x.csv")]) == 0
+    assert "(noise none)" in capsys.readouterr().out
