@@ -1,9 +1,24 @@
-"""Road-layer benchmark: load Town10HD, 10,000 get_waypoint queries, 1,000 routes.
+"""Road-layer benchmark: map queries side by side with CARLA's own `carla.Map`, then routes.
 
-Run: ``python bench/bench_roads.py [--map PATH] [--json]`` (default map:
+Run: ``python bench/bench_roads.py [--map PATH] [--json] [--routes N]`` (default map:
 ../shared/maps/carla/Town10HD.xodr, else the built-in town10).
 
-Peers, measured in the same run when installed (``pip install -e '.[bench]'``):
+First peer, `carla.Map` (the ``carla`` client from PyPI builds CARLA's C++ map from
+OpenDRIVE text, no server needed; in the dev extra): each operation is timed for
+dashtraj and for CARLA in alternation in the same run (medians of repeats), and the
+ratio dashtraj / CARLA is printed beside the issue's target:
+
+- load + index: read the file and build the map with its spatial index
+  (`RoadMap.from_file` + the Driving-lane index; ``carla.Map(name, text)``, which
+  builds CARLA's R-tree) - target ≤ 1.0×;
+- one `get_waypoint` call (per call, over 1,000 random points in the map's extent,
+  with a z as CARLA always has one) - target ≤ 2.0×;
+- 10,000 points vectorised (`RoadMap.project`) per point, against CARLA's single
+  call per point - target ≥ 5× faster (ratio ≤ 0.2);
+- `generate_waypoints(2.0)` - target ≤ 1.0×; `get_topology()` and `Waypoint.next(2.0)`
+  (per call, over 1,000 waypoints) - reported.
+
+Further peers, measured in the same run when installed (``pip install -e '.[bench]'``):
 - pyxodr (pure-Python OpenDRIVE reader): RoadNetwork + every lane centre line at
   1 m resolution, the nearest equivalent of our load-and-index;
 - roadgen (Rust reader): ``read_opendrive(path, sampling=1.0)``;
@@ -28,7 +43,80 @@ from pathlib import Path
 import networkx as nx
 import numpy as np
 
-from dashtraj.roads import LaneType, RoadMap
+from dashtraj.roads import LaneType, Location, RoadMap
+
+
+def _alternate(ours, theirs, repeats: int, per: int = 1) -> tuple[float, float]:
+    """Median seconds (divided by `per`) of `ours` and `theirs`, run in alternation so
+    that both see the same machine load."""
+    a, b = [], []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        ours()
+        t1 = time.perf_counter()
+        theirs()
+        t2 = time.perf_counter()
+        a.append((t1 - t0) / per)
+        b.append((t2 - t1) / per)
+    return statistics.median(a), statistics.median(b)
+
+
+def _carla_side_by_side(path: Path, res: dict) -> list[tuple[str, str, float, float, str]]:
+    """Time dashtraj against carla.Map on the same map; rows (name, unit, ours, carla, target)."""
+    import carla
+
+    text_of = path.read_text
+    name = path.stem
+    rows = []
+    _load_ours(path)
+    carla.Map(name, text_of())
+    ours_t, carla_t = _alternate(lambda: _load_ours(path), lambda: carla.Map(name, text_of()), 15)
+    rows.append(("load + index", "ms", ours_t * 1e3, carla_t * 1e3, "≤ 1.0×"))
+
+    m = _load_ours(path)
+    cm = carla.Map(name, text_of())
+    rng = np.random.default_rng(7)
+    x0, y0, x1, y1 = m.extent
+    pts = np.column_stack([rng.uniform(x0, x1, 1000), rng.uniform(y0, y1, 1000)])
+    ours_locs = [Location(float(x), float(y), 0.0) for x, y in pts]
+    ours_xy = [(float(x), float(y)) for x, y in pts]
+    carla_locs = [carla.Location(float(x), float(y), 0.0) for x, y in pts]
+    m.get_waypoint(ours_locs[0])
+    m.get_waypoint(ours_xy[0])
+    gw = m.get_waypoint
+    cgw = cm.get_waypoint
+    ours_t, carla_t = _alternate(lambda: [gw(p) for p in ours_locs],
+                                 lambda: [cgw(p) for p in carla_locs], 7, per=len(pts))
+    rows.append(("get_waypoint, one call (x, y, z)", "µs", ours_t * 1e6, carla_t * 1e6, "≤ 2.0×"))
+    ours_t, carla_t = _alternate(lambda: [gw(p) for p in ours_xy],
+                                 lambda: [cgw(p) for p in carla_locs], 7, per=len(pts))
+    rows.append(("get_waypoint, one call (x, y)", "µs", ours_t * 1e6, carla_t * 1e6, "≤ 2.0×"))
+    # Answers: the same lane as CARLA's (bar exact ties between overlapping lanes).
+    same = sum((w.road_id, w.lane_id) == (c.road_id, c.lane_id)
+               for w, c in zip([gw(p) for p in ours_locs], [cgw(p) for p in carla_locs],
+                               strict=True))
+    res["carla_same_lane_fraction"] = same / len(pts)
+
+    big = np.column_stack([rng.uniform(x0, x1, 10_000), rng.uniform(y0, y1, 10_000)])
+    m.project(big)
+    ours_t, carla_t = _alternate(lambda: m.project(big),
+                                 lambda: [cgw(p) for p in carla_locs], 7)
+    rows.append(("10,000 points vectorised, per point", "µs", ours_t / 10_000 * 1e6,
+                 carla_t / len(pts) * 1e6, "≤ 0.2× (5× faster)"))
+
+    ours_t, carla_t = _alternate(lambda: m.generate_waypoints(2.0),
+                                 lambda: cm.generate_waypoints(2.0), 15)
+    rows.append(("generate_waypoints(2.0)", "ms", ours_t * 1e3, carla_t * 1e3, "≤ 1.0×"))
+    res["generate_waypoints_count"] = [len(m.generate_waypoints(2.0)),
+                                       len(cm.generate_waypoints(2.0))]
+    ours_t, carla_t = _alternate(m.get_topology, cm.get_topology, 15)
+    rows.append(("get_topology()", "ms", ours_t * 1e3, carla_t * 1e3, "—"))
+    wps = m.generate_waypoints(2.0)[:1000]
+    cwps = cm.generate_waypoints(2.0)[:1000]
+    ours_t, carla_t = _alternate(lambda: [w.next(2.0) for w in wps],
+                                 lambda: [w.next(2.0) for w in cwps], 7, per=len(wps))
+    rows.append(("Waypoint.next(2.0), one call", "µs", ours_t * 1e6, carla_t * 1e6, "—"))
+    return rows
 
 
 def _median_time(fn, repeats: int) -> float:
@@ -129,6 +217,16 @@ def main(argv: list[str] | None = None) -> int:
         path = town_path("town10")
     res: dict = {"map": str(path)}
 
+    # 0. side by side with carla.Map
+    try:
+        rows = _carla_side_by_side(path, res)
+    except ImportError as exc:
+        rows = []
+        res["carla_error"] = f"{type(exc).__name__}: {exc}"[:200]
+    res["carla"] = [{"op": op, "unit": unit, "dashtraj": ours, "carla": theirs,
+                     "ratio": ours / theirs, "target": target}
+                    for op, unit, ours, theirs, target in rows]
+
     # 1. load and index
     _load_ours(path)
     res["load_s"] = _median_time(lambda: _load_ours(path), 15)
@@ -193,6 +291,21 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(res, indent=2))
         return 0
     print(f"map: {res['map']}")
+    if rows:
+        print("dashtraj vs carla.Map (CARLA 0.9.16's C++ map, same run, alternating):")
+        print(f"  {'operation':38s} {'dashtraj':>10s} {'carla':>10s}  ratio   target")
+        for r in res["carla"]:
+            tgt = r["target"]
+            if tgt.startswith("≤"):
+                bound = float(tgt.split()[1].rstrip("×"))
+                tgt += "  met" if r["ratio"] <= bound else "  NOT met"
+            print(f"  {r['op']:38s} {r['dashtraj']:8.2f} {r['unit']:2s} {r['carla']:7.2f} "
+                  f"{r['unit']:2s} {r['ratio']:5.2f}×  {tgt}")
+        print(f"  same lane as CARLA's get_waypoint: {res['carla_same_lane_fraction']:.1%} of "
+              "1,000 points; generate_waypoints counts (dashtraj, carla): "
+              f"{res['generate_waypoints_count']}")
+    else:
+        print(f"carla.Map not measured ({res.get('carla_error')})")
     print(f"load + index        {res['load_s'] * 1e3:8.1f} ms  (target ≤ 60 ms)")
     for peer in ("pyxodr", "roadgen"):
         t = res.get(f"load_{peer}_s")

@@ -49,6 +49,11 @@ class DetectionConfig:
         max_occlusion: largest labelled 1 − visible_fraction.
         val_fraction: share of recordings (or observers, with one recording) in val.
         seed: seed of the split.
+        randomize: draw a look per image (``dashtraj.render.randomize``: weather, sun,
+            scene colours, textures, camera effects) from
+            ``default_rng([randomize_seed, recording index, observer, frame])``; the
+            drawn looks go to ``looks.parquet`` (one row per image).
+        randomize_seed: seed of those draws.
     """
 
     every_s: float = 0.5
@@ -57,6 +62,8 @@ class DetectionConfig:
     max_occlusion: float = 0.7
     val_fraction: float = 0.2
     seed: int = 0
+    randomize: bool = False
+    randomize_seed: int = 0
 
 
 def yolo_lines(labels, width: int, height: int, min_box_height_px: float,
@@ -155,8 +162,15 @@ def build_detection_dataset(recordings, out_dir, config: DetectionConfig = Detec
         obs_val = dict(zip(obs, split_units(len(obs), config.val_fraction, rng).tolist(),
                            strict=True))
         val_units = [o for o in obs if obs_val[o]]
+    look_rows: list[dict] = []
     for ri, rec in enumerate(recs):
-        for rf in recording_frames(rec, config.every_s, (w, h)):
+        look_for = None
+        if config.randomize:
+            from dashtraj.render.randomize import frame_rng, random_look
+
+            def look_for(o, k, ri=ri):
+                return random_look(frame_rng(config.randomize_seed, ri, o, k))
+        for rf in recording_frames(rec, config.every_s, (w, h), look_for=look_for):
             is_val = rec_val[ri] if split_by == "recording" else obs_val[rf.observer_id]
             split = "val" if is_val else "train"
             stem = f"r{ri:02d}_{rec.path.name}_o{rf.observer_id}_{rf.frame:06d}"
@@ -165,6 +179,9 @@ def build_detection_dataset(recordings, out_dir, config: DetectionConfig = Detec
             (out / "images" / split / f"{stem}.jpg").write_bytes(encode_jpeg(rf.frame_data.rgb))
             (out / "labels" / split / f"{stem}.txt").write_text(
                 "".join(f"{ln}\n" for ln in lines), encoding="utf-8")
+            if config.randomize:
+                look_rows.append({"image": f"images/{split}/{stem}.jpg",
+                                  **look_for(rf.observer_id, rf.frame).flat()})
             counts[split]["images"] += 1
             counts[split]["labels"] += len(lines)
             counts[split]["background"] += int(not lines)
@@ -183,8 +200,23 @@ def build_detection_dataset(recordings, out_dir, config: DetectionConfig = Detec
         "note": ("vehicles failing min_box_height_px / max_occlusion are left unlabelled "
                  "in their images (YOLO sees them as background)"),
     }
+    if config.randomize:
+        info["randomize"] = _write_looks(out, look_rows, config.randomize_seed)
     if split_by == "observer" and len(val_units) == 0:
         info["warning"] = "one recording with one observer: no validation images"
     (out / "dataset.json").write_text(json.dumps(info, indent=1, sort_keys=True) + "\n",
                                       encoding="utf-8")
     return info
+
+
+def _write_looks(out: Path, rows: list[dict], seed: int) -> dict:
+    """Write ``looks.parquet`` (image + the drawn look's columns, ``LookConfig.flat``)
+    and return the ``dataset.json`` entry that describes it."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from dashtraj.render.randomize import describe
+
+    cols = list(rows[0]) if rows else ["image"]
+    pq.write_table(pa.table({c: [r[c] for r in rows] for c in cols}), out / "looks.parquet")
+    return {"seed": int(seed), "per": "image", "looks": "looks.parquet", "ranges": describe()}

@@ -134,7 +134,7 @@ def open_renderer(map_path, width: int, height: int, fov_deg: float, msaa: int =
 
 def recording_frames(recording, every_s: float = 0.5, size: tuple[int, int] | None = None,
                      observers: Iterable[int] | None = None, msaa: int = 4,
-                     renderer=None) -> Iterator[RecordingFrame]:
+                     renderer=None, look_for=None) -> Iterator[RecordingFrame]:
     """Render a recording's observer frames, observer by observer, time ascending.
 
     Args:
@@ -146,6 +146,9 @@ def recording_frames(recording, every_s: float = 0.5, size: tuple[int, int] | No
         msaa: colour-pass samples.
         renderer: a ``Renderer`` of this map with the right size and FOV to reuse;
             None opens one (and releases it when the iterator is exhausted).
+        look_for: None, or ``look_for(observer_id, frame) -> LookConfig`` called before
+            each frame is rendered (domain randomization); the renderer keeps the
+            last look.
 
     Yields:
         ``RecordingFrame`` per (observer, sampled time) at which the observer has a state.
@@ -198,6 +201,8 @@ def recording_frames(recording, every_s: float = 0.5, size: tuple[int, int] | No
                 vehicles = [(int(cols["vehicle_id"][j]) + 1, idents[int(cols["vehicle_id"][j])],
                              float(cols["x"][j]), float(cols["y"][j]), float(cols["z"][j]),
                              float(cols["yaw"][j])) for j in others]
+                if look_for is not None:
+                    renderer.set_look(look_for(o, int(k_all[a])))
                 frame = renderer.render(pose, vehicles, labels=True)
                 ids = tuple(v[0] - 1 for v in vehicles)
                 k = int(k_all[a])
@@ -274,16 +279,19 @@ class ExportSummary:
 
 def export_frames(recording, out_dir, every_s: float = 0.5, size: tuple[int, int] | None = None,
                   observers: Iterable[int] | None = None, preview: bool = False,
-                  progress=None) -> ExportSummary:
+                  progress=None, compare_dir=None) -> ExportSummary:
     """Write a recording's observer frames as JPEGs and their labels as Parquet.
 
     Files: ``out_dir/<observer_id>/<frame:06d>.jpg`` and ``out_dir/labels.parquet``
     (``LABEL_COLUMNS``); with ``preview`` also ``out_dir/preview/<observer>/<frame>.png``
-    (boxes drawn) and ``out_dir/preview/contact_sheet.jpg`` (crops per vehicle).
+    (boxes drawn), ``out_dir/preview/contact_sheet.jpg`` (crops per vehicle) and
+    ``out_dir/preview/look_sheet.png`` (before/after the realistic look, beside the
+    nearest frame of ``compare_dir`` if given; ``dashtraj.datasets.look_sheet``).
     Deterministic: the same inputs give byte-identical files.
 
     Args:
         progress: called with no argument after each frame, or None.
+        compare_dir: folder of reference frames (e.g. CARLA's) for the look sheet.
     """
     import pyarrow as pa
     import pyarrow.parquet as pq
@@ -321,6 +329,10 @@ def export_frames(recording, out_dir, every_s: float = 0.5, size: tuple[int, int
         preview_dir = out / "preview"
         preview_dir.mkdir(parents=True, exist_ok=True)
         sheet.render().save(preview_dir / "contact_sheet.jpg", format="JPEG", quality=90)
+        from dashtraj.datasets.look_sheet import look_sheet
+
+        look_sheet(recording, preview_dir / "look_sheet.png", every_s, size, observers,
+                   reference_dir=compare_dir)
     return ExportSummary(out, sum(per_obs.values()), len(rows),
                          sum(1 for r in rows if r["vis_x1"] > r["vis_x0"]), per_obs,
                          labels_path, preview_dir)

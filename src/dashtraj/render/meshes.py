@@ -1,8 +1,10 @@
 """Triangle meshes for the CPU renderer: the static town scene and parametric vehicles.
 
 A :class:`Mesh` is a flat list of triangles (no index buffer) with one normal and
-one colour per vertex, so faces are flat-shaded. Every mesh is built with numpy,
-deterministically (buildings from a seeded generator).
+one colour per vertex, so faces are flat-shaded, and a material code per vertex
+(``MAT_*``: the renderer's shader picks textures, specular and reflections by it).
+Every mesh is built with numpy, deterministically (buildings and roadside props from
+seeded generators).
 
 Frames:
     scene meshes are in the CARLA world frame (metres, x forward/east, y right/south,
@@ -53,6 +55,15 @@ FACADES = np.array(
     ]
 )
 
+# material codes (the 4th colour component of every vertex; 1 = emissive keeps the old
+# meaning of that component)
+MAT_LIT, MAT_LAMP, MAT_ASPHALT, MAT_SIDEWALK, MAT_MARK, MAT_PAINT, MAT_GLASS = 0, 1, 2, 3, 4, 5, 6
+MAT_TYRE, MAT_FACADE, MAT_GRASS, MAT_CURB, MAT_FOLIAGE, MAT_METAL, MAT_BARK = (
+    7, 8, 9, 10, 11, 12, 13)
+BARK = (0.30, 0.22, 0.16)
+FOLIAGE = ((0.20, 0.34, 0.12), (0.26, 0.38, 0.14), (0.16, 0.28, 0.12), (0.30, 0.36, 0.16))
+POLE = (0.45, 0.46, 0.47)
+
 SIDEWALK_HEIGHT_M = 0.15
 MARK_LIFT_M = 0.005  # road marks float this high above the asphalt (tyres: ≥ 1 cm)
 BROKEN_ON_M, BROKEN_OFF_M = 3.0, 6.0
@@ -83,8 +94,8 @@ class Mesh:
     Attributes:
         positions: (3T, 3) float32, metres (frame stated by the builder).
         normals: (3T, 3) float32 unit normals, same frame.
-        colors: (3T, 4) float32: linear RGB in 0..1 and an emissive flag (1 = unlit,
-            e.g. lamps).
+        colors: (3T, 4) float32: RGB in 0..1 and the material code (``MAT_*``;
+            1 = ``MAT_LAMP``, unlit, e.g. lamps).
     """
 
     positions: np.ndarray
@@ -115,8 +126,11 @@ class Mesh:
 
 
 # --------------------------------------------------------------------------- primitives
-def _mesh(tris: np.ndarray, color, emissive: float = 0.0, centre=None, up: bool = False) -> Mesh:
-    """Mesh from (T, 3, 3) triangles; normals face away from ``centre`` (or +z if ``up``)."""
+def _mesh(tris: np.ndarray, color, emissive: float = 0.0, centre=None, up: bool = False,
+          material: int | None = None) -> Mesh:
+    """Mesh from (T, 3, 3) triangles; normals face away from ``centre`` (or +z if ``up``).
+
+    ``material`` (``MAT_*``) defaults to ``MAT_LAMP`` when ``emissive`` else ``MAT_LIT``."""
     tris = np.asarray(tris, np.float64).reshape(-1, 3, 3)
     n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
     length = np.linalg.norm(n, axis=1, keepdims=True)
@@ -133,7 +147,8 @@ def _mesh(tris: np.ndarray, color, emissive: float = 0.0, centre=None, up: bool 
     t = len(tris)
     col = np.asarray(color, np.float64)
     col = np.broadcast_to(col.reshape(-1, 3) if col.ndim > 1 else col, (t, 3))
-    rgba = np.concatenate([col, np.full((t, 1), float(emissive))], axis=1)
+    code = material if material is not None else (MAT_LAMP if emissive else MAT_LIT)
+    rgba = np.concatenate([col, np.full((t, 1), float(code))], axis=1)
     return Mesh(
         tris.reshape(-1, 3).astype(np.float32),
         np.repeat(n, 3, axis=0).astype(np.float32),
@@ -146,15 +161,16 @@ _HEXA_FACES = np.array(
 )
 
 
-def hexahedron(corners: np.ndarray, color, emissive: float = 0.0) -> Mesh:
+def hexahedron(corners: np.ndarray, color, emissive: float = 0.0,
+               material: int | None = None) -> Mesh:
     """A convex six-faced solid from 8 corners (bottom ring then top ring, same order)."""
     c = np.asarray(corners, np.float64).reshape(8, 3)
     q = c[_HEXA_FACES]  # (6, 4, 3)
     tris = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
-    return _mesh(tris, color, emissive, centre=c.mean(axis=0))
+    return _mesh(tris, color, emissive, centre=c.mean(axis=0), material=material)
 
 
-def box(lo, hi, color, emissive: float = 0.0) -> Mesh:
+def box(lo, hi, color, emissive: float = 0.0, material: int | None = None) -> Mesh:
     """Axis-aligned box between corners ``lo`` and ``hi`` (x, y, z), metres."""
     (x0, y0, z0), (x1, y1, z1) = lo, hi
     c = np.array(
@@ -169,7 +185,7 @@ def box(lo, hi, color, emissive: float = 0.0) -> Mesh:
             [x0, y1, z1],
         ]
     )
-    return hexahedron(c, color, emissive)
+    return hexahedron(c, color, emissive, material)
 
 
 def wheel(cx: float, cy: float, radius: float, width: float, sides: int = 10) -> Mesh:
@@ -191,7 +207,7 @@ def wheel(cx: float, cy: float, radius: float, width: float, sides: int = 10) ->
     caps = np.concatenate(
         [np.stack([c0, p(i, y0), p(j, y0)], 1), np.stack([c1, p(i, y1), p(j, y1)], 1)]
     )
-    return _mesh(np.concatenate([side, caps]), TYRE, centre=(cx, cy, radius))
+    return _mesh(np.concatenate([side, caps]), TYRE, centre=(cx, cy, radius), material=MAT_TYRE)
 
 
 # --------------------------------------------------------------------------- vehicles
@@ -248,10 +264,25 @@ def _vehicle_mesh_cached(p: tuple, paint255: tuple) -> Mesh:
     body, length, width, height, wb, r, clear, hood, c0, c1, belt = p
     paint = np.array(paint255, np.float64) / 255.0
     if body in ("motorcycle", "bicycle"):
-        return _two_wheeler(body, length, width, height, wb, r, paint)
-    if body in ("truck", "bus"):
-        return _big_vehicle(body, length, width, height, wb, r, clear, c1, paint)
-    return _car(body, length, width, height, wb, r, clear, hood, c0, c1, belt, paint)
+        mesh = _two_wheeler(body, length, width, height, wb, r, paint)
+    elif body in ("truck", "bus"):
+        mesh = _big_vehicle(body, length, width, height, wb, r, clear, c1, paint)
+    else:
+        mesh = _car(body, length, width, height, wb, r, clear, hood, c0, c1, belt, paint)
+    return _with_vehicle_materials(mesh, paint)
+
+
+def _with_vehicle_materials(mesh: Mesh, paint: np.ndarray) -> Mesh:
+    """Mark the painted parts ``MAT_PAINT`` and the windows ``MAT_GLASS`` (by colour;
+    lamps and tyres already carry their codes)."""
+    col = mesh.colors.copy()
+    lit = col[:, 3] == MAT_LIT
+    rgb = col[:, :3].astype(np.float64)
+    is_paint = lit & (np.abs(rgb - paint).max(axis=1) < 1e-6)
+    is_glass = lit & ~is_paint & (np.abs(rgb - np.array(GLASS)).max(axis=1) < 1e-6)
+    col[is_paint, 3] = MAT_PAINT
+    col[is_glass, 3] = MAT_GLASS
+    return Mesh(mesh.positions, mesh.normals, col)
 
 
 def _lamps(length, width, z0, z1, inset, front: bool, size=0.28) -> list[Mesh]:
@@ -474,7 +505,8 @@ def simplify_stations(
     return np.flatnonzero(keep)
 
 
-def _strip(left: np.ndarray, right: np.ndarray, color, z_left=None, z_right=None) -> Mesh:
+def _strip(left: np.ndarray, right: np.ndarray, color, z_left=None, z_right=None,
+           material: int = MAT_LIT) -> Mesh:
     """Quads between two (M, 3) polylines sampled at the same stations; normals up.
 
     Samples that add nothing (within ``SIMPLIFY_TOL_M`` of both chords) are dropped."""
@@ -482,10 +514,10 @@ def _strip(left: np.ndarray, right: np.ndarray, color, z_left=None, z_right=None
     left, right = left[keep], right[keep]
     a0, a1, b0, b1 = left[:-1], left[1:], right[:-1], right[1:]
     tris = np.concatenate([np.stack([a0, b0, b1], 1), np.stack([a0, b1, a1], 1)])
-    return _mesh(tris, color, up=True)
+    return _mesh(tris, color, up=True, material=material)
 
 
-def _wall(base: np.ndarray, height: float, color) -> Mesh:
+def _wall(base: np.ndarray, height: float, color, material: int = MAT_CURB) -> Mesh:
     """Vertical quads of ``height`` metres above a (M, 3) polyline (curb faces), two-sided."""
     base = base[simplify_stations([np.asarray(base, float)])]
     top = _lift(base, height)
@@ -494,7 +526,7 @@ def _wall(base: np.ndarray, height: float, color) -> Mesh:
     if not len(tris):
         return Mesh.concat([])
     both = np.concatenate([tris, tris[:, [0, 2, 1]]])  # two-sided: seen from road and kerb
-    return _mesh(both, color)
+    return _mesh(both, color, material=material)
 
 
 def _lift(points: np.ndarray, dz: float) -> np.ndarray:
@@ -553,7 +585,8 @@ def _marks_mesh(border: np.ndarray, s: np.ndarray, s_end: float, marks) -> list[
                 if len(piece) < 2:
                     continue
                 c = _lift(_offset(piece, off), MARK_LIFT_M)
-                parts.append(_strip(_offset(c, -w / 2), _offset(c, w / 2), col))
+                parts.append(_strip(_offset(c, -w / 2), _offset(c, w / 2), col,
+                                    material=MAT_MARK))
     return parts
 
 
@@ -566,12 +599,14 @@ class SceneMeshes:
         buildings: box buildings.
         marks: lane markings (drawn with a depth offset on top of the asphalt).
         extent: (x_min, y_min, x_max, y_max) of the map, metres.
+        props: roadside clutter (street lamps, trees) beyond the outermost lanes.
     """
 
     ground: Mesh
     buildings: Mesh
     marks: Mesh
     extent: tuple[float, float, float, float]
+    props: Mesh | None = None
 
 
 _SCENE_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -609,13 +644,15 @@ def build_scene_meshes(road_map, seed: int = 0) -> SceneMeshes:
         t = lane.type
         if t & LaneType.Sidewalk:
             h = SIDEWALK_HEIGHT_M
-            surf.append(_strip(_lift(left, h), _lift(right, h), SIDEWALK))
+            surf.append(_strip(_lift(left, h), _lift(right, h), SIDEWALK, material=MAT_SIDEWALK))
             surf.append(_wall(left, h, CURB))
             surf.append(_wall(right, h, CURB))
         elif t & _ASPHALT_TYPES:
-            surf.append(_strip(left, right, ASPHALT_JUNCTION if lane.junction >= 0 else ASPHALT))
+            surf.append(_strip(left, right, ASPHALT_JUNCTION if lane.junction >= 0 else ASPHALT,
+                               material=MAT_ASPHALT))
         else:  # border, median, none: low grass verge at road level
-            surf.append(_strip(_lift(left, 0.005), _lift(right, 0.005), GRASS))
+            surf.append(_strip(_lift(left, 0.005), _lift(right, 0.005), GRASS,
+                               material=MAT_GRASS))
         road = m.opendrive.roads[key[0]]
         sec = road.sections[key[1]]
         rec = sec.lanes.get(key[2])
@@ -632,10 +669,14 @@ def build_scene_meshes(road_map, seed: int = 0) -> SceneMeshes:
         [[x0 - pad, y0 - pad], [x1 + pad, y0 - pad], [x1 + pad, y1 + pad], [x0 - pad, y1 + pad]]
     )
     g = np.column_stack([g, np.full(4, GROUND_Z_M)])
-    surf.append(_mesh(np.stack([g[[0, 1, 2]], g[[0, 2, 3]]]), GRASS, up=True))
+    surf.append(_mesh(np.stack([g[[0, 1, 2]], g[[0, 2, 3]]]), GRASS, up=True, material=MAT_GRASS))
     pts = np.concatenate(border_pts) if border_pts else np.zeros((1, 2))
-    buildings = _buildings(m, pts, np.random.default_rng(seed))
-    return SceneMeshes(Mesh.concat(surf), buildings, Mesh.concat(marks), (x0, y0, x1, y1))
+    placed: list[tuple[float, float, float]] = []
+    buildings = _buildings(m, pts, np.random.default_rng(seed), placed=placed,
+                           jitter=np.random.default_rng([seed, 1]))
+    props = _props(m, pts, placed, np.random.default_rng([seed, 2]))
+    return SceneMeshes(Mesh.concat(surf), buildings, Mesh.concat(marks), (x0, y0, x1, y1),
+                       props)
 
 
 def _buildings(
@@ -644,16 +685,22 @@ def _buildings(
     rng: np.random.Generator,
     spacing_m: float = 22.0,
     clearance_m: float = 3.0,
+    placed: list | None = None,
+    jitter: np.random.Generator | None = None,
 ) -> Mesh:
     """Box buildings beside the roads, at least ``clearance_m`` from every lane border.
 
     Candidates are taken every ``spacing_m`` along each non-junction road on both
     sides, beyond its outermost lanes; a footprint is kept if a 1 m grid over it
     stays ``clearance_m`` from all lane border samples and it does not overlap an
-    accepted building. Deterministic for a given generator state.
+    accepted building. Deterministic for a given generator state. Facade colours come
+    from ``FACADES`` with a small per-building jitter (drawn from ``jitter``, so placement
+    does not depend on it; the shader also seeds each building's windows with it).
+    ``placed`` (a list) receives each building's (centre x, centre y, radius).
     """
     tree = cKDTree(lane_pts)
-    placed: list[tuple[float, float, float]] = []  # centre x, y, radius
+    jitter = jitter if jitter is not None else np.random.default_rng(1)
+    placed = [] if placed is None else placed  # centre x, y, radius
     boxes = []
     for rid in sorted(m.roads):
         road = m.roads[rid]
@@ -705,6 +752,7 @@ def _buildings(
                         ]
                     )
                     col = FACADES[rng.integers(len(FACADES))]
+                    col = np.clip(col * jitter.uniform(0.9, 1.1, 3), 0.0, 1.0)
                     boxes.append(
                         hexahedron(
                             np.vstack(
@@ -714,6 +762,105 @@ def _buildings(
                                 ]
                             ),
                             col,
+                            material=MAT_FACADE,
                         )
                     )
     return Mesh.concat(boxes)
+
+
+def _blob(centre, radius: float, height: float, color, sides: int = 7) -> Mesh:
+    """A low-poly ellipsoid (two rings of ``sides`` + poles): a tree's canopy."""
+    cx, cy, cz = centre
+    a = np.arange(sides) * (2 * np.pi / sides)
+    rings = []
+    for zf, rf, ph in ((-0.3, 0.85, 0.0), (0.3, 0.8, np.pi / sides)):
+        rings.append(np.column_stack([cx + rf * radius * np.cos(a + ph),
+                                      cy + rf * radius * np.sin(a + ph),
+                                      np.full(sides, cz + zf * height)]))
+    lo, hi = rings
+    bot, top = np.array([cx, cy, cz - 0.5 * height]), np.array([cx, cy, cz + 0.5 * height])
+    i, j = np.arange(sides), (np.arange(sides) + 1) % sides
+    tris = [np.stack([np.repeat(bot[None], sides, 0), lo[j], lo[i]], 1),
+            np.stack([np.repeat(top[None], sides, 0), hi[i], hi[j]], 1),
+            np.stack([lo[i], lo[j], hi[i]], 1), np.stack([lo[j], hi[j], hi[i]], 1)]
+    tris = np.concatenate(tris)
+    # flat faces, normals away from the centre
+    return _mesh(tris, color, centre=centre, material=MAT_FOLIAGE)
+
+
+def _props(m, lane_pts: np.ndarray, buildings: list, rng: np.random.Generator,
+           spacing_m: float = 12.0) -> Mesh:
+    """Street lamps and trees beside the non-junction roads, off every lane.
+
+    Candidates every ``spacing_m`` (jittered) along the outer border of each road
+    side, 1.2–2.6 m outward; a prop is kept when its whole footprint (canopy radius
+    for trees) stays 0.4 m clear of every lane border sample and outside every
+    building's circle. About one candidate in three becomes a lamp post (0.16 m
+    square, 5–7 m high, head 0.7 m toward the road), the rest trees (trunk 0.25 m,
+    canopy radius 1.0–2.0 m, 4–8 m high) or nothing. Deterministic for ``rng``.
+    """
+    tree = cKDTree(lane_pts)
+    parts: list[Mesh] = []
+    spots: list[tuple[float, float, float]] = []
+    for rid in sorted(m.roads):
+        road = m.roads[rid]
+        if road.junction >= 0 or road.length < 10.0:
+            continue
+        for k, sec in enumerate(road.sections):
+            for side in (-1, 1):
+                ids = [i for i in sec.lanes if i * side > 0]
+                if not ids:
+                    continue
+                key = (rid, k, max(ids, key=abs))
+                if key not in m.lanes:
+                    continue
+                left, right = m.lane_border_polylines(key)
+                outer = right if side < 0 else left
+                z = m.lane_polyline(key, driving_order=False)[:, 2]
+                if len(outer) < 2:
+                    continue
+                seg = np.linalg.norm(np.diff(outer, axis=0), axis=1)
+                st = np.concatenate([[0.0], np.cumsum(seg)])
+                for d in np.arange(spacing_m / 2, st[-1] - 2.0, spacing_m):
+                    d = d + rng.uniform(-2.0, 2.0)
+                    kind = rng.choice(3, p=[0.3, 0.5, 0.2])  # lamp, tree, nothing
+                    off = rng.uniform(1.2, 2.6)
+                    radius = rng.uniform(1.0, 2.0)
+                    height = rng.uniform(4.0, 8.0)
+                    if kind == 2 or not 0.0 <= d <= st[-1]:
+                        continue
+                    i = int(min(max(np.searchsorted(st, d), 1), len(outer) - 1))
+                    tvec = outer[i] - outer[i - 1]
+                    tvec = tvec / max(np.linalg.norm(tvec), 1e-9)
+                    nvec = np.array([-tvec[1], tvec[0]]) * (-1.0 if side > 0 else 1.0)
+                    base = outer[i - 1] + tvec * (d - st[i - 1])
+                    foot = radius if kind == 1 else 0.3
+                    c = base + nvec * (off + (foot if kind == 1 else 0.0))
+                    if tree.query(c)[0] < foot + 0.4:
+                        continue
+                    if any(math.hypot(c[0] - bx, c[1] - by) < br + foot
+                           for bx, by, br in buildings):
+                        continue
+                    if any(math.hypot(c[0] - sx, c[1] - sy) < sr + foot for sx, sy, sr in spots):
+                        continue
+                    spots.append((c[0], c[1], foot))
+                    gz = float(np.interp(d, st, z)) if len(z) == len(st) else float(z[0])
+                    gz = gz - 0.05  # sunk a little into the ground
+                    if kind == 0:
+                        h = rng.uniform(5.0, 7.0)
+                        parts.append(box((c[0] - 0.08, c[1] - 0.08, gz),
+                                         (c[0] + 0.08, c[1] + 0.08, gz + h), POLE,
+                                         material=MAT_METAL))
+                        hx, hy = c[0] - nvec[0] * 0.7, c[1] - nvec[1] * 0.7
+                        lo = (min(c[0], hx) - 0.12, min(c[1], hy) - 0.12, gz + h - 0.15)
+                        hi = (max(c[0], hx) + 0.12, max(c[1], hy) + 0.12, gz + h)
+                        parts.append(box(lo, hi, POLE, material=MAT_METAL))
+                    else:
+                        trunk = height * 0.4
+                        parts.append(box((c[0] - 0.12, c[1] - 0.12, gz), (c[0] + 0.12, c[1] + 0.12,
+                                                                          gz + trunk + 0.5),
+                                         BARK, material=MAT_BARK))
+                        col = FOLIAGE[int(rng.integers(len(FOLIAGE)))]
+                        parts.append(_blob((c[0], c[1], gz + trunk + (height - trunk) / 2),
+                                           radius, height - trunk, col))
+    return Mesh.concat(parts)

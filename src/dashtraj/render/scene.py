@@ -10,6 +10,9 @@ CARLA/Unreal).
 
 Passes per frame (moderngl on Mesa llvmpipe, headless EGL; see ``dashtraj.render.gl``):
 
+0. shadow map (when the look has sun shadows): depth of the vehicles, buildings and
+   props seen from the sun, orthographic, ``SHADOW_MAP_PX`` square, fitted to the view
+   frustum up to ``SHADOW_RANGE_M``.
 1. with ``msaa=0``: ONE pass writes colour, instance ids and depth (three
    attachments). With MSAA: colour with ``msaa`` samples, resolved to ``rgb``, then
    ids and depth without multisampling (one sample per pixel centre: exact ids; all
@@ -22,6 +25,12 @@ Passes per frame (moderngl on Mesa llvmpipe, headless EGL; see ``dashtraj.render
    readback. It rasterizes each vehicle with the same viewport and matrix as pass 1,
    so the visible pixels of a vehicle are always a subset of its silhouette pixels.
 
+The colour of pass 1 is shaded by ``dashtraj.render.shaders`` under the renderer's
+``LookConfig`` (sun, sky, materials, fog, camera response; one compiled shader variant
+per material group and look flags), the sky fills what no geometry covered, and
+``dashtraj.render.post`` applies rain, blur and JPEG after readback. The look never
+touches ids, depth or labels.
+
 Framebuffer rows are image rows (the projection puts the image top at GL's row 0), so
 nothing is flipped on readback. Static tiles and vehicles outside the view frustum
 are not drawn; road, kerb and mark polylines are simplified when the meshes are built.
@@ -29,75 +38,35 @@ are not drawn; road, kerb and mark polylines are simplified when the meshes are 
 
 from __future__ import annotations
 
+import functools
 import math
+import zlib
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from dashtraj.render import shaders
 from dashtraj.render.gl import create_context, gl_function
-from dashtraj.render.meshes import Mesh, scene_meshes, vehicle_mesh
+from dashtraj.render.look import LookConfig, lighting
+from dashtraj.render.meshes import (
+    MAT_ASPHALT,
+    MAT_CURB,
+    MAT_SIDEWALK,
+    Mesh,
+    scene_meshes,
+    vehicle_mesh,
+)
 
 NEAR_M = 0.1
 FAR_M = 2000.0
-SKY_RGB = (0.62, 0.74, 0.88)
-SUN_DIR = (0.35, -0.45, 0.82)  # CARLA world, towards the sun (unit after normalising)
-AMBIENT, DIFFUSE = 0.45, 0.6
+SKY_RGB = (0.62, 0.74, 0.88)  # the legacy look's flat sky
 FRONT_FACE = "ccw"  # meshes wind CCW seen from outside (image rows run along GL's +y)
-
-_VS = """
-#version 330
-uniform mat4 mvp;
-uniform vec3 sun;
-in vec3 in_pos;
-in vec3 in_normal;
-in vec4 in_color;
-in int in_id;
-out vec3 v_color;
-out float v_depth;
-flat out int v_id;
-void main() {
-    gl_Position = mvp * vec4(in_pos, 1.0);
-    float lam = max(dot(normalize(in_normal), sun), 0.0);
-    vec3 lit = in_color.rgb * (%(ambient)f + %(diffuse)f * lam);
-    v_color = mix(lit, in_color.rgb, in_color.a);
-    v_depth = gl_Position.w;
-    v_id = in_id;
-}
-"""
-_FS_ALL = """
-#version 330
-in vec3 v_color;
-in float v_depth;
-flat in int v_id;
-layout(location = 0) out vec4 f_color;
-layout(location = 1) out int f_id;
-layout(location = 2) out float f_depth;
-void main() { f_color = vec4(v_color, 1.0); f_id = v_id; f_depth = v_depth; }
-"""
-_FS_SIL = """
-#version 330
-uniform uint bit;
-out uint f_bits;
-void main() { f_bits = bit; }
-"""
-_FS_COLOR = """
-#version 330
-in vec3 v_color;
-in float v_depth;
-flat in int v_id;
-out vec4 f_color;
-void main() { f_color = vec4(v_color, 1.0); }
-"""
-_FS_ID = """
-#version 330
-in vec3 v_color;
-in float v_depth;
-flat in int v_id;
-layout(location = 0) out int f_id;
-layout(location = 1) out float f_depth;
-void main() { f_id = v_id; f_depth = v_depth; }
-"""
+NOISE_PX = 1024  # side of the tileable noise texture of the procedural materials
+SKY_MARGIN = 0.03  # sky pass: share of the rows drawn below the horizon (map edge, rounding)
+SHADOW_MAP_PX = 512  # side of the sun's shadow map, texels
+SHADOW_RANGE_M = 45.0  # shadows are drawn this far along the optical axis
+SHADOW_CASTER_REACH_M = 60.0  # casters up to this far toward the sun from the shadowed area
 
 
 def intrinsics(width: int, height: int, fov_deg: float) -> np.ndarray:
@@ -258,6 +227,9 @@ class Renderer:
         seed: building placement seed.
         ctx: an existing moderngl context to share; None creates a headless EGL one.
         threads: llvmpipe threads for a new context (see ``dashtraj.render.gl``).
+        look: a ``dashtraj.render.look.LookConfig`` (weather, materials, camera);
+            None = ``LookConfig()``, clear daytime. Change it with ``set_look``: it
+            changes pixels, never labels, ids or depth.
 
     Example:
         >>> r = Renderer(m, 640, 360)  # doctest: +SKIP
@@ -280,6 +252,7 @@ class Renderer:
         seed: int = 0,
         ctx=None,
         threads: int | None = None,
+        look: LookConfig | None = None,
     ):
         import moderngl
 
@@ -292,19 +265,34 @@ class Renderer:
         self._owns_ctx = ctx is None
         self.ctx = ctx if ctx is not None else create_context(threads)
         ctx = self.ctx
-        sun = np.asarray(SUN_DIR, float)
-        sun = sun / np.linalg.norm(sun)
-        vs = _VS % {"ambient": AMBIENT, "diffuse": DIFFUSE}
-        self._prog_color = ctx.program(vertex_shader=vs, fragment_shader=_FS_COLOR)
-        self._prog_id = ctx.program(vertex_shader=vs, fragment_shader=_FS_ID)
-        self._prog_all = ctx.program(vertex_shader=vs, fragment_shader=_FS_ALL)
+        vs = shaders.VS
         # the same vertex shader in every pass: identical positions, so the pixels of a
-        # vehicle in the frame are always a subset of its silhouette's
-        self._prog_sil = ctx.program(vertex_shader=vs, fragment_shader=_FS_SIL)
-        self._progs = (self._prog_color, self._prog_id, self._prog_all, self._prog_sil)
-        for p in self._progs:
-            if "sun" in p:
-                p["sun"].value = tuple(sun)
+        # vehicle in the frame are always a subset of its silhouette's. The colour passes
+        # (0: colour only, 2: colour + id + depth) use one compiled variant per material
+        # group and look flags (``_colour_prog``); 1: id + depth, 3: silhouettes, 4: the
+        # sun's shadow map
+        self._prog_id = ctx.program(vertex_shader=vs, fragment_shader=shaders.FS_ID)
+        self._prog_sil = ctx.program(vertex_shader=vs, fragment_shader=shaders.FS_SIL)
+        self._prog_depth = ctx.program(vertex_shader=vs, fragment_shader=shaders.FS_DEPTH)
+        self._progs = (self._prog_id, self._prog_sil, self._prog_depth)
+        # (which, group, flags) -> program, shared by the renderers of one context (each
+        # variant is compiled and JIT-ed once per context); ``prog.extra`` holds the token
+        # of the renderer whose look its uniforms hold
+        self._variants: dict[tuple, Any] = _shared_programs(ctx)
+        self._token = object()
+        self._cvaos: dict[tuple, Any] = {}  # (which, group, flags, buffer id) -> vao
+        self._uniforms: dict[str, Any] = {}
+        self._flags: tuple = ()
+        self._sky_buf = ctx.buffer(np.array([-1, -1, 3, -1, -1, 3], "f4").tobytes())
+        self._noise = ctx.texture((NOISE_PX, NOISE_PX), 4, noise_texture(NOISE_PX).tobytes())
+        self._noise.build_mipmaps()
+        self._noise.repeat_x = self._noise.repeat_y = True
+        self._noise.filter = (moderngl.LINEAR_MIPMAP_NEAREST, moderngl.LINEAR)
+        self._shadow_tex = ctx.depth_texture((SHADOW_MAP_PX, SHADOW_MAP_PX))
+        self._shadow_tex.compare_func = ""  # read as depth values: texelFetch + compare
+        self._shadow_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self._shadow_tex.repeat_x = self._shadow_tex.repeat_y = False
+        self._fbo_shadow = ctx.framebuffer(depth_attachment=self._shadow_tex)
         size = (self.width, self.height)
         self._fbos = []
         if self.msaa:
@@ -337,31 +325,249 @@ class Renderer:
         self._logic_op = None
         scene = scene_meshes(road_map, seed)
         self._static = []
+        self._casters = []  # indices into _static of the groups that cast shadows
         # drawn after the vehicles, near to far, so hidden fragments fail the depth test early
-        for mesh, offset in ((scene.buildings, False), (scene.ground, False), (scene.marks, True)):
+        props = scene.props if scene.props is not None else Mesh.concat([])
+        code = scene.ground.colors[::3, 3].round().astype(int)  # material per triangle
+        ground = {
+            "asphalt": code == MAT_ASPHALT,
+            "sidewalk": (code == MAT_SIDEWALK) | (code == MAT_CURB),
+        }
+        ground["grass"] = ~(ground["asphalt"] | ground["sidewalk"])
+        groups = [(props, "props", False, True), (scene.buildings, "facade", False, True)]
+        groups += [(_subset(scene.ground, ground[g]), g, False, False) for g in ground]
+        groups.append((scene.marks, "mark", True, False))
+        for mesh, group, offset, caster in groups:
             if mesh.n_vertices:
                 data, tiles = _tiled(mesh.interleaved(0.0))
                 buf = ctx.buffer(data.tobytes())
-                self._static.append((self._vaos(buf), offset, tiles))
+                if caster:
+                    self._casters.append(len(self._static))
+                self._static.append((self._vaos(buf), offset, tiles, group, buf))
         self._vbuf = None
         self._vbuf_bytes = 0
         self._vdata: dict[int, tuple[Mesh, np.ndarray]] = {}
         self._moderngl = moderngl
+        self.set_look(look if look is not None else LookConfig())
 
     # ------------------------------------------------------------------ GL plumbing
     def _vaos(self, buf):
         # attributes a program does not use are optimised away: skip their bytes
         ctx = self.ctx
-        return (
-            ctx.vertex_array(
-                self._prog_color, [(buf, "3f 3f 4f 4x", "in_pos", "in_normal", "in_color")]
-            ),
-            ctx.vertex_array(self._prog_id, [(buf, "3f 28x 1i", "in_pos", "in_id")]),
-            ctx.vertex_array(
-                self._prog_all, [(buf, "3f 3f 4f 1i", "in_pos", "in_normal", "in_color", "in_id")]
-            ),
-            ctx.vertex_array(self._prog_sil, [(buf, "3f 32x", "in_pos")]),
-        )
+        return {
+            1: ctx.vertex_array(self._prog_id, [(buf, "3f 28x 1i", "in_pos", "in_id")]),
+            3: ctx.vertex_array(self._prog_sil, [(buf, "3f 32x", "in_pos")]),
+            4: ctx.vertex_array(self._prog_depth, [(buf, "3f 32x", "in_pos")]),
+        }
+
+    def _colour_prog(self, which: int, group: str):
+        """The compiled colour program of pass ``which`` (0 or 2, or "sky") for a material
+        group under the current look's flags (compiled once, on first use)."""
+        key = (which, group, self._flags)
+        prog = self._variants.get(key)
+        if prog is None:
+            legacy, shadows, textures, noise, clouds, wet = self._flags
+            if which == "sky":
+                src = shaders.variant(shaders.SKY_FS, None, legacy, False, textures, noise,
+                                      clouds)
+                prog = self.ctx.program(vertex_shader=shaders.SKY_VS, fragment_shader=src)
+            else:
+                src = shaders.variant(shaders.FS_COLOR if which == 0 else shaders.FS_ALL,
+                                      group, legacy, shadows, textures, noise, wet=wet)
+                prog = self.ctx.program(vertex_shader=shaders.VS, fragment_shader=src)
+            for name, unit in (("noise_tex", 1), ("shadow_map", 2)):
+                if name in prog:
+                    prog[name].value = unit
+            self._variants[key] = prog
+            prog.extra = None
+        if prog.extra is not self._token:  # last used by another renderer (or new)
+            self._set_uniforms(prog, self._uniforms)
+            prog.extra = self._token
+        return prog
+
+    def _colour_vao(self, which, group: str, buf):
+        key = (which, group, self._flags, buf.glo)
+        vao = self._cvaos.get(key)
+        if vao is None:
+            prog = self._colour_prog(which, group)
+            if which == "sky":
+                vao = self.ctx.vertex_array(prog, [(buf, "2f", "in_pos")])
+            else:
+                # attributes a variant does not use are optimised away: skip their bytes
+                layout = [("in_pos", "3f", "12x"), ("in_normal", "3f", "12x"),
+                          ("in_color", "4f", "16x"), ("in_id", "1i", "4x")]
+                fmt, names = [], []
+                for name, used, skipped in layout:
+                    if name in prog:
+                        fmt.append(used)
+                        names.append(name)
+                    else:
+                        fmt.append(skipped)
+                vao = self.ctx.vertex_array(prog, [(buf, " ".join(fmt), *names)])
+            self._cvaos[key] = vao
+        return vao
+
+    def _current_colour_progs(self):
+        return [p for k, p in self._variants.items() if k[2] == self._flags]
+
+    @staticmethod
+    def _set_uniforms(prog, values: dict) -> None:
+        for name, v in values.items():
+            if name in prog:
+                if isinstance(v, bytes):
+                    prog[name].write(v)
+                else:
+                    prog[name].value = v
+
+    # ------------------------------------------------------------------ look
+    def set_look(self, look: LookConfig) -> None:
+        """Use ``look`` (weather, materials, camera) for the next frames. Cheap (uniforms
+        only); changes pixels, never labels, ids or depth."""
+        if not isinstance(look, LookConfig):
+            raise TypeError(f"look must be a LookConfig, got {type(look).__name__}")
+        self.look = look
+        lt = lighting(look)
+        mat, cam = look.materials, look.camera
+        self._shadows_on = bool(mat.shadows and not look.legacy and lt.shadow_strength > 0.0
+                                and look.weather.sun_altitude_angle > 0.0)
+        self._flags = (bool(look.legacy), self._shadows_on, bool(mat.textures) and not look.legacy,
+                       cam.noise_stddev > 0 and not look.legacy,
+                       lt.cloud_cover > 0.02 and not look.legacy,
+                       (lt.wetness > 0 or lt.deposits > 0) and not look.legacy)
+        values = {
+            "sun_dir": lt.sun_dir, "sun_rgb": lt.sun_rgb, "amb_sky": lt.ambient_sky,
+            "amb_ground": lt.ambient_ground, "sky_zen": lt.sky_zenith, "sky_hor": lt.sky_horizon,
+            "fog_rgb": lt.fog_rgb, "fog_sigma": lt.fog_sigma, "fog_start": lt.fog_start,
+            "cloud": lt.cloud_cover, "wb": lt.white_balance,
+            "gamma_fit": gamma_fit(cam.gamma),
+            "vig_mult": float(cam.lens_circle_multiplier),
+            "vig_falloff": float(cam.lens_circle_falloff),
+            "noise_std": float(cam.noise_stddev), "img_size": (self.width, self.height),
+            "tex_off": mat.texture_offset, "tex_scale": max(float(mat.texture_scale), 1e-3),
+            "shadow_strength": lt.shadow_strength, "wetness": lt.wetness,
+            "deposits": lt.deposits, "asphalt_rgb": mat.asphalt_rgb,
+            "sidewalk_rgb": mat.sidewalk_rgb, "grass_rgb": mat.grass_rgb,
+            "facade_tint": mat.facade_tint, "mark_wear": float(mat.mark_wear),
+            "road_wear": float(mat.road_wear), "shadow_px": float(SHADOW_MAP_PX),
+        }
+        values = {k: (tuple(float(x) for x in v) if np.ndim(v) else v) for k, v in values.items()}
+        self._uniforms.update(values)
+        for prog in self._current_colour_progs():
+            if prog.extra is self._token:
+                self._set_uniforms(prog, values)
+
+    def _frame_uniforms(self, pose, world, starts) -> None:
+        """Per-frame uniforms (camera position, sky rays, noise seed) and the shadow pass."""
+        m = world_to_opencv(pose)
+        pix_to_world = m[:3, :3].T @ np.linalg.inv(self.k)
+        seed = float(zlib.crc32(np.array([*pose, self.look.seed], np.float64).tobytes()) % 9973)
+        per_frame = {"cam_pos": tuple(float(c) for c in pose[:3]), "seed": seed,
+                     "pix_to_world": pix_to_world.T.astype("f4").tobytes()}
+        per_frame["light_mvp"] = (self._shadow_pass(pose, world, starts) if self._shadows_on
+                                  else np.eye(4, dtype="f4").tobytes())
+        self._uniforms.update(per_frame)
+        self._noise.use(1)
+        progs = [self._colour_prog("sky", "sky")]
+        for g in sorted({e[3] for e in self._static} | {"vehicle"}):
+            progs.append(self._colour_prog(2 if not self.msaa else 0, g))
+        for prog in progs:
+            self._set_uniforms(prog, per_frame)
+
+    def light_matrix(self, pose) -> np.ndarray:
+        """(4, 4) world → clip matrix of the sun's orthographic shadow map: it covers the
+        camera's view frustum up to ``SHADOW_RANGE_M`` and the casters up to
+        ``SHADOW_CASTER_REACH_M`` toward the sun."""
+        sun = lighting(self.look).sun_dir
+        k, w, h = self.k, self.width, self.height
+        uv = np.array([[0, 0], [w, 0], [0, h], [w, h]], float)
+        rays = np.column_stack([(uv[:, 0] - k[0, 2]) / k[0, 0], (uv[:, 1] - k[1, 2]) / k[1, 1],
+                                np.ones(4)])
+        pts = np.concatenate([rays * NEAR_M, rays * SHADOW_RANGE_M])
+        m = world_to_opencv(pose)
+        world = (pts - m[:3, 3]) @ m[:3, :3]  # inverse of a rigid transform
+        f = -sun
+        up = np.array([0.0, 0.0, 1.0]) if abs(f[2]) < 0.99 else np.array([1.0, 0.0, 0.0])
+        r = np.cross(f, up)
+        r /= np.linalg.norm(r)
+        u = np.cross(r, f)
+        rot = np.stack([r, u, f])
+        lp = world @ rot.T
+        lo, hi = lp.min(axis=0), lp.max(axis=0)
+        lo[2] -= SHADOW_CASTER_REACH_M
+        hi[2] += 5.0
+        scale = 2.0 / (hi - lo)
+        out = np.eye(4)
+        out[:3, :3] = rot * scale[:, None]
+        out[:3, 3] = -(hi + lo) / (hi - lo)
+        return out
+
+    def _shadow_pass(self, pose, world, starts) -> None:
+        mgl = self._moderngl
+        lm = self.light_matrix(pose)
+        lmb = lm.T.astype("f4").tobytes()
+        ctx = self.ctx
+        self._fbo_shadow.use()
+        self._fbo_shadow.clear(depth=1.0)
+        ctx.enable(mgl.DEPTH_TEST)
+        ctx.enable(mgl.CULL_FACE)  # closed meshes: the faces toward the sun suffice
+        ctx.front_face = "ccw"
+        self._prog_depth["mvp"].write(lmb)
+        if len(starts) > 1:
+            inside = _vehicles_in_frustum(world, starts, lm)
+            ranges = list(zip(starts[:-1].tolist(), np.diff(starts).tolist(), strict=True))
+            for first, count in _runs([ranges[i] for i in np.flatnonzero(inside)]):
+                self._vveh[4].render(mgl.TRIANGLES, first=first, vertices=count)
+        for i in self._casters:
+            vaos, _, tiles, _, _ = self._static[i]
+            for first, count in _visible_runs(tiles, lm):
+                vaos[4].render(mgl.TRIANGLES, first=first, vertices=count)
+        self._shadow_tex.use(2)
+        return lmb
+
+    def _draw_sky(self, pose) -> None:
+        """Fill the pixels no geometry covered (depth still 1) with the sky, in the rows
+        above ``SKY_MARGIN`` × H below the lowest point of the horizon (beneath it the
+        ground plane covers every pixel)."""
+        mgl = self._moderngl
+        ctx = self.ctx
+        rows = self._sky_rows(pose)
+        if rows <= 0:
+            return
+        ctx.depth_func = "<="
+        ctx.depth_mask = False
+        ctx.disable(mgl.CULL_FACE)
+        ctx.scissor = (0, 0, self.width, rows)
+        self._colour_vao("sky", "sky", self._sky_buf).render(mgl.TRIANGLES)
+        ctx.scissor = None
+        ctx.depth_func = "<"
+        ctx.depth_mask = True
+        ctx.enable(mgl.CULL_FACE)
+
+    def _sky_rows(self, pose) -> int:
+        """Image rows from the top that can show sky: up to the lowest row where a ray
+        through the left or right image edge points above the horizon (ray z is linear
+        in the pixel coordinates), plus a margin of ``SKY_MARGIN`` × H; 0 when the
+        camera sees no sky."""
+        m = world_to_opencv(pose)
+        a = m[:3, :3].T @ np.linalg.inv(self.k)  # pixel (u, v, 1) -> world ray
+        zr = a[2]  # ray z = zr[0] u + zr[1] v + zr[2]
+        h = self.height
+        best = -1.0
+        for u in (0.0, float(self.width)):
+            c = zr[0] * u + zr[2]
+            if abs(zr[1]) < 1e-12:
+                best = max(best, h if c > 0 else -1.0)
+                continue
+            v0 = -c / zr[1]  # z = 0 on this edge
+            best = max(best, v0 if zr[1] < 0 else (h if v0 < h else -1.0))
+        if best < 0:
+            return 0
+        return int(min(h, math.ceil(best + SKY_MARGIN * h)))
+
+    def _post(self, rgb: np.ndarray, pose) -> np.ndarray:
+        from dashtraj.render.post import camera_post
+
+        return camera_post(rgb, self.look, pose)
 
     def _upload_vehicles(self, data: np.ndarray):
         nbytes = data.nbytes
@@ -369,8 +575,10 @@ class Renderer:
             cap = max(nbytes, 1 << 16)
             cap = 1 << (cap - 1).bit_length()
             if self._vbuf is not None:
-                for vao in self._vveh:
+                for vao in self._vveh.values():
                     vao.release()
+                for key in [k for k in self._cvaos if k[3] == self._vbuf.glo]:
+                    self._cvaos.pop(key).release()
                 self._vbuf.release()
             self._vbuf = self.ctx.buffer(reserve=cap, dynamic=True)
             self._vbuf_bytes = cap
@@ -380,15 +588,29 @@ class Renderer:
 
     def _draw_scene(self, which: int, mvp: bytes, vehicle_runs):
         mgl = self._moderngl
-        prog = self._progs[which]
-        prog["mvp"].write(mvp)
-        for first, count in vehicle_runs:
-            self._vveh[which].render(mgl.TRIANGLES, first=first, vertices=count)
-        for (vaos, offset, _tiles), runs in zip(self._static, self._runs, strict=True):
+        colour = which in (0, 2)
+
+        def vao_of(vaos, group, buf):
+            if not colour:
+                return vaos[which]
+            vao = self._colour_vao(which, group, buf)
+            vao.program["mvp"].write(mvp)
+            return vao
+
+        if not colour:
+            self._progs[0]["mvp"].write(mvp)
+        if vehicle_runs:
+            vao = vao_of(self._vveh, "vehicle", self._vbuf)
+            for first, count in vehicle_runs:
+                vao.render(mgl.TRIANGLES, first=first, vertices=count)
+        for (vaos, offset, _tiles, group, buf), runs in zip(self._static, self._runs, strict=True):
+            if not runs:
+                continue
             if offset:
                 self.ctx.polygon_offset = (0.0, -2.0)  # units only: no slope term
+            vao = vao_of(vaos, group, buf)
             for first, count in runs:
-                vaos[which].render(mgl.TRIANGLES, first=first, vertices=count)
+                vao.render(mgl.TRIANGLES, first=first, vertices=count)
             if offset:
                 self.ctx.polygon_offset = (0.0, 0.0)
 
@@ -465,8 +687,9 @@ class Renderer:
             proj = None
             drawn = _vehicles_in_frustum(world, starts, mvp64) if n else np.zeros(0, bool)
         vruns = _runs([ranges[i] for i in np.flatnonzero(drawn)])
-        self._runs = [_visible_runs(tiles, mvp64) for _, _, tiles in self._static]
+        self._runs = [_visible_runs(e[2], mvp64) for e in self._static]
         mvp = mvp64.T.astype("f4").tobytes()  # column-major for GLSL
+        self._frame_uniforms(pose, world, starts)
 
         ctx.enable(mgl.DEPTH_TEST)
         ctx.disable(mgl.BLEND)
@@ -480,6 +703,7 @@ class Renderer:
             self._fbo_ms.use()
             self._fbo_ms.clear(*SKY_RGB, 1.0, depth=1.0)
             self._draw_scene(0, mvp, vruns)
+            self._draw_sky(pose)
             region = None  # without depth, ids are only needed where vehicles can be
             if not depth:
                 if proj is None and n:
@@ -500,6 +724,7 @@ class Renderer:
                 ctx.scissor = None
             ctx.copy_framebuffer(self._fbo_rgb, self._fbo_ms)
             self._fbo_rgb.read_into(rgb, components=3, alignment=1)
+            rgb = self._post(rgb, pose)
             fbo, a_id, a_depth = self._fbo_id, 0, 1
             if region is not None:
                 instance[:] = 0
@@ -518,7 +743,9 @@ class Renderer:
             fbo.use()
             self._clear_buffers(True)
             self._draw_scene(2, mvp, vruns)
+            self._draw_sky(pose)
             fbo.read_into(rgb, components=3, attachment=0, alignment=1)
+            rgb = self._post(rgb, pose)
             a_id, a_depth = 1, 2
         fbo.read_into(instance, components=1, attachment=a_id, dtype="i4", alignment=1)
         if dimg is not None:
@@ -663,15 +890,37 @@ class Renderer:
                 if att is not None:
                     att.release()
             fbo.release()
-        for vaos, _, _ in self._static:
-            for vao in vaos:
+        for vao in self._cvaos.values():
+            vao.release()
+        for vaos, _, _, _, buf in self._static:
+            for vao in vaos.values():
                 vao.release()
+            buf.release()
         if self._vbuf is not None:
-            for vao in self._vveh:
+            for vao in self._vveh.values():
                 vao.release()
             self._vbuf.release()
         for p in self._progs:
-            p.release()
+            p.release()  # the shared colour variants live as long as the context
+        self._sky_buf.release()
+        self._fbo_shadow.release()
+        self._shadow_tex.release()
+        self._noise.release()
+
+
+def _shared_programs(ctx) -> dict:
+    """The colour-variant programs of a context (kept in ``ctx.extra``)."""
+    store = ctx.extra if isinstance(ctx.extra, dict) else None
+    if store is None:
+        store = {}
+        ctx.extra = store
+    return store.setdefault("dashtraj.render.colour_variants", {})
+
+
+def _subset(mesh: Mesh, tri_mask: np.ndarray) -> Mesh:
+    """The triangles of ``mesh`` selected by a (T,) bool mask."""
+    rows = np.repeat(np.asarray(tri_mask, bool), 3)
+    return Mesh(mesh.positions[rows], mesh.normals[rows], mesh.colors[rows])
 
 
 def _count_and_box(mask: np.ndarray, box, j: int, counts: np.ndarray, tight: np.ndarray) -> None:
@@ -762,3 +1011,38 @@ def _boxes_outside(lo: np.ndarray, hi: np.ndarray, mvp: np.ndarray) -> np.ndarra
 
 def _overlap(a, b) -> bool:
     return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+
+
+@functools.lru_cache(maxsize=64)
+def gamma_fit(gamma: float) -> tuple[float, float, float, float]:
+    """Coefficients (a, b, c, d) with a x + b √x + c x^¼ + d x² ≈ x^(1/gamma) on [0, 1]
+    (least squares on 4,001 points; the shader's display encoding: square roots are
+    cheap on llvmpipe, pow is not). Max error 0.7 levels of 255 at gamma 2.2, 1.3 at 2.4."""
+    x = np.linspace(0.0, 1.0, 4001)
+    a = np.column_stack([x, np.sqrt(x), np.sqrt(np.sqrt(x)), x * x])
+    coef, *_ = np.linalg.lstsq(a, x ** (1.0 / max(float(gamma), 0.1)), rcond=None)
+    return tuple(float(v) for v in coef)
+
+
+@functools.lru_cache(maxsize=2)
+def noise_texture(size: int = NOISE_PX, seed: int = 7) -> np.ndarray:
+    """(size, size, 4) uint8 tileable noise, one pattern per channel, each uniform on
+    0 … 255 (rank-equalised): R fine grain (≈ 4 texels), G soft blotches (≈ 200 texels),
+    B medium (≈ 50 texels), A fractal (clouds, paint wear). Cached per (size, seed).
+    Band-limited white noise filtered in the Fourier domain, so it tiles."""
+    rng = np.random.default_rng(seed)
+    f = np.fft.fftfreq(size)
+    r = np.hypot(f[:, None], f[None, :])
+    out = np.empty((size, size, 4), np.uint8)
+    filters = (
+        np.exp(-((r / 0.25) ** 2)),
+        np.exp(-((r / 0.005) ** 2)),
+        np.exp(-((r / 0.02) ** 2)),
+        np.where(r > 0, 1.0 / np.maximum(r, 1.0 / size) ** 1.6, 0.0),
+    )
+    for c, filt in enumerate(filters):
+        x = np.real(np.fft.ifft2(np.fft.fft2(rng.standard_normal((size, size))) * filt))
+        rank = np.empty(x.size, np.int64)
+        rank[np.argsort(x, axis=None, kind="stable")] = np.arange(x.size)
+        out[:, :, c] = (rank * 256 // rank.size).reshape(size, size).astype(np.uint8)
+    return out

@@ -11,6 +11,17 @@ unseen segment can be nearer) and then refines the foot point on the cubic
 Hermite curve through the segment's end samples, which is within micrometres of
 the true lane centre.
 
+Height (the z rule, CARLA's): a query that carries a z (a `Location`, a
+carla.Location, an (x, y, z) tuple, or an (N, 3) array) picks the lane-centre
+segment nearest in 3-D, i.e. by the Euclidean distance from (x, y, z) to the
+3-D polyline of lane-centre samples (x, y and the road's elevation), exactly as
+CARLA's ``Map::GetClosestWaypointOnRoad`` asks its R-tree of 3-D lane segments
+for the nearest one to ``(x, y, z)``. The foot point on that segment is then the
+plan-view (2-D) one, as CARLA's ``DistanceSegmentToPoint`` projects in 2-D. So a
+point under a bridge maps to the road it is on, not to the bridge above. A query
+with no z (an (x, y) tuple, an (N, 2) array, or z = NaN in a row of an (N, 3)
+array) is matched in plan view only, as before.
+
 Example:
     >>> m = RoadMap.from_file("Town10HD.xodr")  # doctest: +SKIP
     >>> wp = m.get_waypoint(Location(-41.0, 20.0))  # doctest: +SKIP
@@ -22,10 +33,13 @@ from __future__ import annotations
 import contextlib
 import gc
 import hashlib
-import itertools
 import math
 import warnings
+from bisect import bisect_left, bisect_right
 from dataclasses import dataclass, field
+from functools import partial
+from itertools import chain, repeat
+from operator import itemgetter
 from pathlib import Path
 
 import numpy as np
@@ -39,7 +53,14 @@ from dashtraj.roads.opendrive import (
     parse_opendrive,
     read_opendrive,
 )
-from dashtraj.roads.types import LaneType, Location, Rotation, Transform, as_xy, normalize_yaw
+from dashtraj.roads.types import (
+    LaneType,
+    Location,
+    Rotation,
+    Transform,
+    as_xyz,
+    normalize_yaw,
+)
 
 LaneKey = tuple[int, int, int]  # (road_id, section_id, lane_id)
 
@@ -129,23 +150,55 @@ class Lane:
         return self.s1 if self.forward else self.s0
 
 
-@dataclass(frozen=True, slots=True)
-class Waypoint:
+class Waypoint(tuple):
     """A point on a lane centre: CARLA's (road_id, section_id, lane_id, s).
 
     `s` is metres from the road start (reference line), whatever the lane's
     driving direction. The pose is computed exactly from the road geometry.
+
+    An immutable record with fields `road_id`, `section_id`, `lane_id`, `s` and
+    `map`; equality and hash use the first four only. It is a tuple underneath
+    (so that maps build thousands of them at C speed, as `generate_waypoints`
+    does), but treat it as a record: its fields are its interface.
     """
 
-    road_id: int
-    section_id: int
-    lane_id: int
-    s: float
-    map: RoadMap = field(repr=False, compare=False, hash=False)
+    __slots__ = ()
 
-    @property
-    def key(self) -> LaneKey:
-        return (self.road_id, self.section_id, self.lane_id)
+    def __new__(cls, road_id: int, section_id: int, lane_id: int, s: float, map: RoadMap):
+        return tuple.__new__(cls, (road_id, section_id, lane_id, s, map))
+
+    road_id: int = property(itemgetter(0), doc="OpenDRIVE road id.")  # type: ignore[assignment]
+    section_id: int = property(itemgetter(1), doc="0-based lane section index.")  # type: ignore[assignment]
+    lane_id: int = property(itemgetter(2), doc="Signed OpenDRIVE lane id.")  # type: ignore[assignment]
+    s: float = property(itemgetter(3), doc="Metres from the road start.")  # type: ignore[assignment]
+    map: RoadMap = property(itemgetter(4), doc="The map it lies on.")  # type: ignore[assignment]
+    key: LaneKey = property(itemgetter(0, 1, 2),  # type: ignore[assignment]
+                            doc="(road_id, section_id, lane_id).")
+
+    def __eq__(self, other) -> bool:
+        if other.__class__ is not Waypoint:
+            return NotImplemented
+        return self[:4] == other[:4]
+
+    def __ne__(self, other) -> bool:
+        if other.__class__ is not Waypoint:
+            return NotImplemented
+        return self[:4] != other[:4]
+
+    def __hash__(self) -> int:
+        return hash(self[:4])
+
+    def __lt__(self, other):  # no ordering, as a record
+        return NotImplemented
+
+    __le__ = __gt__ = __ge__ = __lt__
+
+    def __repr__(self) -> str:
+        return (f"Waypoint(road_id={self[0]!r}, section_id={self[1]!r}, lane_id={self[2]!r}, "
+                f"s={self[3]!r})")
+
+    def __getnewargs__(self):
+        return tuple(self)
 
     @property
     def lane(self) -> Lane:
@@ -226,8 +279,9 @@ class LaneProjection:
     Arrays, all (N,): `road_id`, `section_id`, `lane_id` (int), `s` (m from road
     start), `x`, `y`, `z` (lane-centre point, CARLA world, m), `yaw` (deg, driving
     direction), `lateral_m` (signed offset of the query from the centre, positive to
-    the right of the driving direction), `distance_m` (2-D distance to the
-    centre line), `lane_width` (m), `lane_index` (index into `RoadMap.lane_list`).
+    the right of the driving direction), `distance_m` (distance from the query to the
+    lane-centre point: plan-view, or 3-D for a query that carries a z), `lane_width`
+    (m), `lane_index` (index into `RoadMap.lane_list`).
     """
 
     road_id: np.ndarray
@@ -257,7 +311,10 @@ class LaneProjection:
                         float(self.s[i]), self.map)
 
     def waypoints(self) -> list[Waypoint]:
-        return [self.waypoint(i) for i in range(len(self))]
+        make, m = tuple.__new__, self.map
+        return [make(Waypoint, (r, k, lane, s, m)) for r, k, lane, s in
+                zip(self.road_id.tolist(), self.section_id.tolist(), self.lane_id.tolist(),
+                    self.s.tolist(), strict=True)]
 
 
 @dataclass(frozen=True, slots=True)
@@ -311,9 +368,15 @@ class RoadMap:
     path: Path | None = None
 
     def _build_lanes(self) -> None:
+        driving = LaneType.Driving
+        # Per road, for generate_waypoints: (id, length, section starts, Driving lane
+        # ids of each section in id order).
+        self._road_driving: list[tuple[int, float, list[float], list[list[int]]]] = []
         for road in self.roads.values():
+            per_section = []
             for k, sec in enumerate(road.sections):
                 s1 = road.section_ends[k]
+                ids = []
                 for lid in sorted(sec.lanes):
                     rec = sec.lanes[lid]
                     lane = Lane((road.id, k, lid), len(self.lane_list),
@@ -321,6 +384,11 @@ class RoadMap:
                                 road.junction)
                     self.lanes[lane.key] = lane
                     self.lane_list.append(lane)
+                    if lane.type == driving:
+                        ids.append(lid)
+                per_section.append(ids)
+            self._road_driving.append((road.id, float(road.length),
+                                       [sec.s for sec in road.sections], per_section))
 
     def _section_of(self, road: RoadRecord, contact: str | None) -> int:
         return 0 if contact == "start" else len(road.sections) - 1
@@ -378,6 +446,23 @@ class RoadMap:
                                                  f"junction {rlink.element_id} connection {c.id}")
                                 if t:
                                     targets.append(t)
+            # The link against the driving direction (a forward lane's predecessor, a
+            # backward lane's successor) builds nothing (CARLA links lanes from their
+            # successors), but one naming a lane that does not exist is still a quirk
+            # of the map: warn about it, as for the successor links.
+            back_id = rec.predecessor if forward else rec.successor
+            if back_id is not None:
+                if (forward and k > 0) or (not forward and k < last):
+                    lane_or_warn(rid, k - 1 if forward else k + 1, back_id,
+                                 f"{where} {'predecessor' if forward else 'successor'}")
+                else:
+                    blink = road.predecessor if forward else road.successor
+                    if (blink is not None and blink.element_type == "road"
+                            and blink.element_id in self.roads):
+                        other = self.roads[blink.element_id]
+                        lane_or_warn(other.id, self._section_of(other, blink.contact_point),
+                                     back_id,
+                                     f"{where} {'predecessor' if forward else 'successor'}")
             seen = set()
             for t in targets:
                 if t not in seen:
@@ -461,11 +546,18 @@ class RoadMap:
                             knots.add(sec.s + x)
         if len(knots) == 2:
             return _linspace(s0, s1, max(2, math.ceil((s1 - s0) / step) + 1))
-        ordered = sorted(knots)
-        parts = [_linspace(a, c, max(2, math.ceil((c - a) / step) + 1))[:-1]
-                 for a, c in itertools.pairwise(ordered)]
-        parts.append(np.array([s1]))
-        return np.concatenate(parts)
+        # Between consecutive knots a < c: _linspace(a, c, n) without its last point,
+        # all intervals at once (the same products and sums, so the same bits).
+        ordered = np.array(sorted(knots))
+        a, c = ordered[:-1], ordered[1:]
+        n = np.maximum(2, np.ceil((c - a) / step).astype(np.int64) + 1)
+        m = n - 1
+        first = np.cumsum(m) - m
+        i = np.arange(int(m.sum())) - np.repeat(first, m)
+        out = np.empty(len(i) + 1)
+        np.add(i * np.repeat((c - a) / m, m), np.repeat(a, m), out=out[:-1])
+        out[-1] = s1
+        return out
 
     def _sample_lanes(self) -> None:
         xs, ys, zs, hs, ss, ws, owner, lane_n = [], [], [], [], [], [], [], []
@@ -496,8 +588,8 @@ class RoadMap:
                 xs.append((xr - t * sn).ravel())
                 ys.append((-(yr + t * cs)).ravel())
                 hs.append((-(hr + np.arctan2(dt, 1.0 - t * kr))).ravel())
-                zs.append(np.tile(z, len(lids)))
-                ss.append(np.tile(s, len(lids)))
+                zs += [z] * len(lids)  # the section's samples, once per lane
+                ss += [s] * len(lids)
                 ws.append(np.concatenate([centres[i][2] for i in lids]))
         self._vx = np.concatenate(xs)
         self._vy = np.concatenate(ys)
@@ -513,11 +605,11 @@ class RoadMap:
 
     # ------------------------------------------------------------------ spatial index
     def _index(self, lane_type: LaneType) -> tuple[cKDTree, np.ndarray, float]:
+        """Plan-view index of the lane-centre segments of a type: k-d tree of the
+        segment midpoints (x, y), the segment ids, and the largest half length."""
         key = int(lane_type)
         if key not in self._trees:
-            seg = self._seg[(self._lane_types[self._vlane[self._seg]] & key) != 0]
-            if len(seg) == 0:
-                raise OffRoadError(f"{self.name} has no lanes of type {lane_type!r}")
+            seg = self._segments_of(lane_type)
             mx = 0.5 * (self._vx[seg] + self._vx[seg + 1])
             my = 0.5 * (self._vy[seg] + self._vy[seg + 1])
             half = 0.5 * np.hypot(self._vx[seg + 1] - self._vx[seg],
@@ -525,11 +617,71 @@ class RoadMap:
             self._trees[key] = (cKDTree(np.column_stack([mx, my])), seg, float(half.max()))
         return self._trees[key]
 
+    def _index3(self, lane_type: LaneType) -> tuple[cKDTree, np.ndarray, float]:
+        """As `_index`, in 3-D: midpoints (x, y, z) and the largest 3-D half length.
+
+        Built on the first query that carries a z."""
+        key = -int(lane_type)  # negative keys: the 3-D trees
+        if key not in self._trees:
+            seg = self._segments_of(lane_type)
+            a = np.column_stack([self._vx[seg], self._vy[seg], self._vz[seg]])
+            b = np.column_stack([self._vx[seg + 1], self._vy[seg + 1], self._vz[seg + 1]])
+            half = 0.5 * np.sqrt(((b - a) ** 2).sum(axis=1))
+            self._trees[key] = (cKDTree(0.5 * (a + b)), seg, float(half.max()))
+        return self._trees[key]
+
+    def _segments_of(self, lane_type: LaneType) -> np.ndarray:
+        seg = self._seg[(self._lane_types[self._vlane[self._seg]] & int(lane_type)) != 0]
+        if len(seg) == 0:
+            raise OffRoadError(f"{self.name} has no lanes of type {lane_type!r}")
+        return seg
+
+    def _nearest_segments(self, q: np.ndarray, lane_type: LaneType) -> np.ndarray:
+        """Id of the nearest lane-centre segment to each row of q, exactly.
+
+        q is (N, 2) (plan-view distance) or (N, 3) (3-D distance, CARLA's rule).
+        """
+        three = q.shape[1] == 3
+        tree, seg, half = self._index3(lane_type) if three else self._index(lane_type)
+        if len(q) == 0:
+            return np.zeros(0, dtype=np.int64)
+        dist_fn = self._segment_distance3 if three else self._segment_distance
+        n_seg = len(seg)
+        k = min(8, n_seg)
+        d, j = tree.query(q, k=k)
+        d = d.reshape(len(q), -1)
+        cand = seg[j.reshape(len(q), -1)]
+        dist = dist_fn(q[:, None, :], cand)
+        a = np.argmin(dist, axis=1)
+        rows = np.arange(len(q))
+        best = cand[rows, a]
+        best_d = dist[rows, a]
+        # A segment whose midpoint is farther than best_d + half cannot beat best_d;
+        # where the k-th midpoint is nearer than that, look at every such segment.
+        unsure = np.flatnonzero((d[:, -1] - half < best_d) & (k < n_seg))
+        if len(unsure):
+            lists = tree.query_ball_point(q[unsure], best_d[unsure] + half + 1e-9,
+                                          return_sorted=False)
+            counts = np.fromiter((len(c) for c in lists), dtype=np.int64, count=len(lists))
+            flat = seg[np.fromiter((i for c in lists for i in c), dtype=np.int64,
+                                   count=int(counts.sum()))]
+            owner = np.repeat(unsure, counts)
+            dd = dist_fn(q[owner], flat)
+            starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+            order = np.lexsort((dd, owner))  # per point, nearest first
+            first = order[starts]
+            better = dd[first] < best_d[unsure]
+            best[unsure[better]] = flat[first[better]]
+            best_d[unsure[better]] = dd[first[better]]
+        return best
+
     def project(self, points, lane_type: LaneType = LaneType.Driving) -> LaneProjection:
         """Project many points onto the nearest lane centre of the given type(s).
 
         Args:
-            points: (N, 2) or (N, 3) array, CARLA world, metres (z is ignored).
+            points: (N, 2) or (N, 3) array, CARLA world, metres. With a z column
+                the lane is chosen by 3-D distance (the module's z rule, CARLA's);
+                a row whose z is NaN is matched in plan view.
             lane_type: a `LaneType` flag; lanes of any type in the flag are searched.
 
         Returns:
@@ -538,53 +690,48 @@ class RoadMap:
         Raises:
             OffRoadError: the map has no lane of that type.
         """
-        pts = np.asarray(points, dtype=float).reshape(-1, np.shape(points)[-1])[:, :2]
-        tree, seg, half = self._index(lane_type)
-        n_seg = len(seg)
-        k = min(8, n_seg)
-        d, j = tree.query(pts, k=k)
-        d = d.reshape(len(pts), -1)
-        cand = seg[j.reshape(len(pts), -1)]
-        dist = self._segment_distance(pts[:, None, :], cand)
-        a = np.argmin(dist, axis=1)
-        rows = np.arange(len(pts))
-        best = cand[rows, a]
-        best_d = dist[rows, a]
-        # A segment whose midpoint is farther than best_d + half cannot beat best_d;
-        # where the k-th midpoint is nearer than that, look at every such segment.
-        unsure = np.flatnonzero((d[:, -1] - half < best_d) & (k < n_seg))
-        if len(unsure):
-            lists = tree.query_ball_point(pts[unsure], best_d[unsure] + half + 1e-9,
-                                          return_sorted=False)
-            counts = np.fromiter((len(c) for c in lists), dtype=np.int64, count=len(lists))
-            flat = seg[np.fromiter((i for c in lists for i in c), dtype=np.int64,
-                                   count=int(counts.sum()))]
-            owner = np.repeat(unsure, counts)
-            dd = self._segment_distance(pts[owner], flat)
-            starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-            order = np.lexsort((dd, owner))  # per point, nearest first
-            first = order[starts]
-            better = dd[first] < best_d[unsure]
-            best[unsure[better]] = flat[first[better]]
-            best_d[unsure[better]] = dd[first[better]]
-        return self._refine(pts, best)
+        arr = np.asarray(points, dtype=float)
+        arr = arr.reshape(-1, arr.shape[-1])
+        pts = arr[:, :2]
+        qz = arr[:, 2] if arr.shape[1] >= 3 else None
+        has_z = np.isfinite(qz) if qz is not None else None
+        if qz is None or not has_z.any():
+            return self._refine(pts, self._nearest_segments(pts, lane_type))
+        best = np.empty(len(pts), dtype=np.int64)
+        rows3 = np.flatnonzero(has_z)
+        best[rows3] = self._nearest_segments(np.column_stack([pts[rows3], qz[rows3]]),
+                                             lane_type)
+        rows2 = np.flatnonzero(~has_z)
+        if len(rows2):
+            best[rows2] = self._nearest_segments(pts[rows2], lane_type)
+        return self._refine(pts, best, qz)
 
     def candidates(self, location, radius_m: float,
                    lane_type: LaneType = LaneType.Driving) -> LaneProjection:
         """Every lane whose centre line passes within `radius_m` of a point.
 
         One row per lane (its nearest foot point), sorted by distance; empty when
-        no lane is that close. CARLA world, metres.
+        no lane is that close. CARLA world, metres. When `location` carries a z
+        (a `Location`, carla.Location or (x, y, z)), distances are 3-D (the
+        module's z rule), so a road 10 m above or below is 10 m away, and
+        `distance_m` is 3-D; with (x, y) they are plan-view, as before.
 
         Example:
             >>> c = m.candidates((10.0, 2.0), radius_m=8.0)  # doctest: +SKIP
             >>> list(zip(c.road_id, c.lane_id))  # doctest: +SKIP
         """
-        q = np.asarray(as_xy(location), dtype=float)
-        tree, seg, half = self._index(lane_type)
+        x, y, z = as_xyz(location)
+        if z is None:
+            q = np.array([x, y])
+            tree, seg, half = self._index(lane_type)
+            dist_fn = self._segment_distance
+        else:
+            q = np.array([x, y, z])
+            tree, seg, half = self._index3(lane_type)
+            dist_fn = self._segment_distance3
         idx = np.asarray(tree.query_ball_point(q, radius_m + half), dtype=np.int64)
         segs = seg[idx]
-        d = self._segment_distance(q[None, :], segs)
+        d = dist_fn(q[None, :], segs)
         keep = d <= radius_m
         segs, d = segs[keep], d[keep]
         order = np.lexsort((d, self._vlane[segs]))
@@ -593,7 +740,9 @@ class RoadMap:
         first = np.concatenate([[True], lanes[1:] != lanes[:-1]]) if len(lanes) else lanes
         segs, d = segs[first], d[first]
         segs = segs[np.argsort(d, kind="stable")]
-        return self._refine(np.repeat(q[None, :], len(segs), axis=0), segs)
+        n = len(segs)
+        return self._refine(np.repeat(q[None, :2], n, axis=0), segs,
+                            None if z is None else np.full(n, z))
 
     def _segment_distance(self, q: np.ndarray, i: np.ndarray) -> np.ndarray:
         ax, ay = self._vx[i], self._vy[i]
@@ -604,8 +753,24 @@ class RoadMap:
         np.clip(t, 0.0, 1.0, out=t)
         return np.hypot(ax + t * dx - q[..., 0], ay + t * dy - q[..., 1])
 
-    def _refine(self, q: np.ndarray, i: np.ndarray) -> LaneProjection:
-        """Foot point on the cubic Hermite curve of segment i (Newton, from the chord)."""
+    def _segment_distance3(self, q: np.ndarray, i: np.ndarray) -> np.ndarray:
+        """3-D distance from points q (..., 3) to the 3-D segments i (CARLA's metric)."""
+        ax, ay, az = self._vx[i], self._vy[i], self._vz[i]
+        dx, dy, dz = self._vx[i + 1] - ax, self._vy[i + 1] - ay, self._vz[i + 1] - az
+        l2 = dx * dx + dy * dy + dz * dz
+        px, py, pz = q[..., 0] - ax, q[..., 1] - ay, q[..., 2] - az
+        t = (px * dx + py * dy + pz * dz) / np.where(l2 > 0, l2, 1.0)
+        np.clip(t, 0.0, 1.0, out=t)
+        ex, ey, ez = t * dx - px, t * dy - py, t * dz - pz
+        return np.sqrt(ex * ex + ey * ey + ez * ez)
+
+    def _refine(self, q: np.ndarray, i: np.ndarray, qz: np.ndarray | None = None
+                ) -> LaneProjection:
+        """Foot point on the cubic Hermite curve of segment i (Newton, from the chord).
+
+        The foot point is the plan-view one; `qz` (N,), NaN where unknown, only
+        makes `distance_m` 3-D where it is given.
+        """
         p0 = np.column_stack([self._vx[i], self._vy[i]])
         p1 = np.column_stack([self._vx[i + 1], self._vy[i + 1]])
         chord = np.linalg.norm(p1 - p0, axis=1)[:, None]
@@ -632,9 +797,12 @@ class RoadMap:
         lateral = np.where(backward, -lateral, lateral)
         w = self._vw[i] + t * (self._vw[i + 1] - self._vw[i])
         z = self._vz[i] + t * (self._vz[i + 1] - self._vz[i])
+        dist = np.hypot(r[:, 0], r[:, 1])
+        if qz is not None:
+            dz = qz - z
+            dist = np.where(np.isfinite(dz), np.hypot(dist, dz), dist)
         return LaneProjection(keys[:, 0], keys[:, 1], keys[:, 2], s, c[:, 0], c[:, 1], z, yaw,
-                              lateral, np.hypot(r[:, 0], r[:, 1]), w, lane_idx.astype(np.int64),
-                              self)
+                              lateral, dist, w, lane_idx.astype(np.int64), self)
 
     # ------------------------------------------------------------------ CARLA queries
     def get_waypoint(self, location, project_to_road: bool = True,
@@ -643,21 +811,118 @@ class RoadMap:
 
         Args:
             location: `Location`, carla.Location or (x, y[, z]); CARLA world, metres.
+                A location with a z is matched by 3-D distance, as CARLA does (a
+                `Location` always has one, 0 by default); (x, y) in plan view.
             project_to_road: when False, return a waypoint only if the point lies
                 within half a lane width of the nearest centre line, else None.
             lane_type: `LaneType` flag of the lanes to consider.
         """
-        p = self.project(np.array([as_xy(location)]), lane_type)
-        if not project_to_road and not p.inside[0]:
+        x, y, z = as_xyz(location)
+        i = self._nearest_segment_one([x, y] if z is None else [x, y, z], lane_type)
+        s, lateral, width = self._refine_one(x, y, i)
+        if not project_to_road and not abs(lateral) <= 0.5 * width + 1e-9:
             return None
-        return p.waypoint(0)
+        rid, k, lid = self.lane_list[int(self._vlane[i])].key
+        return tuple.__new__(Waypoint, (rid, k, lid, s, self))
+
+    def _nearest_segment_one(self, q: list[float], lane_type: LaneType) -> int:
+        """`_nearest_segments` for one point (x, y[, z]), with less overhead; same answer.
+
+        One k-d query for the 32 nearest midpoints settles ~99 % of points: when no
+        unseen segment can be nearer and the nearest is unique, it is the answer of
+        any exact search. Otherwise (a possible nearer segment, or an exact tie
+        between overlapping lanes) `_nearest_segments`' own steps run, so ties
+        break the same way in both.
+        """
+        three = len(q) == 3
+        tree, seg, half = self._index3(lane_type) if three else self._index(lane_type)
+        dist_fn = self._segment_distance3 if three else self._segment_distance
+        n_seg = len(seg)
+        qa = np.array(q)
+        k = min(32, n_seg)
+        d, j = tree.query(q, k=k)
+        if k == 1:  # the k-d tree answers scalars for k = 1
+            d, j = np.atleast_1d(d), np.atleast_1d(j)
+        cand = seg[j]
+        dist = dist_fn(qa, cand)
+        a = int(dist.argmin())
+        best_d = dist[a]
+        if (k == n_seg or float(d[-1]) - half >= best_d) and \
+                np.count_nonzero(dist == best_d) == 1:
+            return int(cand[a])
+        k = min(8, n_seg)  # _nearest_segments' steps, for one point (the k-d tree
+        d, j = tree.query(q, k=k)  # orders equal midpoint distances by k)
+        d, j = np.atleast_1d(d), np.atleast_1d(j)
+        cand = seg[j]
+        dist = dist_fn(qa, cand)
+        a = int(dist.argmin())
+        best, best_d = int(cand[a]), float(dist[a])
+        if k < n_seg and float(d[k - 1]) - half < best_d:
+            idx = tree.query_ball_point(q, best_d + half + 1e-9, return_sorted=False)
+            flat = seg[np.asarray(idx, dtype=np.int64)]
+            dd = dist_fn(qa, flat)
+            f = int(dd.argmin())
+            if float(dd[f]) < best_d:
+                best = int(flat[f])
+        return best
+
+    def _refine_one(self, x: float, y: float, i: int) -> tuple[float, float, float]:
+        """`_refine` for one point in plain floats: (s, lateral offset, lane width).
+
+        The same Newton steps on the same Hermite curve as `_refine`, operation for
+        operation, so the answers agree to the last bits of a double.
+        """
+        vx, vy, vh = self._vx, self._vy, self._vh
+        ax, ay, bx, by = float(vx[i]), float(vy[i]), float(vx[i + 1]), float(vy[i + 1])
+        h0, h1 = float(vh[i]), float(vh[i + 1])
+        dx, dy = bx - ax, by - ay
+        chord = math.sqrt(dx * dx + dy * dy)
+        t0x, t0y = math.cos(h0) * chord, math.sin(h0) * chord
+        t1x, t1y = math.cos(h1) * chord, math.sin(h1) * chord
+        t = ((x - ax) * dx + (y - ay) * dy) / max(chord * chord, 1e-18)
+        t = min(max(t, 0.0), 1.0)
+        for _ in range(3):
+            t2 = t * t
+            t3 = t2 * t
+            b0, b1, b2, b3 = 2 * t3 - 3 * t2 + 1, t3 - 2 * t2 + t, -2 * t3 + 3 * t2, t3 - t2
+            d0, d1, d2, d3 = (6 * t2 - 6 * t, 3 * t2 - 4 * t + 1, -6 * t2 + 6 * t,
+                              3 * t2 - 2 * t)
+            e0, e1, e2, e3 = 12 * t - 6, 6 * t - 4, 6 - 12 * t, 6 * t - 2
+            rx = ax * b0 + t0x * b1 + bx * b2 + t1x * b3 - x
+            ry = ay * b0 + t0y * b1 + by * b2 + t1y * b3 - y
+            c1x = ax * d0 + t0x * d1 + bx * d2 + t1x * d3
+            c1y = ay * d0 + t0y * d1 + by * d2 + t1y * d3
+            c2x = ax * e0 + t0x * e1 + bx * e2 + t1x * e3
+            c2y = ay * e0 + t0y * e1 + by * e2 + t1y * e3
+            g = rx * c1x + ry * c1y
+            dg = (c1x * c1x + c1y * c1y) + (rx * c2x + ry * c2y)
+            t = min(max(t - g / (dg if abs(dg) > 1e-12 else 1e-12), 0.0), 1.0)
+        t2 = t * t
+        t3 = t2 * t
+        b0, b1, b2, b3 = 2 * t3 - 3 * t2 + 1, t3 - 2 * t2 + t, -2 * t3 + 3 * t2, t3 - t2
+        d0, d1, d2, d3 = 6 * t2 - 6 * t, 3 * t2 - 4 * t + 1, -6 * t2 + 6 * t, 3 * t2 - 2 * t
+        cx = ax * b0 + t0x * b1 + bx * b2 + t1x * b3
+        cy = ay * b0 + t0y * b1 + by * b2 + t1y * b3
+        c1x = ax * d0 + t0x * d1 + bx * d2 + t1x * d3
+        c1y = ay * d0 + t0y * d1 + by * d2 + t1y * d3
+        s0 = float(self._vs[i])
+        s = s0 + t * (float(self._vs[i + 1]) - s0)
+        heading = math.atan2(c1y, c1x)
+        rx, ry = x - cx, y - cy
+        lateral = -rx * math.sin(heading) + ry * math.cos(heading)
+        if self._lane_keys[self._vlane[i], 2] > 0:
+            lateral = -lateral
+        w0 = float(self._vw[i])
+        return s, lateral, w0 + t * (float(self._vw[i + 1]) - w0)
 
     def get_waypoints(self, points, project_to_road: bool = True,
                       lane_type: LaneType = LaneType.Driving) -> list[Waypoint | None]:
-        """`get_waypoint` for (N, 2) points at once."""
+        """`get_waypoint` for (N, 2) or (N, 3) points at once (z: see `project`)."""
         p = self.project(points, lane_type)
-        inside = p.inside
-        return [p.waypoint(i) if (project_to_road or inside[i]) else None for i in range(len(p))]
+        wps = p.waypoints()
+        if project_to_road:
+            return wps
+        return [w if ok else None for w, ok in zip(wps, p.inside.tolist(), strict=True)]
 
     def waypoint(self, road_id: int, section_id: int, lane_id: int, s: float) -> Waypoint:
         """The waypoint at (road, section, lane, s); s is clamped into the section.
@@ -694,34 +959,83 @@ class RoadMap:
     def get_topology(self) -> list[tuple[Waypoint, Waypoint]]:
         """(start of a Driving lane, start of one successor lane) pairs, as CARLA's."""
         out = []
+        lanes, make, driving = self.lanes, tuple.__new__, LaneType.Driving
         for lane in self.lane_list:
-            if lane.type != LaneType.Driving:
+            if lane.type != driving or not lane.successors:
                 continue
-            a = self.lane_start(lane.key)
+            a = make(Waypoint, (*lane.key, lane.s0 if lane.key[2] < 0 else lane.s1, self))
             for t in lane.successors:
-                out.append((a, self.lane_start(t)))
+                b = lanes[t]
+                out.append((a, make(Waypoint, (*t, b.s0 if t[2] < 0 else b.s1, self))))
         return out
 
     def generate_waypoints(self, distance: float) -> list[Waypoint]:
-        """Per road, s = ε, ε + d, … < length − ε; one waypoint per Driving lane at s."""
-        if distance <= 0:
+        """Per road, s = ε, ε + d, … < length − ε; one waypoint per Driving lane at s.
+
+        s accumulates as CARLA's loop does (s += d, not s = ε + i·d); every road
+        starts from the same ε, so one accumulated sequence serves all roads.
+        """
+        if not distance > 0:
             raise ValueError(f"distance must be positive, got {distance}")
-        out = []
-        for road in self.roads.values():
-            s = _EPS
-            while s < road.length - _EPS:  # accumulated as CARLA does (s += d), not s = ε + i·d
-                k = self.section_at(road, s)
-                for lid in sorted(road.sections[k].lanes):
-                    if self.lanes[(road.id, k, lid)].type == LaneType.Driving:
-                        out.append(Waypoint(road.id, k, lid, s, self))
-                s += distance
+        eps = float(_EPS)
+        longest = max((r[1] for r in self._road_driving), default=0.0)
+        n = int((longest - 2.0 * eps) / distance) + 3
+        steps = np.full(max(n, 1), float(distance))
+        steps[0] = eps
+        acc = np.cumsum(steps)  # sequential, as s += d
+        while acc[-1] < longest - eps:  # rounding left the bound short: go on adding d
+            more = np.full(n + 1, float(distance))
+            more[0] = acc[-1]
+            acc = np.concatenate([acc, np.cumsum(more)[1:]])
+        svals = acc.tolist()
+        out: list[Waypoint] = []
+        make = partial(tuple.__new__, Waypoint)
+        for rid, length, starts, per_section in self._road_driving:
+            count = bisect_left(svals, length - eps)  # s < length - ε
+            if count == 0:
+                continue
+            if len(per_section) == 1:
+                runs = [(0, 0, count)]
+            else:  # runs of s in one lane section (section_at's rule)
+                runs = []
+                for i in range(count):
+                    k = max(0, bisect_right(starts, svals[i]) - 1)
+                    if runs and runs[-1][0] == k:
+                        runs[-1][2] = i + 1
+                    else:
+                        runs.append([k, i, i + 1])
+            for k, a, b in runs:
+                ids = per_section[k]
+                m = len(ids)
+                if m == 0:
+                    continue
+                ss = svals[a:b]
+                c = b - a
+                if m == 1:
+                    out += map(make, zip(repeat(rid, c), repeat(k, c), repeat(ids[0], c), ss,
+                                         repeat(self, c), strict=True))
+                else:
+                    s_rep = chain.from_iterable(zip(*([ss] * m), strict=True))  # s, s, …
+                    out += map(make, zip(repeat(rid, c * m), repeat(k, c * m), ids * c, s_rep,
+                                         repeat(self, c * m), strict=True))
         return out
 
     def _walk(self, wp: Waypoint, distance: float, forward: bool) -> list[Waypoint]:
         if not distance > 0:
             raise ValueError(f"distance must be positive, got {distance}")
+        key = wp[:3]
+        lane = self.lanes[key]
+        s = wp[3]
+        d = float(distance)
+        if (key[2] < 0) == forward:  # moving towards increasing s
+            if d <= lane.s1 - s + 1e-9:  # the common case: still on this lane
+                return [tuple.__new__(Waypoint, (*key, float(min(max(s + d, lane.s0), lane.s1)),
+                                                 self))]
+        elif d <= s - lane.s0 + 1e-9:
+            return [tuple.__new__(Waypoint, (*key, float(min(max(s - d, lane.s0), lane.s1)),
+                                             self))]
         out: list[Waypoint] = []
-        stack = [(wp.key, wp.s, float(distance), 0)]
+        stack = [(key, s, d, 0)]
         while stack:
             key, s, d, depth = stack.pop()
             lane = self.lanes[key]

@@ -160,6 +160,17 @@ class PlanView:
         self.starts = np.array([g.s for g in self.geometries])
         self.length = float(self.geometries[-1].s + self.geometries[-1].length)
         self._tables: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        # Lines and arcs only (most roads): evaluate all records in one vectorised pass.
+        self._lines_arcs = len(self.geometries) > 1 and all(
+            g.kind in ("line", "arc") for g in self.geometries)
+        if self._lines_arcs:
+            k = np.array([g.params["curvature"] if g.kind == "arc" else 0.0
+                          for g in self.geometries])
+            k[np.abs(k) < 1e-12] = 0.0  # read as lines, as `_eval_one` does
+            hdg = np.array([g.hdg for g in self.geometries])
+            self._la = (np.array([g.x for g in self.geometries]),
+                        np.array([g.y for g in self.geometries]), hdg, k,
+                        np.cos(hdg), np.sin(hdg), np.where(k == 0.0, 1.0, k))
 
     def evaluate(self, s: np.ndarray | float) -> tuple[np.ndarray, ...]:
         s = np.atleast_1d(np.asarray(s, dtype=float))
@@ -180,6 +191,17 @@ class PlanView:
         if len(self.geometries) == 1:
             return self._eval_one(0, s - self.starts[0])
         cuts = np.searchsorted(s, self.starts[1:], side="left")
+        if self._lines_arcs:
+            bounds = np.empty(len(cuts) + 2, dtype=np.int64)
+            bounds[0], bounds[1:-1], bounds[-1] = 0, cuts, len(s)
+            gi = np.repeat(np.arange(len(self.geometries)), bounds[1:] - bounds[:-1])
+            x0, y0, hdg, k, cos0, sin0, k_div = (a[gi] for a in self._la)
+            ds = s - self.starts[gi]
+            h = hdg + k * ds
+            arc = k != 0.0
+            x = np.where(arc, x0 + (np.sin(h) - sin0) / k_div, x0 + ds * cos0)
+            y = np.where(arc, y0 - (np.cos(h) - cos0) / k_div, y0 + ds * sin0)
+            return x, y, h, k
         bounds = [0, *cuts.tolist(), len(s)]
         parts = [self._eval_one(i, s[a:b] - self.starts[i])
                  for i, (a, b) in enumerate(itertools.pairwise(bounds)) if b > a]

@@ -6,7 +6,9 @@ A recording is a directory:
     format ("dashtraj-recording") and format_version (1); map (source as given,
     "map.xodr", sha256 of the .xodr bytes); seed; step_s; duration_s asked for;
     simulated_to_t (s); complete (false until the run ended normally);
-    target_arrived_t (s or null); camera (the `CameraSpec`); catalog_version;
+    target_arrived_t (s or null); target_vehicle_id (0); observer_ids;
+    twin_vehicle_ids (agents of the target's exact identity, `RunConfig.n_twins`);
+    camera (the `CameraSpec`); catalog_version;
     observer_roles ({vehicle id: "oncoming" | "following" | "crossing" | "parked"}
     with "meet" placement, empty otherwise); parked_observer_ids (the observers
     that stand still at the roadside for the whole run, with either placement;
@@ -28,7 +30,8 @@ A recording is a directory:
     length, width, height), box_yaw, u_min, v_min, u_max, v_max (pixels),
     truncation, distance_m, bearing_deg, orientation, label.
 ``target_route.csv``
-    the target's true trajectory, columns x, y, t (`dashtraj.trajectory.io`).
+    the target's true trajectory, columns x, y, t (`dashtraj.trajectory.io`), from
+    t = 0 to its arrival (or the end of the run if it did not arrive).
 ``map.xodr``
     a copy of the map.
 
@@ -56,6 +59,7 @@ import pyarrow.parquet as pq
 
 from dashtraj.errors import DashtrajError, InputFormatError
 from dashtraj.world.camera import CameraSpec, visible_boxes
+from dashtraj.world.traffic import CAPACITY_SPACING_M as CAPACITY_HINT_M
 from dashtraj.world.traffic import LaneNetwork, TrafficConfig, TrafficSim, VehicleSpec
 
 FORMAT = "dashtraj-recording"
@@ -101,6 +105,11 @@ class RunConfig:
         seed: seed of every random choice.
         duration_s: simulated time, seconds (the longest, with `until_target_arrives`).
         n_observers, n_agents: vehicle counts (plus one target).
+        n_twins: extra agents of the target's exact catalog identity (model and
+            colour): look-alikes that appearance alone cannot tell apart. They come
+            after the other vehicles (the last ids), drive as agents, and are listed
+            in meta.json's ``twin_vehicle_ids``; the others' identities are the same
+            as with no twins (drawn first, from the same seed).
         until_target_arrives: stop as soon as the target reaches its destination.
         truth_step_s: camera frame period for the ground truth, seconds.
         max_range_m: truth is kept for vehicles this close to a camera, metres.
@@ -121,6 +130,7 @@ class RunConfig:
     duration_s: float = 180.0
     n_observers: int = 4
     n_agents: int = 20
+    n_twins: int = 0
     until_target_arrives: bool = False
     truth_step_s: float = 0.1
     max_range_m: float = 60.0
@@ -190,7 +200,13 @@ def _identities(rng: np.random.Generator, n: int, classes, id_range=None):
     from dashtraj.world.catalog import CATALOG_VERSION, sample_identities
 
     out = []
-    for ident in sample_identities(rng, n, classes=classes, id_range=id_range):
+    try:
+        idents = sample_identities(rng, n, classes=classes, id_range=id_range)
+    except ValueError as exc:  # too few identities in the range / classes asked for
+        where = f"identities {id_range[0]}-{id_range[1]}" if id_range else "the catalog"
+        raise RecordingError(f"{where} of classes {', '.join(classes)}: {exc} (one per "
+                             f"vehicle: target, observers and agents)") from None
+    for ident in idents:
         m = ident.model
         out.append({"identity_id": ident.identity_id, "blueprint_id": m.blueprint_id,
                     "vehicle_class": m.vehicle_class, "body_type": m.body_type,
@@ -229,10 +245,29 @@ class _ChunkWriter:
             self.writer.close()
 
 
+def _check_config(config: RunConfig) -> None:
+    """Refuse a run that cannot mean anything (RecordingError naming the field)."""
+    for name in ("duration_s", "truth_step_s", "chunk_s", "max_range_m"):
+        v = getattr(config, name)
+        if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+            raise RecordingError(f"run config: {name} must be a finite number > 0, got {v!r}")
+    step = config.traffic.step_s
+    if not (math.isfinite(step) and 0 < step <= config.duration_s):
+        raise RecordingError(f"run config: step_s must be > 0 and at most duration_s "
+                             f"({config.duration_s:g} s), got {step!r}")
+    for name in ("n_observers", "n_agents", "n_twins"):
+        v = getattr(config, name)
+        if not (isinstance(v, int) and v >= 0):
+            raise RecordingError(f"run config: {name} must be an integer >= 0, got {v!r}")
+
+
 def simulate(config: RunConfig, out_dir: str | Path,
              progress: Callable[[float], None] | None = None) -> RunSummary:
     """Simulate a drive and write it as a recording in `out_dir` (created; emptied parts
-    are overwritten).
+    are overwritten; the CLI writes into a fresh temporary folder, see `dashtraj.outputs`).
+
+    ``target_route.csv`` covers the target's trip only: from t = 0 to its arrival (or
+    to the end of the run when it does not arrive), even when the run goes on after it.
 
     Args:
         config: the run.
@@ -244,26 +279,27 @@ def simulate(config: RunConfig, out_dir: str | Path,
         with ``complete: false`` and the exception propagates.
     """
     from dashtraj.roads import RoadMap
+    from dashtraj.world.traffic import vehicle_capacity
 
+    _check_config(config)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     map_path = resolve_map(config.map)
     xodr = map_path.read_bytes()
-    (out / "map.xodr").write_bytes(xodr)
-    road_map = RoadMap.from_string(xodr, name=map_path.stem)
+    # a built-in town is named as the user named it, not by its cache file
+    name = map_path.stem if map_path == Path(config.map) else str(config.map).lower()
+    road_map = RoadMap.from_string(xodr, name=name)
     seeds = np.random.SeedSequence(config.seed).spawn(2)
     rng_ids, rng_traffic = (np.random.default_rng(s) for s in seeds)
-    n = 1 + config.n_observers + config.n_agents
-    rows, catalog_version = _identities(rng_ids, n, config.vehicle_classes,
+    n_own = 1 + config.n_observers + config.n_agents
+    rows, catalog_version = _identities(rng_ids, n_own, config.vehicle_classes,
                                         config.identity_range)
-    roles = ["target"] + ["observer"] * config.n_observers + ["agent"] * config.n_agents
+    rows += [dict(rows[0]) for _ in range(config.n_twins)]  # the target's identity again
+    n = len(rows)
+    roles = (["target"] + ["observer"] * config.n_observers
+             + ["agent"] * (config.n_agents + config.n_twins))
     for vid, (row, role) in enumerate(zip(rows, roles, strict=True)):
         row["vehicle_id"] = vid
         row["role"] = role
-    with open(out / "vehicles.csv", "w", newline="", encoding="utf-8") as fh:
-        w = csv.DictWriter(fh, fieldnames=VEHICLE_COLUMNS, lineterminator="\n")
-        w.writeheader()
-        w.writerows(rows)
     specs = [VehicleSpec(r["vehicle_id"], r["role"], r["length_m"], r["width_m"], r["height_m"])
              for r in rows]
     length = np.array([r["length_m"] for r in rows])
@@ -272,7 +308,20 @@ def simulate(config: RunConfig, out_dir: str | Path,
     classes = np.array([r["vehicle_class"] for r in rows])
     net = LaneNetwork(road_map, max_vehicle_length_m=max(12.5, float(length.max())),
                       max_vehicle_width_m=max(2.6, float(width.max())))
+    capacity = vehicle_capacity(net)
+    if n > capacity:
+        raise RecordingError(
+            f"{name} has room for about {capacity} vehicles (one per "
+            f"{CAPACITY_HINT_M:g} m of lane outside junctions); asked for {n} (1 target + "
+            f"{config.n_observers} observers + {config.n_agents} agents"
+            f"{f' + {config.n_twins} twins' if config.n_twins else ''}): ask for fewer agents")
     sim = TrafficSim(net, specs, config.traffic, rng_traffic, target_route=config.target_route)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "map.xodr").write_bytes(xodr)
+    with open(out / "vehicles.csv", "w", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=VEHICLE_COLUMNS, lineterminator="\n")
+        w.writeheader()
+        w.writerows(rows)
     obs_idx = np.array([i for i, r in enumerate(roles) if r == "observer"], dtype=np.int64)
     step = config.traffic.step_s
     n_steps = round(config.duration_s / step)
@@ -285,6 +334,7 @@ def simulate(config: RunConfig, out_dir: str | Path,
         "seed": config.seed, "step_s": step, "duration_s": config.duration_s,
         "simulated_to_t": 0.0, "complete": False, "target_arrived_t": None,
         "target_vehicle_id": 0, "observer_ids": obs_idx.tolist(),
+        "twin_vehicle_ids": list(range(n_own, n)),
         "observer_roles": {str(int(sim.ids[i])): role
                            for i, role in sorted(sim.meet_roles.items())},
         "parked_observer_ids": [int(sim.ids[i]) for i in np.flatnonzero(sim.parked)],
@@ -307,7 +357,8 @@ def simulate(config: RunConfig, out_dir: str | Path,
             f = sim.frame()
             states_w.add({"t": np.full(n, t), **f})
             frames += 1
-            route_xy.append((float(f["x"][0]), float(f["y"][0]), t))
+            if sim.target_arrived_t is None or t <= sim.target_arrived_t + 1e-9:
+                route_xy.append((float(f["x"][0]), float(f["y"][0]), t))
             if k % truth_every == 0 and len(obs_idx):
                 g = visible_boxes(config.camera, f["x"][obs_idx], f["y"][obs_idx],
                                   f["z"][obs_idx], f["yaw"][obs_idx], f["x"], f["y"], f["z"],
@@ -447,6 +498,12 @@ class Recording:
                 tables[name] = pq.read_table(p)
             except (pa.ArrowInvalid, OSError) as exc:
                 raise RecordingError(f"{p} is corrupt or not parquet: {exc}") from exc
+        want = (meta.get("map") or {}).get("sha256")
+        map_file = root / (meta.get("map") or {}).get("file", "map.xodr")
+        if want and map_file.is_file() and \
+                hashlib.sha256(map_file.read_bytes()).hexdigest() != want:
+            raise RecordingError(f"{map_file} is not the map meta.json names (sha256 differs): "
+                                 f"the folder mixes files of two runs; simulate it again")
         route = read_trajectory(need("target_route.csv"))
         if not meta.get("complete"):
             warnings.warn(f"recording {root} is incomplete: simulated to "

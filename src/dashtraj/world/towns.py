@@ -487,6 +487,9 @@ def _cache_root(cache_dir: str | os.PathLike[str] | None) -> Path:
     env = os.environ.get("DASHTRAJ_CACHE")
     if env:
         return Path(env) / "towns"
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    if xdg and Path(xdg).is_absolute():  # the XDG base directory spec ignores relative ones
+        return Path(xdg) / "dashtraj" / "towns"
     return Path.home() / ".cache" / "dashtraj" / "towns"
 
 
@@ -494,6 +497,7 @@ def town_path(name: str, cache_dir: str | os.PathLike[str] | None = None) -> Pat
     """Path of town ``name`` written as .xodr in a cache folder, writing it once.
 
     The folder is ``cache_dir`` if given, else ``$DASHTRAJ_CACHE/towns``, else
+    ``$XDG_CACHE_HOME/dashtraj/towns`` (when set to an absolute path), else
     ``~/.cache/dashtraj/towns``. The file is named ``<name>-<sha256[:16]>.xodr`` after
     its content, so a changed generator writes a new file; an existing identical file
     is never rewritten (the write is atomic via a temporary file and rename).
@@ -524,6 +528,7 @@ def resolve_map(source: str | os.PathLike[str]) -> Path:
     p = Path(source)
     if p.suffix.lower() == ".xodr" or p.exists():
         if not p.is_file():
-            raise OpenDriveError(f"map file {p} does not exist")
+            raise OpenDriveError(f"map file {p} does not exist" if not p.exists()
+                                 else f"map {p} is a folder, not an .xodr file")
         return p
     return town_path(str(source))

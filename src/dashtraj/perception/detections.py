@@ -1,0 +1,195 @@
+"""Detections of one frame and the `Detector` protocol every detector follows.
+
+A detector turns one rendered frame into boxes, scores and class ids:
+
+- ``boxes``: (N, 4) float64, (x0, y0, x1, y1), image pixels (continuous coordinates,
+  top-left image corner at (0, 0), exclusive ends as the renderer's labels);
+- ``scores``: (N,) float64 in [0, 1];
+- ``class_ids``: (N,) int64, index into `DETECTION_CLASSES` (vehicle class ×
+  orientation, the vehicle orientation dataset's 15 classes).
+
+Two detectors exist, chosen by name with `build_detector`:
+
+- ``oracle``: the renderer's exact visible boxes and labels (every vehicle with at
+  least `OracleDetector.min_height_px` rows and `min_visible_fraction` of its
+  silhouette visible; score 1). It also knows each box's vehicle id (`truth_ids`).
+- a path to an ``.onnx`` model: ``dashtraj.perception.detect`` (the ONNX run time
+  detector), when that module is installed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from dashtraj.errors import DashtrajError
+from dashtraj.world.camera import DETECTION_CLASSES
+
+ORIENTATION_OF_CLASS: tuple[str, ...] = tuple(c.split("_")[1] for c in DETECTION_CLASSES)
+"""Orientation (front / back / side) of each class id."""
+
+VEHICLE_CLASS_OF_CLASS: tuple[str, ...] = tuple(c.split("_")[0] for c in DETECTION_CLASSES)
+"""Vehicle class (car, truck, bus, motorcycle, bicycle) of each class id."""
+
+VEHICLE_CLASS_INDEX: np.ndarray = np.array(
+    [("car", "truck", "bus", "motorcycle", "bicycle").index(v) for v in VEHICLE_CLASS_OF_CLASS])
+"""(15,) vehicle-class index (0 car … 4 bicycle) of each class id: Eq. 1's η."""
+
+
+class DetectorError(DashtrajError):
+    """A detector cannot be built (unknown name, missing model file or module)."""
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Detections:
+    """The detections of one frame (units and order in the module docstring).
+
+    ``truth_ids`` (N,) int64 holds the vehicle id each box belongs to when the detector
+    knows it (the oracle) or when it was matched to the renderer's labels, −1 otherwise.
+    """
+
+    boxes: np.ndarray
+    scores: np.ndarray
+    class_ids: np.ndarray
+    truth_ids: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.scores)
+
+    @classmethod
+    def empty(cls) -> Detections:
+        return cls(np.zeros((0, 4)), np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+    def take(self, index) -> Detections:
+        return Detections(self.boxes[index], self.scores[index], self.class_ids[index],
+                          self.truth_ids[index])
+
+
+@runtime_checkable
+class Detector(Protocol):
+    """Anything that detects vehicles in one frame.
+
+    ``detect(frame)`` takes a `dashtraj.datasets.frames.RecordingFrame` (its
+    ``frame_data.rgb`` is the (H, W, 3) uint8 image) and returns `Detections`.
+    """
+
+    name: str
+
+    def detect(self, frame) -> Detections: ...
+
+
+@dataclass
+class OracleDetector:
+    """The renderer's exact visible boxes and labels as detections (score 1).
+
+    Attributes:
+        min_height_px: drop boxes fewer than this many pixels high (a detector's floor).
+        min_visible_fraction: drop vehicles with less of their silhouette visible.
+    """
+
+    min_height_px: float = 8.0
+    min_visible_fraction: float = 0.1
+    name: str = "oracle"
+
+    def detect(self, frame) -> Detections:
+        boxes, cls, ids = [], [], []
+        for lab, vid in zip(frame.frame_data.labels, frame.vehicle_ids, strict=True):
+            b = lab.visible_box
+            if b is None or lab.visible_fraction < self.min_visible_fraction:
+                continue
+            if b[3] - b[1] < self.min_height_px:
+                continue
+            boxes.append(b)
+            cls.append(lab.detection_class_id)
+            ids.append(vid)
+        if not boxes:
+            return Detections.empty()
+        return Detections(np.asarray(boxes, np.float64), np.ones(len(boxes)),
+                          np.asarray(cls, np.int64), np.asarray(ids, np.int64))
+
+
+def truth_of(frame, min_height_px: float = 8.0, min_visible_fraction: float = 0.1) -> Detections:
+    """The ground truth of a frame: the oracle's detections (same thresholds)."""
+    return OracleDetector(min_height_px, min_visible_fraction).detect(frame)
+
+
+def match_truth(det: Detections, truth: Detections, min_iou: float = 0.5) -> np.ndarray:
+    """Vehicle id of each detection: its truth box by the Hungarian method on IoU (≥ min_iou),
+    else −1. Returns (N,) int64."""
+    from scipy.optimize import linear_sum_assignment
+
+    out = np.full(len(det), -1, np.int64)
+    if len(det) == 0 or len(truth) == 0:
+        return out
+    iou = iou_matrix(det.boxes, truth.boxes)
+    r, c = linear_sum_assignment(-iou)
+    ok = iou[r, c] >= min_iou
+    out[r[ok]] = truth.truth_ids[c[ok]]
+    return out
+
+
+def iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """IoU of every box of a (N, 4) with every box of b (M, 4), xyxy pixels → (N, M)."""
+    a = np.asarray(a, np.float64).reshape(-1, 4)
+    b = np.asarray(b, np.float64).reshape(-1, 4)
+    lo = np.maximum(a[:, None, :2], b[None, :, :2])
+    hi = np.minimum(a[:, None, 2:], b[None, :, 2:])
+    ix = np.clip(hi[..., 0] - lo[..., 0], 0, None)
+    iy = np.clip(hi[..., 1] - lo[..., 1], 0, None)
+    inter = ix * iy
+    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
+    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    union = area_a[:, None] + area_b[None, :] - inter
+    return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
+
+
+class _ModelDetector:
+    """Adapter of ``dashtraj.perception.detect`` (ONNX run time) to `Detector`."""
+
+    def __init__(self, path: Path):
+        try:
+            from dashtraj.perception import detect as det_mod
+        except ImportError as exc:
+            raise DetectorError(
+                f"--detector {path}: the ONNX detector (dashtraj.perception.detect) is not "
+                "installed in this dashtraj; use --detector oracle") from exc
+        self.name = path.name
+        self._mod = det_mod
+        loader = getattr(det_mod, "load_detector", None) or getattr(det_mod, "Detector", None)
+        if loader is None:
+            raise DetectorError(f"--detector {path}: dashtraj.perception.detect has neither "
+                                "load_detector nor Detector")
+        self._model = loader(path)
+
+    def detect(self, frame) -> Detections:
+        out = self._model.detect(frame.frame_data.rgb)
+        boxes, scores, cls = (np.asarray(v) for v in out[:3])
+        truth = truth_of(frame)
+        d = Detections(boxes.astype(np.float64).reshape(-1, 4), scores.astype(np.float64),
+                       cls.astype(np.int64), np.full(len(scores), -1, np.int64))
+        return Detections(d.boxes, d.scores, d.class_ids, match_truth(d, truth))
+
+
+DETECTORS: tuple[str, ...] = ("oracle",)
+"""Detector names; any other value must be a path to an .onnx model."""
+
+
+def build_detector(name: str) -> Detector:
+    """``"oracle"`` → `OracleDetector`; a path to an ``.onnx`` file → the ONNX detector.
+
+    Raises:
+        DetectorError: neither a known name nor an existing .onnx file, or the ONNX
+            detector module is not installed.
+    """
+    if name == "oracle":
+        return OracleDetector()
+    p = Path(name)
+    if p.suffix.lower() != ".onnx":
+        raise DetectorError(f"unknown detector {name!r}; valid: oracle or a path to an .onnx "
+                            "model")
+    if not p.is_file():
+        raise DetectorError(f"--detector {p}: no such model file")
+    return _ModelDetector(p)

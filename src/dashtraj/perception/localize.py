@@ -1,0 +1,276 @@
+"""Localization of detections: distance, signed bearing and world position of each box.
+
+Every estimator takes boxes (N, 4) xyxy in image pixels, class ids (index into
+`DETECTION_CLASSES`), the camera (`CameraSpec` of the image that was detected) and the
+camera's pose in that frame (`CameraPose`: centre, yaw, pitch; the road elevation
+under the observer), and returns `Localized`: the ground-plane distance from the
+camera to the vehicle's centre (metres), the signed bearing of the box off the camera
+axis (degrees, positive to the right, i.e. toward +y when yaw = 0) and the world
+position (CARLA world, metres):
+
+    x = cam_x + D cos(cam_yaw + bearing),  y = cam_y + D sin(cam_yaw + bearing)
+
+— the paper's Eq. 9 with the observer's yaw added and the signed bearing, where its
+Eq. 8 (arccos) loses the sign (see DESIGN.md).
+
+Estimators (`LOCALIZERS`, chosen by name with `build_localizer`):
+
+- ``paper``: Eq. 3, D = H_real f I_H / (μ_h h_px), with the paper's per-class heights
+  (1.6 m car, 3.5 m truck and bus, 1.45 m motorcycle and bicycle), h_px the box
+  height, f = W / (2 tan(FOV/2)) (Eq. 4) and μ_h the sensor constant calibrated the
+  paper's way: the mean of H_real f I_H / (D_true h_px) over N detections with known
+  distances (`calibrate_paper_constant`; the paper used 51 and got 599.46 for its
+  camera; `PAPER_MU_H` = 583.96 is ours, from 51, for the default camera).
+- ``ground``: the box's bottom edge is where the vehicle touches the road: the ray
+  through (box centre column, bottom row) is intersected with the road plane (camera
+  height and pitch from the mount; road elevation = the observer's ground z), and the
+  offset of its nearest wheel contact from its centre along the ray is added
+  (class-typical half wheelbase and half width, combined by the angle between the ray
+  and the vehicle's heading, taken from the orientation class: front/back = along the
+  ray, side = across it). Where the bottom
+  edge is unusable (cut by the image border, at or above the horizon) the box gets
+  Eq. 3's estimate and ``valid`` is False.
+- ``fused``: both, combined with their error models (Eq. 3's value divided by the
+  cosine of the bearing, since a box's height measures depth along the optical axis;
+  inverse-variance weights: σ_paper = 20 % of D, the spread of real heights around
+  the class height; σ_ground =
+  D² / (f h_cam) × 1 px + 0.3 m), falling back to the other estimate where one is
+  unusable (bottom edge cut by the image border or above the horizon; top edge cut);
+  where a nearer detection hides a box's bottom edge, the distance from the box width
+  replaces both (see `FusedLocalizer._occluded_bottoms`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from dashtraj.errors import DashtrajError
+from dashtraj.perception.detections import ORIENTATION_OF_CLASS, VEHICLE_CLASS_INDEX
+from dashtraj.world.camera import CameraSpec
+
+CLASS_HEIGHT_M: tuple[float, ...] = (1.6, 3.5, 3.5, 1.45, 1.45)
+"""Eq. 3's real heights per vehicle class (car, truck, bus, motorcycle, bicycle), metres."""
+
+CLASS_WHEELBASE_M: tuple[float, ...] = (2.85, 4.15, 5.72, 1.43, 1.06)
+CLASS_LENGTH_M: tuple[float, ...] = (4.76, 7.32, 11.2, 2.07, 1.77)
+CLASS_WIDTH_M: tuple[float, ...] = (1.87, 2.38, 2.52, 0.77, 0.56)
+"""Typical wheelbase and width per vehicle class, metres (means of the vehicle catalog):
+the lowest pixel of a vehicle is where its nearest wheels touch the road, half a
+wheelbase from its centre along its length and half a width across it."""
+
+PAPER_MU_H: float = 583.96
+"""μ_h of Eq. 3 for our 1280 x 720 camera (scaled with the image height), calibrated the
+paper's way from 51 known distances (the paper got 599.46 for its camera):
+``dashtraj simulate --town town01 --seed 1 --duration 60 -o cal`` then
+``dashtraj localization calibrate cal -n 51 --seed 0`` (seed 1 is a calibration seed,
+never an evaluation one)."""
+
+PAPER_SIGMA_REL = 0.20
+GROUND_SIGMA_PX = 1.0
+GROUND_SIGMA_M = 0.3
+
+
+class LocalizationError(DashtrajError):
+    """Unknown estimator or impossible calibration input."""
+
+
+@dataclass(frozen=True, slots=True)
+class CameraPose:
+    """A camera in one frame: centre (x, y, z), yaw and pitch (degrees), CARLA world,
+    and the road elevation ``ground_z`` (metres) under its vehicle."""
+
+    x: float
+    y: float
+    z: float
+    yaw_deg: float
+    pitch_deg: float = 0.0
+    ground_z: float = 0.0
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Localized:
+    """Per-box estimates, arrays (N,): distance_m, bearing_deg, x, y (CARLA world, m),
+    sigma_m (the estimator's 1-σ distance error model, metres), valid (bool)."""
+
+    distance_m: np.ndarray
+    bearing_deg: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    sigma_m: np.ndarray
+    valid: np.ndarray
+
+
+def pixel_rays(spec: CameraSpec, pose: CameraPose, u, v):
+    """Horizontal bearing (deg, + right) and (forward, up) per unit horizontal length of the
+    rays through pixels (u, v); arrays (N,)."""
+    f = spec.focal_px
+    u = np.asarray(u, np.float64)
+    v = np.asarray(v, np.float64)
+    right = (u - spec.width_px / 2.0) / f
+    up_c = -(v - spec.height_px / 2.0) / f
+    p = math.radians(pose.pitch_deg)
+    fwd_h = math.cos(p) - up_c * math.sin(p)
+    up = math.sin(p) + up_c * math.cos(p)
+    horiz = np.hypot(fwd_h, right)
+    return np.degrees(np.arctan2(right, fwd_h)), up / horiz
+
+
+def place(pose: CameraPose, distance_m, bearing_deg):
+    """World (x, y) at ground distance D along cam_yaw + signed bearing (not Eq. 8/9)."""
+    ang = np.radians(pose.yaw_deg + np.asarray(bearing_deg))  # observer yaw + signed bearing
+    d = np.asarray(distance_m)
+    return pose.x + d * np.cos(ang), pose.y + d * np.sin(ang)
+
+
+def paper_distance(spec: CameraSpec, boxes, class_ids, mu_h: float) -> np.ndarray:
+    """Eq. 3: D = H_real f I_H / (μ_h h_px), metres, per box (h_px = box height)."""
+    h_real = np.asarray(CLASS_HEIGHT_M)[VEHICLE_CLASS_INDEX[np.asarray(class_ids)]]
+    h_px = np.maximum(np.asarray(boxes, np.float64)[:, 3] - np.asarray(boxes)[:, 1], 1e-6)
+    return h_real * spec.focal_px * spec.height_px / (mu_h * h_px)  # Eq. 3
+
+
+def calibrate_paper_constant(spec: CameraSpec, boxes, class_ids, true_distance_m) -> float:
+    """μ_h of Eq. 3 fitted the paper's way: the mean over N detections of
+    H_real f I_H / (D_true h_px). Raises LocalizationError for N = 0 or bad distances."""
+    d = np.asarray(true_distance_m, np.float64)
+    if len(d) == 0 or not np.all(np.isfinite(d)) or np.any(d <= 0):
+        raise LocalizationError("calibration needs at least one finite positive distance")
+    return float(np.mean(paper_distance(spec, boxes, class_ids, 1.0) / d))
+
+
+def _half_extent_along_ray(class_ids, rel_deg=None) -> np.ndarray:
+    vc = VEHICLE_CLASS_INDEX[np.asarray(class_ids)]
+    L = np.asarray(CLASS_WHEELBASE_M)[vc] / 2
+    W = np.asarray(CLASS_WIDTH_M)[vc] / 2
+    if rel_deg is None:
+        side = np.array([ORIENTATION_OF_CLASS[c] == "side" for c in np.asarray(class_ids)],
+                        dtype=bool)
+        rel = np.where(side, 90.0, 0.0)
+    else:
+        rel = np.asarray(rel_deg)
+    r = np.radians(rel)
+    # the box bottom is the nearest wheel contact: B/2 |cos| + W/2 |sin| nearer than the centre
+    return L * np.abs(np.cos(r)) + W * np.abs(np.sin(r))
+
+
+@dataclass
+class PaperLocalizer:
+    """Eq. 3 distance with the calibrated constant; signed bearing of the box centre."""
+
+    mu_h: float = PAPER_MU_H
+    name: str = "paper"
+
+    def localize(self, boxes, class_ids, spec: CameraSpec, pose: CameraPose) -> Localized:
+        boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+        mu = self.mu_h * spec.height_px / 720.0
+        d = paper_distance(spec, boxes, class_ids, mu)
+        bearing, _ = pixel_rays(spec, pose, 0.5 * (boxes[:, 0] + boxes[:, 2]),
+                                0.5 * (boxes[:, 1] + boxes[:, 3]))
+        x, y = place(pose, d, bearing)
+        return Localized(d, bearing, x, y, PAPER_SIGMA_REL * d, np.ones(len(d), bool))
+
+
+@dataclass
+class GroundLocalizer:
+    """Bottom edge on the road plane plus the vehicle's half extent along the ray."""
+
+    mu_h: float = PAPER_MU_H
+    name: str = "ground"
+    border_px: float = 1.0
+
+    def localize(self, boxes, class_ids, spec: CameraSpec, pose: CameraPose,
+                 rel_deg=None) -> Localized:
+        boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+        uc = 0.5 * (boxes[:, 0] + boxes[:, 2])
+        bearing, slope = pixel_rays(spec, pose, uc, boxes[:, 3])
+        h = pose.z - pose.ground_z
+        ok = slope < -1e-6
+        near = np.where(ok, h / np.where(ok, -slope, 1.0), np.inf)
+        d = near + _half_extent_along_ray(class_ids, rel_deg)
+        valid = ok & (boxes[:, 3] < spec.height_px - self.border_px) & (near < 500)
+        sigma = (d * d) / (spec.focal_px * max(h, 0.1)) * GROUND_SIGMA_PX + GROUND_SIGMA_M
+        if not valid.all():  # bottom edge unusable: Eq. 3's estimate instead
+            p = PaperLocalizer(self.mu_h).localize(boxes, class_ids, spec, pose)
+            d = np.where(valid, d, p.distance_m)
+            sigma = np.where(valid, sigma, p.sigma_m)
+        x, y = place(pose, d, bearing)
+        return Localized(d, bearing, x, y, sigma, valid)
+
+
+@dataclass
+class FusedLocalizer:
+    """Inverse-variance fusion of ``paper`` and ``ground`` (fallbacks in the module doc)."""
+
+    mu_h: float = PAPER_MU_H
+    name: str = "fused"
+    border_px: float = 1.0
+
+    def localize(self, boxes, class_ids, spec: CameraSpec, pose: CameraPose,
+                 rel_deg=None) -> Localized:
+        boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+        p = PaperLocalizer(self.mu_h).localize(boxes, class_ids, spec, pose)
+        # Eq. 3 measures depth along the optical axis; the ground distance is depth / cos(b)
+        p_dist = p.distance_m / np.cos(np.radians(p.bearing_deg))
+        g = GroundLocalizer(self.mu_h, border_px=self.border_px).localize(
+            boxes, class_ids, spec, pose, rel_deg)
+        p_ok = boxes[:, 1] > self.border_px  # the top edge is the vehicle's roof
+        wp = np.where(p_ok, 1.0 / (PAPER_SIGMA_REL * p_dist) ** 2, 0.0)
+        wg = np.where(g.valid, 1.0 / np.where(g.valid, g.sigma_m, 1.0) ** 2, 0.0)
+        both = (wp + wg) > 0
+        dg = np.where(g.valid, g.distance_m, 0.0)
+        d = np.where(both, (wp * p_dist + wg * dg) / np.where(both, wp + wg, 1.0), p_dist)
+        sigma = np.where(both, 1.0 / np.sqrt(np.where(both, wp + wg, 1.0)),
+                         PAPER_SIGMA_REL * p_dist)
+        d = self._occluded_bottoms(boxes, class_ids, spec, p.bearing_deg, d)
+        x, y = place(pose, d, p.bearing_deg)
+        return Localized(d, p.bearing_deg, x, y, sigma, np.ones(len(d), bool))
+
+
+    def _occluded_bottoms(self, boxes, class_ids, spec, bearing_deg, d):
+        """Boxes whose bottom edge is hidden by a nearer detection of the same frame: the
+        visible bottom is too high and both the ground and Eq. 3 estimates are too far.
+        Unless the box is also cut sideways by that detection, use the distance from the
+        box width (class width for back views, the vehicle seen straight; the geometric
+        mean with the fused value for front and side views, seen obliquely), never more
+        than the fused value and at least 1 m beyond the occluder."""
+        n = len(boxes)
+        if n < 2:
+            return d
+        b = boxes
+        uc = 0.5 * (b[:, 0] + b[:, 2])
+        below = (b[None, :, 3] > b[:, None, 3]) & (b[None, :, 1] <= b[:, None, 3] + 2.0)
+        covers = below & (b[None, :, 0] <= uc[:, None]) & (uc[:, None] <= b[None, :, 2])
+        np.fill_diagonal(covers, False)
+        cut = below & ((np.abs(b[:, None, 0] - b[None, :, 2]) <= 2.0)
+                       | (np.abs(b[:, None, 2] - b[None, :, 0]) <= 2.0))
+        cut = cut.any(1) | (b[:, 0] <= self.border_px) | (b[:, 2] >= spec.width_px - self.border_px)
+        hit = covers.any(1) & ~cut
+        if not hit.any():
+            return d
+        vc = VEHICLE_CLASS_INDEX[np.asarray(class_ids)]
+        back = np.array([ORIENTATION_OF_CLASS[c] == "back" for c in np.asarray(class_ids)])
+        side = np.array([ORIENTATION_OF_CLASS[c] == "side" for c in np.asarray(class_ids)])
+        extent = np.where(side, np.asarray(CLASS_LENGTH_M)[vc], np.asarray(CLASS_WIDTH_M)[vc])
+        w_px = np.maximum(b[:, 2] - b[:, 0], 1.0)
+        d_w = spec.focal_px * extent / w_px / np.cos(np.radians(bearing_deg))
+        est = np.minimum(np.where(back, d_w, np.sqrt(d_w * d)), d)
+        occluder = np.where(covers, d[None, :], 0.0).max(1)
+        return np.where(hit, np.maximum(est, occluder + 1.0), d)
+
+
+LOCALIZERS: dict[str, type] = {"paper": PaperLocalizer, "ground": GroundLocalizer,
+                               "fused": FusedLocalizer}
+"""Estimators by name (see the module docstring)."""
+
+
+def build_localizer(name: str, mu_h: float | None = None):
+    """An estimator by name; ``mu_h`` overrides Eq. 3's constant (paper, fused).
+
+    Raises LocalizationError listing the valid names."""
+    if name not in LOCALIZERS:
+        raise LocalizationError(f"unknown localizer {name!r}; valid: {', '.join(LOCALIZERS)}")
+    cls = LOCALIZERS[name]
+    return cls() if mu_h is None else cls(mu_h=mu_h)

@@ -1,0 +1,346 @@
+"""``dashtraj perceive``: a recording's observer frames → the sightings database.
+
+Per observer, frame by frame (every `PerceiveConfig.every_s` seconds): render the
+frame (`dashtraj.datasets.frames.recording_frames`; nothing is written to disk),
+detect, localize, track, map-match, and crop the detections within the ReID range.
+Batches of `batch_frames` frames are sent to the single writer (the calling process),
+which commits each batch in one transaction (`SightingsDB.add_frames`). With
+``workers > 1`` observers are processed in parallel processes (spawned; each opens
+its own renderer), and the database content is the same as with one worker.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing as mp
+import queue as queue_mod
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from dashtraj.errors import DashtrajError
+from dashtraj.perception.detections import (
+    ORIENTATION_OF_CLASS,
+    VEHICLE_CLASS_OF_CLASS,
+    build_detector,
+)
+from dashtraj.perception.localize import CameraPose, build_localizer
+from dashtraj.perception.mapmatch import map_match
+from dashtraj.perception.track import build_tracker
+from dashtraj.store import CropRow, DetectionRow, PoseRow, SightingsDB, TrackRow
+
+
+class PerceiveError(DashtrajError):
+    """Bad perception settings or a worker that failed (the message says which)."""
+
+
+@dataclass(frozen=True, slots=True)
+class PerceiveConfig:
+    """Settings of one perception run; round-trips through JSON (`to_dict`/`from_dict`).
+
+    Attributes:
+        detector: "oracle" or a path to an .onnx model. tracker: "sort" or "ego".
+        localizer: "paper", "ground" or "fused". mu_h: Eq. 3's constant (None: default).
+        every_s: frame period, seconds (a multiple of the recording's step).
+        size: (W, H) of the rendered images, pixels, or None for the recording's camera.
+        msaa: colour-pass samples of the renderer (0 = none; boxes do not depend on it).
+        reid_range_m: detections estimated this close keep their crop, metres.
+        crop_long_side_px: crops larger than this are scaled down to it, pixels.
+        jpeg_quality: crop JPEG quality. batch_frames: frames per committed batch.
+    """
+
+    detector: str = "oracle"
+    tracker: str = "ego"
+    localizer: str = "fused"
+    mu_h: float | None = None
+    every_s: float = 0.1
+    size: tuple[int, int] | None = None
+    msaa: int = 0
+    reid_range_m: float = 15.0
+    crop_long_side_px: int = 256
+    jpeg_quality: int = 90
+    batch_frames: int = 50
+    observers: tuple[int, ...] | None = field(default=None)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> PerceiveConfig:
+        d = dict(d)
+        if d.get("size") is not None:
+            d["size"] = tuple(d["size"])
+        if d.get("observers") is not None:
+            d["observers"] = tuple(d["observers"])
+        return cls(**d)
+
+
+@dataclass
+class Batch:
+    """Rows of a batch of frames of one observer, ready for `SightingsDB.add_frames`."""
+
+    observer_id: int
+    poses: list = field(default_factory=list)
+    detections: list = field(default_factory=list)
+    crops: list = field(default_factory=list)
+    tracks: list = field(default_factory=list)
+
+
+def image_camera(recording, size: tuple[int, int] | None):
+    """The `CameraSpec` of the rendered images (the recording's, resized)."""
+    spec = recording.config.camera
+    if size is None:
+        return spec
+    return replace(spec, width_px=int(size[0]), height_px=int(size[1]))
+
+
+def camera_pose_of(frame, spec) -> CameraPose:
+    """`CameraPose` of a rendered frame (road elevation = camera z − mount height)."""
+    cx, cy, cz, cyaw, cpitch, _ = frame.frame_data.camera_pose
+    return CameraPose(cx, cy, cz, cyaw, cpitch, cz - spec.z_m)
+
+
+class _TrackStats:
+    def __init__(self):
+        self.stats: dict[int, dict] = {}
+
+    def add(self, tid: int, t: float, vclass: str, truth: int) -> None:
+        s = self.stats.setdefault(tid, {"first": t, "last": t, "n": 0, "cls": {}, "truth": {}})
+        s["last"] = t
+        s["n"] += 1
+        s["cls"][vclass] = s["cls"].get(vclass, 0) + 1
+        if truth >= 0:
+            s["truth"][truth] = s["truth"].get(truth, 0) + 1
+
+    def rows(self, observer_id: int, ids) -> list[TrackRow]:
+        out = []
+        for tid in sorted(ids):
+            s = self.stats[tid]
+            cls = max(sorted(s["cls"]), key=lambda c: s["cls"][c])
+            truth = (max(sorted(s["truth"]), key=lambda v: s["truth"][v]) if s["truth"]
+                     else None)
+            out.append(TrackRow(observer_id, int(tid), cls, s["first"], s["last"], s["n"],
+                                truth))
+        return out
+
+
+def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_map,
+                     renderer=None, frames_dir: Path | None = None) -> Iterator[Batch]:
+    """Process one observer's frames; yields a `Batch` every `batch_frames` frames."""
+    from dashtraj.datasets.frames import crop_vehicle, encode_jpeg, recording_frames
+
+    spec = image_camera(recording, config.size)
+    detector = build_detector(config.detector)
+    tracker = build_tracker(config.tracker, spec)
+    localizer = build_localizer(config.localizer, config.mu_h)
+    tstats = _TrackStats()
+    mount = recording.config.camera
+    batch = Batch(observer_id)
+    touched: set[int] = set()
+    n = 0
+    for rf in recording_frames(recording, config.every_s, config.size, [observer_id],
+                               msaa=config.msaa, renderer=renderer):
+        pose = camera_pose_of(rf, spec)
+        h = math.radians(pose.yaw_deg)
+        gx = pose.x - mount.x_m * math.cos(h) + mount.y_m * math.sin(h)
+        gy = pose.y - mount.x_m * math.sin(h) - mount.y_m * math.cos(h)
+        batch.poses.append(PoseRow(observer_id, rf.frame, rf.t, gx, gy, pose.ground_z,
+                                   pose.yaw_deg, pose.x, pose.y, pose.z, pose.yaw_deg,
+                                   pose.pitch_deg))
+        if frames_dir is not None:
+            p = frames_dir / str(observer_id) / f"{rf.frame:06d}.jpg"
+            p.parent.mkdir(parents=True, exist_ok=True)
+            p.write_bytes(encode_jpeg(rf.frame_data.rgb))
+        det = detector.detect(rf)
+        loc = localizer.localize(det.boxes, det.class_ids, spec, pose)
+        ids = tracker.update(det, rf.t, pose)
+        mm = map_match(road_map, loc.x, loc.y)
+        rgb = rf.frame_data.rgb
+        for i in range(len(det)):
+            c = int(det.class_ids[i])
+            tid = int(ids[i])
+            truth = int(det.truth_ids[i])
+            vclass = VEHICLE_CLASS_OF_CLASS[c]
+            b = det.boxes[i]
+            batch.detections.append(DetectionRow(
+                observer_id, rf.frame, i, rf.t, tid if tid > 0 else None,
+                float(b[0]), float(b[1]), float(b[2]), float(b[3]), float(det.scores[i]), c,
+                vclass, ORIENTATION_OF_CLASS[c], float(loc.distance_m[i]),
+                float(loc.bearing_deg[i]), float(loc.x[i]), float(loc.y[i]), float(mm.z[i]),
+                int(mm.road_id[i]), int(mm.section_id[i]), int(mm.lane_id[i]), float(mm.s[i]),
+                float(mm.lateral_m[i]), truth if truth >= 0 else None))
+            if tid > 0:
+                tstats.add(tid, rf.t, vclass, truth)
+                touched.add(tid)
+            if loc.distance_m[i] <= config.reid_range_m:
+                big = max(b[2] - b[0], b[3] - b[1]) * 1.2 > config.crop_long_side_px
+                img = crop_vehicle(rgb, b, 0.1,
+                                   config.crop_long_side_px if big else None)
+                batch.crops.append(CropRow(observer_id, rf.frame, i,
+                                           encode_jpeg(np.asarray(img), config.jpeg_quality),
+                                           img.width, img.height))
+        n += 1
+        if n % config.batch_frames == 0:
+            batch.tracks = tstats.rows(observer_id, touched)
+            touched = set()
+            yield batch
+            batch = Batch(observer_id)
+    batch.tracks = tstats.rows(observer_id, touched)
+    yield batch
+
+
+def _worker(recording_path: str, observers: list[int], config_dict: dict, out_q,
+            frames_dir: str | None) -> None:
+    """Process entry point: run `observer_batches` for each observer, send the batches."""
+    import warnings
+
+    try:
+        from dashtraj.datasets.frames import open_renderer
+        from dashtraj.roads import RoadMap
+        from dashtraj.world.recording import Recording
+
+        config = PerceiveConfig.from_dict(config_dict)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            rec = Recording.open(recording_path)
+        spec = image_camera(rec, config.size)
+        road_map = RoadMap.from_file(rec.map_path)
+        renderer = open_renderer(rec.map_path, spec.width_px, spec.height_px, spec.fov_deg,
+                                 msaa=config.msaa)
+        try:
+            for o in observers:
+                for b in observer_batches(rec, o, config, road_map, renderer,
+                                          Path(frames_dir) if frames_dir else None):
+                    out_q.put(("batch", b))
+                out_q.put(("done", o))
+        finally:
+            renderer.release()
+    except BaseException as exc:  # reported to the writer, which raises
+        out_q.put(("error", f"{type(exc).__name__}: {exc}"))
+    out_q.put(("exit", None))
+
+
+@dataclass(frozen=True)
+class PerceiveSummary:
+    """What a run wrote: observers, frames, detections, tracks, crops."""
+
+    db_path: Path
+    observers: int
+    frames: int
+    detections: int
+    tracks: int
+    crops: int
+
+
+def perceive(recording, db_path: str | Path, config: PerceiveConfig = PerceiveConfig(),
+             workers: int = 1, progress: Callable[[int], None] | None = None,
+             frames_dir: str | Path | None = None) -> PerceiveSummary:
+    """Perceive every observer of ``recording`` into a new database at ``db_path``.
+
+    Args:
+        recording: a `dashtraj.world.recording.Recording`.
+        db_path: the database file to create (must not exist; see `atomic_output`).
+        config: the settings. workers: observer processes (1 = in this process).
+        progress: called with the number of frames done after each batch.
+        frames_dir: write the rendered frames as JPEGs under it (``<observer>/<frame>.jpg``).
+
+    Raises:
+        PerceiveError: unknown observers, or a worker failed.
+    """
+    from dashtraj.datasets.frames import observer_ids, open_renderer
+    from dashtraj.roads import RoadMap
+
+    build_detector(config.detector)  # fail early on a bad name
+    build_tracker(config.tracker)
+    build_localizer(config.localizer)
+    all_obs = observer_ids(recording)
+    obs = all_obs if config.observers is None else list(config.observers)
+    bad = [o for o in obs if o not in all_obs]
+    if bad:
+        raise PerceiveError(f"--observers {bad}: not observers of {recording.path}; observers "
+                            f"are {all_obs}")
+    roles = recording.meta.get("observer_roles", {})
+    spec = image_camera(recording, config.size)
+    fdir = Path(frames_dir) if frames_dir is not None else None
+    with SightingsDB.create(db_path) as db:
+        db.write_run(str(recording.path), recording.meta.get("map", {}).get("source"),
+                     recording.meta.get("map", {}).get("sha256"), spec.to_dict(),
+                     config.to_dict(), [(o, roles.get(str(o))) for o in obs])
+        if workers <= 1 or len(obs) <= 1:
+            road_map = RoadMap.from_file(recording.map_path)
+            renderer = open_renderer(recording.map_path, spec.width_px, spec.height_px,
+                                     spec.fov_deg, msaa=config.msaa)
+            try:
+                for o in obs:
+                    for b in observer_batches(recording, o, config, road_map, renderer, fdir):
+                        db.add_frames(b.poses, b.detections, b.crops, b.tracks)
+                        if progress is not None:
+                            progress(len(b.poses))
+                    db.finish_observer(o)
+            finally:
+                renderer.release()
+        else:
+            _run_workers(recording, obs, config, workers, db, progress, fdir)
+        db.finish_run()
+        summary = PerceiveSummary(Path(db_path), len(obs), db.count("poses"),
+                                  db.count("detections"), db.count("tracks"), db.count("crops"))
+    return summary
+
+
+def _run_workers(recording, obs, config, workers, db, progress, fdir) -> None:
+    ctx = mp.get_context("spawn")
+    q = ctx.Queue(maxsize=4 * workers)
+    k = min(workers, len(obs))
+    procs = [ctx.Process(target=_worker, daemon=True,
+                         args=(str(recording.path), obs[i::k], config.to_dict(), q,
+                               str(fdir) if fdir else None)) for i in range(k)]
+    for p in procs:
+        p.start()
+    live = k
+    try:
+        while live:
+            try:
+                kind, item = q.get(timeout=5.0)
+            except queue_mod.Empty:
+                if not any(p.is_alive() for p in procs):
+                    raise PerceiveError("a perception worker died without a word") from None
+                continue
+            if kind == "batch":
+                db.add_frames(item.poses, item.detections, item.crops, item.tracks)
+                if progress is not None:
+                    progress(len(item.poses))
+            elif kind == "done":
+                db.finish_observer(item)
+            elif kind == "error":
+                raise PerceiveError(f"perception worker failed: {item}")
+            elif kind == "exit":
+                live -= 1
+    finally:
+        for p in procs:
+            if p.is_alive():
+                p.terminate()
+            p.join(timeout=5)
+
+
+def write_mot(db_path: str | Path, out_dir: str | Path) -> list[Path]:
+    """MOTChallenge txt of a database's tracks, one file per observer: ``<observer>.txt``
+    with lines frame, id, left, top, width, height, conf, −1, −1, −1 (frame = 1-based index
+    of the processed frame; boxes in pixels). Returns the files written."""
+    from dashtraj.store import SightingsDB
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    with SightingsDB.open(db_path) as db:
+        for o in db.observers():
+            oid = o["observer_id"]
+            index = {p.frame: i + 1 for i, p in enumerate(db.poses(oid))}
+            lines = [f"{index[d.frame]},{d.track_id},{d.x0:.2f},{d.y0:.2f},{d.x1 - d.x0:.2f},"
+                     f"{d.y1 - d.y0:.2f},{d.score:.3f},-1,-1,-1"
+                     for d in db.detections(oid) if d.track_id is not None]
+            p = out / f"{oid}.txt"
+            p.write_text("".join(line + "\n" for line in lines), encoding="utf-8")
+            written.append(p)
+    return written

@@ -1,0 +1,332 @@
+"""Multi-object trackers of one observer's video, chosen by name (`TRACKERS`).
+
+Every tracker is fed frame by frame, in time order, with `update(det, t, pose)`:
+the frame's `Detections` (boxes xyxy in image pixels, class ids), its time t
+(seconds) and the camera's `CameraPose` (CARLA world). It returns, for each
+detection, the id of the confirmed track it belongs to, or −1 (not yet confirmed or
+unassigned). Ids start at 1 and are never reused within a tracker.
+
+- ``sort``: SORT (Bewley et al. 2016, the paper's tracker) with the vehicle class in
+  the state (Eq. 1: Ψ = [ε, a, r, ε̇, ȧ, η]): a constant-velocity Kalman filter on the
+  box centre, area and aspect ratio, Hungarian assignment on IoU (≥ `iou_threshold`,
+  boxes of another vehicle class count `class_penalty` less), a track is reported
+  once it has `min_hits` consecutive hits (or during the first `min_hits` frames) and
+  dies after `max_age` frames without a detection. The Kalman filter runs over all
+  tracks at once (arrays), as in the reference implementation's equations.
+- ``ego``: uses what a 2-D tracker does not know, the observer's own odometry (its
+  camera pose every frame; on a real drive GPS/IMU). Each track is a constant-velocity
+  Kalman filter of the vehicle's ground position (CARLA world metres), measured by the
+  ``fused`` localizer. Every frame the predicted ground position is projected into the
+  *current* camera: its bearing gives the predicted box column, and the ratio of the
+  old to the new distance scales the last box about the principal point (points at
+  fixed heights move as 1/depth), so a turning or braking observer moves the predicted
+  boxes with the image. Association: Hungarian on 1 − IoU(predicted box, detection)
+  plus the ground distance over a gate that grows with the range; a pair is allowed
+  when IoU ≥ `iou_min` or the ground distance is within the gate.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from dashtraj.errors import DashtrajError
+from dashtraj.perception.detections import VEHICLE_CLASS_INDEX, Detections, iou_matrix
+from dashtraj.perception.localize import CameraPose, FusedLocalizer
+from dashtraj.world.camera import CameraSpec
+
+
+class TrackerError(DashtrajError):
+    """Unknown tracker name or bad tracker settings."""
+
+
+def _assign(cost: np.ndarray, allowed: np.ndarray):
+    """Hungarian assignment on cost (N dets, M tracks) restricted to allowed pairs.
+
+    Returns (matches (K, 2) int: det, track; unmatched dets; unmatched tracks)."""
+    n, m = cost.shape
+    if n == 0 or m == 0:
+        return np.zeros((0, 2), np.int64), np.arange(n), np.arange(m)
+    big = 1e6
+    c = np.where(allowed, cost, big)
+    r, k = linear_sum_assignment(c)
+    ok = allowed[r, k]
+    matches = np.column_stack([r[ok], k[ok]]).astype(np.int64)
+    free_d = np.ones(n, bool)
+    free_d[matches[:, 0]] = False
+    free_t = np.ones(m, bool)
+    free_t[matches[:, 1]] = False
+    return matches, np.flatnonzero(free_d), np.flatnonzero(free_t)
+
+
+# ----------------------------------------------------------------------------- SORT
+def _xyxy_to_z(b: np.ndarray) -> np.ndarray:
+    """(N, 4) xyxy → (N, 4) [cx, cy, area, ratio] (SORT's measurement)."""
+    w = b[:, 2] - b[:, 0]
+    h = b[:, 3] - b[:, 1]
+    return np.column_stack([b[:, 0] + w / 2, b[:, 1] + h / 2, w * h, w / np.maximum(h, 1e-9)])
+
+
+def _x_to_xyxy(x: np.ndarray) -> np.ndarray:
+    """(N, ≥4) SORT states → (N, 4) xyxy boxes."""
+    s = np.maximum(x[:, 2], 1e-9)
+    w = np.sqrt(s * np.maximum(x[:, 3], 1e-9))
+    h = s / np.maximum(w, 1e-9)
+    return np.column_stack([x[:, 0] - w / 2, x[:, 1] - h / 2, x[:, 0] + w / 2, x[:, 1] + h / 2])
+
+
+_F = np.eye(7)
+_F[0, 4] = _F[1, 5] = _F[2, 6] = 1.0
+_H = np.eye(4, 7)
+_R = np.diag([1.0, 1.0, 10.0, 10.0])
+_Q = np.eye(7)
+_Q[-1, -1] *= 0.01
+_Q[4:, 4:] *= 0.01
+_P0 = np.eye(7) * 10.0
+_P0[4:, 4:] *= 1000.0  # unobservable initial velocities
+
+
+@dataclass
+class SortTracker:
+    """SORT with the class in the state (module docstring). Defaults are SORT's."""
+
+    max_age: int = 1
+    min_hits: int = 3
+    iou_threshold: float = 0.3
+    class_penalty: float = 0.5
+    name: str = "sort"
+    _x: np.ndarray = field(default_factory=lambda: np.zeros((0, 7)), repr=False)
+    _p: np.ndarray = field(default_factory=lambda: np.zeros((0, 7, 7)), repr=False)
+    _ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
+    _votes: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)), repr=False)
+    _since: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
+    _streak: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
+    _frames: int = 0
+    _next_id: int = 1
+
+    def update(self, det: Detections, t: float = 0.0, pose: CameraPose | None = None
+               ) -> np.ndarray:
+        """Feed one frame; returns (N,) confirmed track id per detection or −1."""
+        self._frames += 1
+        # predict (SORT keeps the area positive)
+        neg = (self._x[:, 6] + self._x[:, 2]) <= 0
+        self._x[neg, 6] = 0.0
+        self._x = self._x @ _F.T
+        self._p = _F @ self._p @ _F.T + _Q
+        self._since += 1
+        self._streak[self._since > 1] = 0
+        pred = _x_to_xyxy(self._x)
+        bad = ~np.isfinite(pred).all(1)
+        if bad.any():
+            self._keep(~bad)
+            pred = pred[~bad]
+        n = len(det)
+        iou = iou_matrix(det.boxes, pred)
+        eta = VEHICLE_CLASS_INDEX[det.class_ids] if n else np.zeros(0, np.int64)
+        if len(self._ids) and n:  # Eq. 1: the class η is part of the state
+            same = eta[:, None] == np.argmax(self._votes, 1)[None, :]
+            iou = iou - np.where(same, 0.0, self.class_penalty)
+        matches, ud, _ = _assign(-iou, iou >= self.iou_threshold)
+        if len(matches):
+            d, k = matches[:, 0], matches[:, 1]
+            z = _xyxy_to_z(det.boxes[d])
+            x, p = self._x[k], self._p[k]
+            y = z - x[:, :4]
+            s = p[:, :4, :4] + _R
+            gain = p[:, :, :4] @ np.linalg.inv(s)
+            self._x[k] = x + np.einsum("nij,nj->ni", gain, y)
+            self._p[k] = (np.eye(7) - gain @ _H) @ p
+            self._since[k] = 0
+            self._streak[k] += 1
+            self._votes[k, eta[d]] += 1
+        if len(ud):
+            z = _xyxy_to_z(det.boxes[ud])
+            x = np.zeros((len(ud), 7))
+            x[:, :4] = z
+            votes = np.zeros((len(ud), 5))
+            votes[np.arange(len(ud)), eta[ud]] = 1
+            new_ids = np.arange(self._next_id, self._next_id + len(ud))
+            self._next_id += len(ud)
+            self._x = np.vstack([self._x, x])
+            self._p = np.concatenate([self._p, np.repeat(_P0[None], len(ud), 0)])
+            self._ids = np.concatenate([self._ids, new_ids])
+            self._votes = np.vstack([self._votes, votes])
+            self._since = np.concatenate([self._since, np.zeros(len(ud), np.int64)])
+            self._streak = np.concatenate([self._streak, np.zeros(len(ud), np.int64)])
+        out = np.full(n, -1, np.int64)
+        if len(matches):
+            d, k = matches[:, 0], matches[:, 1]
+            show = (self._streak[k] >= self.min_hits) | (self._frames <= self.min_hits)
+            out[d[show]] = self._ids[k[show]]
+        if len(ud) and self._frames <= self.min_hits:
+            m0 = len(self._ids) - len(ud)
+            out[ud] = self._ids[m0:]
+        self._keep(self._since <= self.max_age)
+        return out
+
+    def _keep(self, mask: np.ndarray) -> None:
+        for a in ("_x", "_p", "_ids", "_votes", "_since", "_streak"):
+            setattr(self, a, getattr(self, a)[mask])
+
+
+# ------------------------------------------------------------------------------ ego
+@dataclass
+class EgoTracker:
+    """Ground-plane tracker using the observer's odometry (module docstring).
+
+    Attributes:
+        spec: the camera of the images (size, FOV, mount).
+        max_age_s: seconds a track survives without a detection (its ground-plane
+            prediction keeps it matchable through occlusions and short exits).
+        min_hits: hits before a track is reported.
+        iou_min: a pair with at least this IoU of predicted and detected box may match.
+        gate_m, gate_rel: ground-distance gate, metres: gate_m + gate_rel × range.
+        accel_mps2: process noise, the vehicles' acceleration (m/s², 1 σ).
+    """
+
+    spec: CameraSpec = field(default_factory=CameraSpec)
+    max_age_s: float = 2.0
+    min_hits: int = 3
+    iou_min: float = 0.1
+    gate_m: float = 1.5
+    gate_rel: float = 0.08
+    accel_mps2: float = 3.0
+    class_penalty: float = 0.5
+    name: str = "ego"
+    _x: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)), repr=False)
+    _p: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)), repr=False)
+    _box: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)), repr=False)
+    _dist: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    _ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
+    _votes: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)), repr=False)
+    _since: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
+    _hits: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
+    _last: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    _t: float | None = None
+    _next_id: int = 1
+
+    def predicted_boxes(self, pose: CameraPose) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Predicted boxes (M, 4) in the current camera, their ranges (M,) metres and
+        whether each lies in front of the camera (M,) bool."""
+        spec = self.spec
+        f, cu, cv = spec.focal_px, spec.width_px / 2.0, spec.height_px / 2.0
+        dx = self._x[:, 0] - pose.x
+        dy = self._x[:, 1] - pose.y
+        h = math.radians(pose.yaw_deg)
+        fwd = dx * math.cos(h) + dy * math.sin(h)
+        right = -dx * math.sin(h) + dy * math.cos(h)
+        dist = np.hypot(dx, dy)
+        front = fwd > 0.5
+        u = cu + f * right / np.where(front, fwd, 1.0)
+        scale = self._dist / np.maximum(dist, 0.5)
+        b = self._box
+        half_w = 0.5 * (b[:, 2] - b[:, 0]) * scale
+        v0 = cv + (b[:, 1] - cv) * scale
+        v1 = cv + (b[:, 3] - cv) * scale
+        box = np.column_stack([u - half_w, v0, u + half_w, v1])
+        return box, dist, front
+
+    def update(self, det: Detections, t: float, pose: CameraPose) -> np.ndarray:
+        """Feed one frame; returns (N,) confirmed track id per detection or −1."""
+        n = len(det)
+        loc = FusedLocalizer().localize(det.boxes, det.class_ids, self.spec, pose)
+        zx = np.column_stack([loc.x, loc.y])
+        dt = 0.0 if self._t is None else max(float(t) - self._t, 0.0)
+        self._t = float(t)
+        # predict: constant velocity in the ground plane
+        F = np.eye(4)
+        F[0, 2] = F[1, 3] = dt
+        q = self.accel_mps2**2
+        g = np.array([[dt**2 / 2, 0], [0, dt**2 / 2], [dt, 0], [0, dt]])
+        Q = q * g @ g.T + np.eye(4) * 1e-4
+        self._x = self._x @ F.T
+        self._p = F @ self._p @ F.T + Q
+        self._since += 1
+        m = len(self._ids)
+        eta = VEHICLE_CLASS_INDEX[det.class_ids] if n else np.zeros(0, np.int64)
+        if n and m:
+            pbox, pdist, front = self.predicted_boxes(pose)
+            iou = np.where(front[None, :], iou_matrix(det.boxes, pbox), 0.0)
+            gd = np.hypot(zx[:, None, 0] - self._x[None, :, 0],
+                          zx[:, None, 1] - self._x[None, :, 1])
+            gate = self.gate_m + self.gate_rel * np.maximum(pdist[None, :], loc.distance_m[:, None])
+            pos_sd = np.sqrt(np.maximum(self._p[:, 0, 0] + self._p[:, 1, 1], 0.0))[None, :]
+            gate = gate + pos_sd
+            same = eta[:, None] == np.argmax(self._votes, 1)[None, :]
+            cost = (1.0 - iou) + gd / gate + np.where(same, 0.0, self.class_penalty)
+            allowed = (iou >= self.iou_min) | (gd <= gate)
+            matches, ud, _ = _assign(cost, allowed)
+        else:
+            matches, ud = np.zeros((0, 2), np.int64), np.arange(n)
+        if len(matches):
+            d, k = matches[:, 0], matches[:, 1]
+            r = np.maximum(loc.sigma_m[d], 0.3) ** 2
+            x, p = self._x[k], self._p[k]
+            s = p[:, :2, :2] + r[:, None, None] * np.eye(2)
+            gain = p[:, :, :2] @ np.linalg.inv(s)
+            self._x[k] = x + np.einsum("nij,nj->ni", gain, zx[d] - x[:, :2])
+            self._p[k] = (np.eye(4) - gain @ np.eye(2, 4)) @ p
+            self._box[k] = det.boxes[d]
+            self._dist[k] = loc.distance_m[d]
+            self._since[k] = 0
+            self._hits[k] += 1
+            self._votes[k, eta[d]] += 1
+        if len(ud):
+            k = len(ud)
+            x = np.zeros((k, 4))
+            x[:, :2] = zx[ud]
+            p = np.zeros((k, 4, 4))
+            p[:, 0, 0] = p[:, 1, 1] = np.maximum(loc.sigma_m[ud], 0.3) ** 2
+            p[:, 2, 2] = p[:, 3, 3] = 10.0**2  # unknown velocity, up to ~10 m/s
+            votes = np.zeros((k, 5))
+            votes[np.arange(k), eta[ud]] = 1
+            self._x = np.vstack([self._x, x])
+            self._p = np.concatenate([self._p, p])
+            self._box = np.vstack([self._box, det.boxes[ud]])
+            self._dist = np.concatenate([self._dist, loc.distance_m[ud]])
+            self._ids = np.concatenate([self._ids, np.arange(self._next_id, self._next_id + k)])
+            self._next_id += k
+            self._votes = np.vstack([self._votes, votes])
+            self._since = np.concatenate([self._since, np.zeros(k, np.int64)])
+            self._hits = np.concatenate([self._hits, np.ones(k, np.int64)])
+            self._last = np.concatenate([self._last, np.full(k, self._t)])
+        out = np.full(n, -1, np.int64)
+        if len(matches):
+            d, k = matches[:, 0], matches[:, 1]
+            show = self._hits[k] >= self.min_hits
+            out[d[show]] = self._ids[k[show]]
+        self._last[self._since == 0] = self._t
+        keep = (self._t - self._last) <= self.max_age_s + 1e-9
+        for a in ("_x", "_p", "_box", "_dist", "_ids", "_votes", "_since", "_hits", "_last"):
+            setattr(self, a, getattr(self, a)[keep])
+        return out
+
+
+TRACKERS: tuple[str, ...] = ("sort", "ego")
+"""Tracker names (module docstring)."""
+
+
+def build_tracker(name: str, spec: CameraSpec | None = None):
+    """A new tracker by name; ``spec`` is the camera of the images (needed by ``ego``).
+
+    Raises TrackerError listing the valid names."""
+    if name == "sort":
+        return SortTracker()
+    if name == "ego":
+        return EgoTracker(spec=spec if spec is not None else CameraSpec())
+    raise TrackerError(f"unknown tracker {name!r}; valid: {', '.join(TRACKERS)}")
+
+
+def mot_rows(frame: int, det: Detections, track_ids: np.ndarray) -> list[str]:
+    """MOTChallenge txt lines (frame, id, left, top, width, height, conf, −1, −1, −1) of
+    one frame's tracked detections (frame is 1-based in the file; boxes in pixels)."""
+    out = []
+    for b, s, tid in zip(det.boxes, det.scores, track_ids, strict=True):
+        if tid < 0:
+            continue
+        out.append(f"{frame},{int(tid)},{b[0]:.2f},{b[1]:.2f},{b[2] - b[0]:.2f},"
+                   f"{b[3] - b[1]:.2f},{s:.3f},-1,-1,-1")
+    return out

@@ -1,0 +1,400 @@
+"""The sightings database: tables, the repository that writes and reads them.
+
+Tables (units: seconds, CARLA world metres, degrees, image pixels):
+
+``meta``        key, value: ``format`` = "dashtraj-sightings", ``schema_version``.
+``run``         one row: recording (path as given), map_name, map_sha256, camera (JSON
+                `CameraSpec` of the images), config (JSON of the perception config),
+                complete (1 once every observer finished).
+``observers``   observer_id, role, frames written, complete.
+``poses``       observer_id, frame, t, x, y, z, yaw (observer ground point), cam_x,
+                cam_y, cam_z, cam_yaw, cam_pitch (its camera) — every processed frame.
+``tracks``      observer_id, track_id, vehicle_class (majority of its detections),
+                first_t, last_t, n_detections, truth_vehicle_id (the renderer's vehicle
+                id the track's detections mostly belong to; evaluation only, NULL when
+                unknown).
+``detections``  observer_id, frame, idx (index in the frame), t, track_id (NULL while
+                the tracker had not confirmed it), x0, y0, x1, y1, score, class_id,
+                vehicle_class, orientation, distance_m, bearing_deg (signed, + right),
+                x, y, z (estimated position), road_id, section_id, lane_id, s,
+                lateral_m (map-matched waypoint and offset from its lane centre),
+                truth_vehicle_id (evaluation only; NULL when unknown). The observer's
+                pose is the ``poses`` row of the same (observer_id, frame).
+``crops``       observer_id, frame, idx, jpeg (bytes), width, height: the image crop of
+                each detection within the ReID range (15 m by default).
+
+Crops live in the database, not in files beside it: a crop is written in the same
+transaction as its detection, so a run killed mid-way never has a detection without
+its crop or an orphan file; one file per run is one thing to copy, check and replace
+whole; crops are small (≈5–30 kB), where SQLite reads blobs as fast as a file system;
+and PostgreSQL stores them the same way (``bytea``).
+
+Writing: `SightingsDB.create` (WAL journal) and one transaction per batch of frames
+(`add_frames`): a killed run leaves every committed frame readable. Reading:
+`SightingsDB.open` checks the file (SQLite header, integrity, format, schema
+version) and raises `StoreError` naming it.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+from collections.abc import Iterable, Sequence
+from dataclasses import astuple, dataclass, fields
+from pathlib import Path
+
+from dashtraj.errors import DashtrajError
+from dashtraj.trajectory.records import Sighting
+
+FORMAT = "dashtraj-sightings"
+SCHEMA_VERSION = 1
+_SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
+class StoreError(DashtrajError):
+    """A sightings database is missing, foreign, truncated, newer, or misused."""
+
+
+@dataclass(frozen=True, slots=True)
+class PoseRow:
+    """One processed frame of one observer (units in the module docstring)."""
+
+    observer_id: int
+    frame: int
+    t: float
+    x: float
+    y: float
+    z: float
+    yaw: float
+    cam_x: float
+    cam_y: float
+    cam_z: float
+    cam_yaw: float
+    cam_pitch: float
+
+
+@dataclass(frozen=True, slots=True)
+class DetectionRow:
+    """One detection (columns of ``detections``; None where unknown)."""
+
+    observer_id: int
+    frame: int
+    idx: int
+    t: float
+    track_id: int | None
+    x0: float
+    y0: float
+    x1: float
+    y1: float
+    score: float
+    class_id: int
+    vehicle_class: str
+    orientation: str
+    distance_m: float
+    bearing_deg: float
+    x: float
+    y: float
+    z: float
+    road_id: int | None
+    section_id: int | None
+    lane_id: int | None
+    s: float | None
+    lateral_m: float | None
+    truth_vehicle_id: int | None
+
+
+@dataclass(frozen=True, slots=True)
+class TrackRow:
+    """One track of one observer (columns of ``tracks``)."""
+
+    observer_id: int
+    track_id: int
+    vehicle_class: str
+    first_t: float
+    last_t: float
+    n_detections: int
+    truth_vehicle_id: int | None
+
+
+@dataclass(frozen=True, slots=True)
+class CropRow:
+    """The JPEG crop of one detection (``crops``)."""
+
+    observer_id: int
+    frame: int
+    idx: int
+    jpeg: bytes
+    width: int
+    height: int
+
+
+def _cols(cls) -> tuple[str, ...]:
+    return tuple(f.name for f in fields(cls))
+
+
+_DDL = (
+    "CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)",
+    "CREATE TABLE run (id INTEGER PRIMARY KEY CHECK (id = 1), recording TEXT NOT NULL, "
+    "map_name TEXT, map_sha256 TEXT, camera TEXT NOT NULL, config TEXT NOT NULL, "
+    "complete INTEGER NOT NULL DEFAULT 0)",
+    "CREATE TABLE observers (observer_id INTEGER PRIMARY KEY, role TEXT, "
+    "frames INTEGER NOT NULL DEFAULT 0, complete INTEGER NOT NULL DEFAULT 0)",
+    "CREATE TABLE poses (observer_id INTEGER NOT NULL, frame INTEGER NOT NULL, t REAL NOT NULL, "
+    "x REAL, y REAL, z REAL, yaw REAL, cam_x REAL, cam_y REAL, cam_z REAL, cam_yaw REAL, "
+    "cam_pitch REAL, PRIMARY KEY (observer_id, frame))",
+    "CREATE TABLE tracks (observer_id INTEGER NOT NULL, track_id INTEGER NOT NULL, "
+    "vehicle_class TEXT, first_t REAL, last_t REAL, n_detections INTEGER, "
+    "truth_vehicle_id INTEGER, PRIMARY KEY (observer_id, track_id))",
+    "CREATE TABLE detections (observer_id INTEGER NOT NULL, frame INTEGER NOT NULL, "
+    "idx INTEGER NOT NULL, t REAL NOT NULL, track_id INTEGER, x0 REAL, y0 REAL, x1 REAL, "
+    "y1 REAL, score REAL, class_id INTEGER, vehicle_class TEXT, orientation TEXT, "
+    "distance_m REAL, bearing_deg REAL, x REAL, y REAL, z REAL, road_id INTEGER, "
+    "section_id INTEGER, lane_id INTEGER, s REAL, lateral_m REAL, truth_vehicle_id INTEGER, "
+    "PRIMARY KEY (observer_id, frame, idx))",
+    "CREATE INDEX detections_track ON detections (observer_id, track_id)",
+    "CREATE TABLE crops (observer_id INTEGER NOT NULL, frame INTEGER NOT NULL, "
+    "idx INTEGER NOT NULL, jpeg BLOB NOT NULL, width INTEGER, height INTEGER, "
+    "PRIMARY KEY (observer_id, frame, idx))",
+)
+_TABLES = ("meta", "run", "observers", "poses", "tracks", "detections", "crops")
+
+
+def _insert(table: str, cols: Sequence[str], upsert: bool = False) -> str:
+    verb = "INSERT OR REPLACE" if upsert else "INSERT"
+    return f"{verb} INTO {table} ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})"
+
+
+class SightingsDB:
+    """Repository of one run's sightings database over a DB-API connection.
+
+    Create with `SightingsDB.create(path)` (a new file) or `SightingsDB.open(path)`
+    (an existing one, read-only); use as a context manager or call `close`.
+    """
+
+    def __init__(self, conn, path: Path, writable: bool):
+        self.conn = conn
+        self.path = path
+        self.writable = writable
+
+    # ------------------------------------------------------------------ opening
+    @classmethod
+    def create(cls, path: str | Path) -> SightingsDB:
+        """A new, empty database at ``path`` (must not exist): WAL journal, tables, meta."""
+        p = Path(path)
+        if p.exists():
+            raise StoreError(f"{p} exists; a sightings database is written whole into a new "
+                             "file")
+        conn = sqlite3.connect(str(p))
+        conn.execute("PRAGMA journal_mode=WAL")
+        conn.execute("PRAGMA synchronous=NORMAL")
+        with conn:
+            for stmt in _DDL:
+                conn.execute(stmt)
+            conn.executemany(_insert("meta", ("key", "value")),
+                             [("format", FORMAT), ("schema_version", str(SCHEMA_VERSION))])
+        return cls(conn, p, True)
+
+    @classmethod
+    def open(cls, path: str | Path, check: bool = True) -> SightingsDB:
+        """Open an existing database read-only.
+
+        Raises:
+            StoreError: no such file; not an SQLite file; truncated or corrupt (integrity
+                check fails); not a dashtraj sightings database; a newer schema.
+        """
+        p = Path(path)
+        if not p.is_file():
+            raise StoreError(f"sightings database {p} does not exist")
+        with open(p, "rb") as fh:
+            head = fh.read(len(_SQLITE_MAGIC))
+        if head != _SQLITE_MAGIC:
+            raise StoreError(f"{p} is not a sightings database (not an SQLite file)")
+        try:
+            conn = sqlite3.connect(f"{p.resolve().as_uri()}?mode=ro", uri=True)
+            if check:
+                res = conn.execute("PRAGMA quick_check").fetchone()
+                if res is None or res[0] != "ok":
+                    raise StoreError(f"{p} is corrupt: integrity check says {res[0]!r}")
+            tables = {r[0] for r in conn.execute(
+                "SELECT name FROM sqlite_master WHERE type = 'table'")}
+            if "meta" not in tables:
+                raise StoreError(f"{p} is an SQLite file but not a dashtraj sightings database "
+                                 "(no meta table)")
+            meta = dict(conn.execute("SELECT key, value FROM meta").fetchall())
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"{p} is truncated or corrupt: {exc}") from exc
+        if meta.get("format") != FORMAT:
+            raise StoreError(f"{p} is not a dashtraj sightings database (format "
+                             f"{meta.get('format')!r})")
+        try:
+            version = int(meta.get("schema_version", ""))
+        except ValueError:
+            raise StoreError(f"{p}: bad schema_version {meta.get('schema_version')!r}") from None
+        if version > SCHEMA_VERSION:
+            raise StoreError(f"{p}: schema version {version} is newer than this dashtraj reads "
+                             f"({SCHEMA_VERSION}); upgrade dashtraj")
+        missing = [t for t in _TABLES if t not in tables]
+        if missing:
+            raise StoreError(f"{p}: missing table {missing[0]!r}; the file is damaged")
+        return cls(conn, p, False)
+
+    def close(self) -> None:
+        """Commit nothing further, fold the WAL into the file and close."""
+        if self.conn is None:
+            return
+        if self.writable:
+            self.conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        self.conn.close()
+        self.conn = None
+
+    def __enter__(self) -> SightingsDB:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _need_writable(self) -> None:
+        if not self.writable:
+            raise StoreError(f"{self.path} was opened read-only")
+
+    def _query(self, sql: str, args: Sequence = ()) -> list[tuple]:
+        try:
+            return self.conn.execute(sql, tuple(args)).fetchall()
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"{self.path} is truncated or corrupt: {exc}") from exc
+
+    # ------------------------------------------------------------------ writing
+    def write_run(self, recording: str, map_name: str | None, map_sha256: str | None,
+                  camera: dict, config: dict, observers: Iterable[tuple[int, str | None]]) -> None:
+        """The run row and one row per observer (id, role)."""
+        self._need_writable()
+        with self.conn:
+            self.conn.execute(_insert("run", ("id", "recording", "map_name", "map_sha256",
+                                              "camera", "config")),
+                              (1, str(recording), map_name, map_sha256,
+                               json.dumps(camera, sort_keys=True),
+                               json.dumps(config, sort_keys=True)))
+            self.conn.executemany(_insert("observers", ("observer_id", "role")),
+                                  [(int(o), r) for o, r in observers])
+
+    def add_frames(self, poses: Sequence[PoseRow], detections: Sequence[DetectionRow],
+                   crops: Sequence[CropRow] = (), tracks: Sequence[TrackRow] = ()) -> None:
+        """Write a batch of frames in one transaction (tracks are inserted or replaced)."""
+        self._need_writable()
+        with self.conn:
+            self.conn.executemany(_insert("poses", _cols(PoseRow)), [astuple(r) for r in poses])
+            self.conn.executemany(_insert("detections", _cols(DetectionRow)),
+                                  [astuple(r) for r in detections])
+            self.conn.executemany(_insert("crops", _cols(CropRow)), [astuple(r) for r in crops])
+            self.conn.executemany(_insert("tracks", _cols(TrackRow), upsert=True),
+                                  [astuple(r) for r in tracks])
+            by_obs: dict[int, int] = {}
+            for r in poses:
+                by_obs[r.observer_id] = by_obs.get(r.observer_id, 0) + 1
+            self.conn.executemany("UPDATE observers SET frames = frames + ? WHERE observer_id = ?",
+                                  [(n, o) for o, n in by_obs.items()])
+
+    def finish_observer(self, observer_id: int) -> None:
+        self._need_writable()
+        with self.conn:
+            self.conn.execute("UPDATE observers SET complete = 1 WHERE observer_id = ?",
+                              (int(observer_id),))
+
+    def finish_run(self) -> None:
+        self._need_writable()
+        with self.conn:
+            self.conn.execute("UPDATE run SET complete = 1 WHERE id = 1")
+
+    # ------------------------------------------------------------------ reading
+    def run_info(self) -> dict:
+        """The run row as a dict (camera and config parsed)."""
+        rows = self._query("SELECT recording, map_name, map_sha256, camera, config, complete "
+                           "FROM run WHERE id = 1")
+        if not rows:
+            raise StoreError(f"{self.path} has no run row (written by a run that stopped "
+                             "before it started)")
+        r = rows[0]
+        return {"recording": r[0], "map_name": r[1], "map_sha256": r[2],
+                "camera": json.loads(r[3]), "config": json.loads(r[4]), "complete": bool(r[5])}
+
+    def observers(self) -> list[dict]:
+        return [{"observer_id": o, "role": r, "frames": n, "complete": bool(c)}
+                for o, r, n, c in self._query("SELECT observer_id, role, frames, complete "
+                                              "FROM observers ORDER BY observer_id")]
+
+    def poses(self, observer_id: int | None = None) -> list[PoseRow]:
+        sql = f"SELECT {', '.join(_cols(PoseRow))} FROM poses"
+        args: tuple = ()
+        if observer_id is not None:
+            sql += " WHERE observer_id = ?"
+            args = (int(observer_id),)
+        return [PoseRow(*r) for r in self._query(sql + " ORDER BY observer_id, frame", args)]
+
+    def detections(self, observer_id: int | None = None) -> list[DetectionRow]:
+        sql = f"SELECT {', '.join(_cols(DetectionRow))} FROM detections"
+        args: tuple = ()
+        if observer_id is not None:
+            sql += " WHERE observer_id = ?"
+            args = (int(observer_id),)
+        return [DetectionRow(*r) for r in self._query(sql + " ORDER BY observer_id, frame, idx",
+                                                      args)]
+
+    def tracks(self) -> list[TrackRow]:
+        return [TrackRow(*r) for r in self._query(
+            f"SELECT {', '.join(_cols(TrackRow))} FROM tracks ORDER BY observer_id, track_id")]
+
+    def crops(self) -> list[CropRow]:
+        return [CropRow(*r) for r in self._query(
+            f"SELECT {', '.join(_cols(CropRow))} FROM crops ORDER BY observer_id, frame, idx")]
+
+    def count(self, table: str) -> int:
+        if table not in _TABLES:
+            raise StoreError(f"unknown table {table!r}; tables: {', '.join(_TABLES)}")
+        return int(self._query(f"SELECT COUNT(*) FROM {table}")[0][0])
+
+    def sightings(self, vehicle: int | None = None, max_distance_m: float | None = None,
+                  sample_s: float | None = None, tracked_only: bool = True) -> list[Sighting]:
+        """The detections as `Sighting` records, sorted by (t, observer_id, frame, idx).
+
+        Args:
+            vehicle: keep only detections whose truth_vehicle_id is this (evaluation
+                only: an oracle's identity instead of ReID), or None for all.
+            max_distance_m: keep detections estimated at most this far (the ReID range).
+            sample_s: keep, per (observer, track), the first detection of every
+                ``sample_s`` seconds from the track's first kept detection.
+            tracked_only: drop detections without a confirmed track.
+
+        The observer's position and yaw are its camera's (as the oracle sightings).
+        """
+        sql = ("SELECT d.t, d.observer_id, p.cam_x, p.cam_y, p.cam_yaw, d.x, d.y, d.orientation, "
+               "d.vehicle_class, d.track_id, d.distance_m, d.bearing_deg FROM detections d "
+               "JOIN poses p ON p.observer_id = d.observer_id AND p.frame = d.frame")
+        where, args = [], []
+        if vehicle is not None:
+            where.append("d.truth_vehicle_id = ?")
+            args.append(int(vehicle))
+        if max_distance_m is not None:
+            where.append("d.distance_m <= ?")
+            args.append(float(max_distance_m))
+        if tracked_only:
+            where.append("d.track_id IS NOT NULL")
+        if where:
+            sql += " WHERE " + " AND ".join(where)
+        sql += " ORDER BY d.observer_id, d.track_id, d.t, d.idx"
+        rows = self._query(sql, args)
+        if sample_s is not None and sample_s > 0:
+            kept, key, t0, last_bin = [], None, 0.0, -1
+            for r in rows:
+                k = (r[1], r[9])
+                if k != key or r[9] is None:
+                    key, t0, last_bin = k, r[0], -1
+                b = int((r[0] - t0) / sample_s + 1e-9)
+                if b != last_bin:
+                    kept.append(r)
+                    last_bin = b
+            rows = kept
+        out = [Sighting(t=r[0], observer_id=r[1], observer_x=r[2], observer_y=r[3],
+                        observer_yaw=r[4], x=r[5], y=r[6], orientation=r[7], vehicle_class=r[8],
+                        track_id=r[9], distance=r[10], bearing=r[11]) for r in rows]
+        out.sort(key=lambda s: (s.t, s.observer_id))
+        return out

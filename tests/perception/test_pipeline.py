@@ -1,0 +1,131 @@
+"""`dashtraj perceive` end to end: database contents, CLI discipline, export → reconstruct."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dashtraj.cli import main
+from dashtraj.store import SightingsDB
+from dashtraj.trajectory.io import read_sightings, read_trajectory
+
+
+def _truth_xy(rec):
+    st = rec.states
+    step = rec.meta["step_s"]
+    k = np.round(st.column("t").to_numpy() / step).astype(int)
+    v = st.column("vehicle_id").to_numpy()
+    x, y = st.column("x").to_numpy(), st.column("y").to_numpy()
+    return {(int(a), int(b)): (x[i], y[i]) for i, (a, b) in enumerate(zip(k, v, strict=True))}
+
+
+def test_database_holds_every_frame_detection_and_crop(small_run, small_db):
+    path, summary = small_db
+    with SightingsDB.open(path) as db:
+        poses = db.poses()
+        dets = db.detections()
+        assert [o["observer_id"] for o in db.observers()] == [1, 3]
+        assert all(o["complete"] and o["frames"] == 251 for o in db.observers())
+        assert len(poses) == summary.frames == 2 * 251  # 25 s at 10 fps, both ends
+        assert len(dets) == summary.detections > 100
+        # oracle detections carry their vehicle; every crop is a JPEG of a detection <= 15 m
+        assert all(d.truth_vehicle_id is not None for d in dets)
+        by_key = {(d.observer_id, d.frame, d.idx): d for d in dets}
+        crops = db.crops()
+        assert len(crops) == summary.crops > 10
+        assert all(c.jpeg[:2] == b"\xff\xd8" for c in crops)
+        assert all(by_key[(c.observer_id, c.frame, c.idx)].distance_m <= 15.0 for c in crops)
+        assert sum(d.distance_m <= 15.0 for d in dets) == len(crops)
+        # each detection is map-matched on town01, estimated near its vehicle
+        truth = _truth_xy(small_run)
+        err = np.array([np.hypot(d.x - truth[(d.frame, d.truth_vehicle_id)][0],
+                                 d.y - truth[(d.frame, d.truth_vehicle_id)][1])
+                        for d in dets if d.distance_m < 20])
+        assert np.sqrt(np.mean(err**2)) < 1.5  # 320 x 180: 1 px is 4x coarser than 1280 x 720
+        assert all(d.road_id is not None and d.lane_id != 0 for d in dets)
+        # tracks: one truth vehicle each, ids confirmed after min_hits
+        tracks = db.tracks()
+        assert len(tracks) == summary.tracks >= 3
+        assert all(t.truth_vehicle_id is not None for t in tracks)
+
+
+def test_export_then_reconstruct_runs_on_the_database(small_run, small_db, tmp_path, capsys):
+    path, _ = small_db
+    csv = tmp_path / "s.csv"
+    assert main(["sightings", "export", str(path), "-o", str(csv), "--vehicle", "target"]) == 0
+    rows = read_sightings(csv)
+    assert len(rows) >= 3 and {r.observer_id for r in rows} == {1, 3}
+    route = small_run.target_route.points
+    d = [np.min(np.hypot(route[:, 0] - r.x, route[:, 1] - r.y)) for r in rows]
+    assert max(d) < 2.0  # every exported sighting lies on the target's true route
+    out = tmp_path / "t.csv"
+    assert main(["reconstruct", "--map", str(small_run.map_path), "--sightings", str(csv),
+                 "-o", str(out)]) == 0
+    rec = read_trajectory(out)
+    assert len(rec) >= 2
+    near = [np.min(np.hypot(route[:, 0] - x, route[:, 1] - y)) for x, y in rec.points]
+    assert np.median(near) < 3.0
+
+
+def test_perceive_cli_refuses_existing_output_and_replaces_whole(small_run, gl_available,
+                                                                 tmp_path, capsys):
+    out = tmp_path / "run.db"
+    args = ["perceive", str(small_run.path), "-o", str(out), "--observers", "3", "--every",
+            "0.5", "--tracker", "sort", "--localizer", "paper", "-q", "--mot",
+            str(tmp_path / "mot")]
+    assert main(args) == 0
+    first = SightingsDB.open(out).count("poses")
+    assert first == 51
+    mot = (tmp_path / "mot" / "3.txt").read_text().splitlines()
+    assert mot and all(len(line.split(",")) == 10 for line in mot)
+    assert main(args) == 2
+    assert "exists" in capsys.readouterr().err
+    assert main([*args[:7], "1.0", *args[8:], "--overwrite"]) == 0
+    with SightingsDB.open(out) as db:
+        assert db.count("poses") == 26 and db.run_info()["config"]["every_s"] == 1.0
+    assert not list(tmp_path.glob(".run.db*"))  # no temporary sibling or WAL left behind
+
+
+@pytest.mark.parametrize("bad, msg", [
+    (["--tracker", "kalman"], "unknown tracker 'kalman'; valid: sort, ego"),
+    (["--localizer", "lidar"], "unknown localizer 'lidar'; valid: paper, ground, fused"),
+    (["--detector", "yolo"], "unknown detector 'yolo'"),
+    (["--observers", "0"], "not observers"),
+])
+def test_perceive_bad_settings_are_one_line_errors(small_run, gl_available, tmp_path, capsys,
+                                                   bad, msg):
+    assert main(["perceive", str(small_run.path), "-o", str(tmp_path / "r.db"), "-q",
+                 *bad]) == 2
+    err = capsys.readouterr().err
+    assert msg in err and err.count("\n") == 1
+    assert not (tmp_path / "r.db").exists()
+
+
+def test_two_workers_write_the_same_content(small_run, small_db, tmp_path):
+    from dashtraj.perception.pipeline import PerceiveConfig, perceive
+
+    path, _ = small_db
+    other = tmp_path / "w2.db"
+    perceive(small_run, other, PerceiveConfig(observers=(1, 3)), workers=2)
+    with SightingsDB.open(path) as a, SightingsDB.open(other) as b:
+        assert a.poses() == b.poses()
+        assert a.detections() == b.detections()
+        assert a.tracks() == b.tracks()
+        assert a.crops() == b.crops()
+        assert a.observers() == b.observers()
+
+
+def test_sightings_command_takes_the_camera_pipeline(small_run, gl_available, tmp_path, capsys):
+    out = tmp_path / "s.csv"
+    assert main(["sightings", str(small_run.path), "--detector", "oracle", "--tracker", "sort",
+                 "-o", str(out)]) == 0
+    rows = read_sightings(out)
+    assert rows and {r.observer_id for r in rows} <= {1, 2, 3}
+    assert "from" in capsys.readouterr().out
+    # without a source flag the oracle is used (the default source); --oracle excludes --detector
+    assert main(["sightings", str(small_run.path), "-o", str(tmp_path / "x.csv")]) == 0
+    assert "(noise none)" in capsys.readouterr().out
+    assert main(["sightings", str(small_run.path), "--oracle", "--detector", "oracle",
+                 "-o", str(tmp_path / "y.csv")]) == 2
+    assert "cannot be combined" in capsys.readouterr().err
+    assert not (tmp_path / "y.csv").exists()

@@ -1,0 +1,47 @@
+"""Precision and recall of accepted target tracks against the truth."""
+
+from __future__ import annotations
+
+import pytest
+
+from dashtraj.reidentify.scoring import ReidScore, ReidScoreError, pool, reid_score, truth_of_tracks
+from dashtraj.store import DetectionRow, PoseRow, SightingsDB, TrackRow
+
+
+def test_counts_and_rates():
+    truth = {(1, 4): 0, (1, 5): 9, (2, 7): 5, (3, 1): 0, (3, 2): 0, (4, 1): None}
+    s = reid_score([(1, 4), (2, 7), (4, 1)], truth, target_vehicle_id=0)
+    assert (s.true_matches, s.false_matches, s.misses) == (1, 2, 2)
+    assert s.precision == pytest.approx(1 / 3) and s.recall == pytest.approx(1 / 3)
+    perfect = reid_score([(1, 4), (3, 1), (3, 2)], truth, 0)
+    assert (perfect.precision, perfect.recall) == (1.0, 1.0)
+    empty = reid_score([], truth, 0)
+    assert empty.precision is None and empty.recall == 0.0
+    assert reid_score([], {(1, 1): 3}, 0).recall is None
+    assert empty.to_dict()["reid_precision"] is None
+    with pytest.raises(ReidScoreError, match=r"accepted track \(9, 9\)"):
+        reid_score([(9, 9)], truth, 0)
+
+
+def test_pool_sums_counts_before_dividing():
+    a, b = ReidScore(9, 0, 1), ReidScore(0, 1, 0)
+    p = pool([a, b])
+    assert (p.true_matches, p.false_matches, p.misses) == (9, 1, 1)
+    assert p.precision == pytest.approx(0.9) and p.recall == pytest.approx(0.9)
+
+
+def test_truth_from_a_sightings_db(tmp_path):
+    path = tmp_path / "run.db"
+    with SightingsDB.create(path) as db:
+        db.write_run("runs/x", "town01", None, {}, {}, [(1, None)])
+        poses = [PoseRow(1, f, f * 0.1, 0, 0, 0, 0, 0, 0, 1.6, 0, 0) for f in range(2)]
+        dets = [DetectionRow(1, f, i, f * 0.1, 7 + i, 0, 0, 10, 10, 0.9, 1, "car", "back",
+                             8.0 + 10 * i, 0.0, 1, 2, 0, None, None, None, None, None, 3 + i)
+                for f in range(2) for i in range(2)]
+        tracks = [TrackRow(1, 7, "car", 0.0, 0.1, 2, 3), TrackRow(1, 8, "car", 0.0, 0.1, 2, 4)]
+        db.add_frames(poses, dets, (), tracks)
+        db.finish_observer(1)
+        db.finish_run()
+    with SightingsDB.open(path) as db:
+        assert truth_of_tracks(db) == {(1, 7): 3, (1, 8): 4}
+        assert truth_of_tracks(db, max_distance_m=15.0) == {(1, 7): 3}  # track 8 at 18 m

@@ -1,0 +1,26 @@
+"""Argument types shared by the commands."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+
+from dashtraj.cli._args import seed_list
+
+
+@pytest.mark.parametrize(("text", "seeds"), [
+    ("0-4", (0, 1, 2, 3, 4)),
+    ("3,8,11", (3, 8, 11)),
+    ("5", (0, 1, 2, 3, 4)),
+    ("7-7", (7,)),
+    (" 2-3 ", (2, 3)),
+])
+def test_seed_list(text, seeds):
+    assert seed_list(text) == seeds
+
+
+@pytest.mark.parametrize("text", ["0", "-1", "4-2", "1,1", "a", "1-2-3", "1,-2", ""])
+def test_seed_list_refuses(text):
+    with pytest.raises(argparse.ArgumentTypeError):
+        seed_list(text)
