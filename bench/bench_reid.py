@@ -119,7 +119,7 @@ def bench_gallery(n: int, nq: int, threads: int, hnsw: bool = False) -> dict:
     return out
 
 
-def main() -> None:
+def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
     ap.add_argument("--threads", type=int, default=2)
@@ -128,7 +128,7 @@ def main() -> None:
     ap.add_argument("--queries", type=int, default=100)
     ap.add_argument("--hnsw", action="store_true", help="also build an HNSW index (slow)")
     ap.add_argument("--json", default=None, help="also write the figures here")
-    a = ap.parse_args()
+    a = ap.parse_args(argv)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     res = {"embed": bench_embed(a.model, a.threads, a.crops),
            "gallery": bench_gallery(a.gallery, a.queries, a.threads, a.hnsw)}
