@@ -1,4 +1,5 @@
-"""Benchmark of dashtraj.render: frames per second with 20 vehicles in view.
+"""Benchmark of dashtraj.render: frames per second with 20 vehicles in view, and the
+cost of each effect of the look (lighting, shadows, textures, weather, camera).
 
 Labels included (instance, depth and silhouette passes), image encoding excluded.
 Scene: the synthetic straight town of the render tests (`dashtraj.render.synthetic`),
@@ -12,7 +13,16 @@ targets are ≥ 100 fps at 640×360 and ≥ 25 fps at 1280×720 on one core. The
 one-core figure is the CPU time per frame (``time.process_time``, all threads): on
 a machine whose cores are shared, wall-clock time also counts waiting for a core.
 Each ``--msaa`` value is timed (0: one pass for colour, ids and depth, no AA; 4:
-MSAA colour pass + id/depth pass; llvmpipe supports only 4 samples).
+MSAA colour pass + id/depth pass; llvmpipe supports only 4 samples), with the default
+look (clear daytime: sun, shadows, textures, sky, camera response).
+
+Effects (640×360, no MSAA, labels included; ``--no-effects`` skips them): the peer is
+the ``flat`` look (the renderer before lighting, materials and camera effects existed)
+measured in the same run; each row is the default look with one effect removed (−) or
+added (+), and ``randomized`` draws a new look per frame (``dashtraj.render.randomize``).
+Rows are timed in interleaved rounds (so load changes hit all of them alike); the
+figure is the median CPU time per frame, its difference to the default look and its
+ratio to the flat peer.
 """
 
 from __future__ import annotations
@@ -57,6 +67,7 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=0, help="llvmpipe threads (0 = one core)")
     ap.add_argument("--msaa", type=int, nargs="+", default=[4, 0])
     ap.add_argument("--no-depth", action="store_true", help="render(..., depth=False)")
+    ap.add_argument("--no-effects", action="store_true", help="skip the per-effect costs")
     ap.add_argument("--json", type=Path, help="write the results here")
     args = ap.parse_args(argv)
     os.environ["LP_NUM_THREADS"] = str(args.threads)
@@ -109,9 +120,71 @@ def main(argv=None) -> int:
                 f"p90 {run['ms_p90']:.2f} ms); {n_view}/{args.vehicles} vehicles visible, "
                 f"llvmpipe threads {args.threads}"
             )
+    if not args.no_effects:
+        results["effects"] = effect_costs(ctx, m, vehicles)
     if args.json:
         args.json.write_text(json.dumps(results, indent=2))
     return 0
+
+
+def effect_looks():
+    """(name, look or "randomized") rows of the effect table."""
+    from dataclasses import replace
+
+    from dashtraj.render.look import LookConfig, preset, with_weather
+
+    d = LookConfig()
+    cam, mat = d.camera, d.materials
+    return [
+        ("flat (peer: before)", preset("flat")),
+        ("default (clear)", d),
+        ("- shadows", replace(d, materials=replace(mat, shadows=False))),
+        ("- textures/windows", replace(d, materials=replace(mat, textures=False))),
+        ("- sensor noise", replace(d, camera=replace(cam, noise_stddev=0.0))),
+        ("- vignetting", replace(d, camera=replace(cam, lens_circle_multiplier=0.0))),
+        ("+ clouds 60", with_weather(d, cloudiness=60.0)),
+        ("+ fog 40", with_weather(d, fog_density=40.0)),
+        ("+ wet road, puddles", with_weather(d, wetness=80.0, precipitation_deposits=60.0)),
+        ("+ rain streaks 60", with_weather(d, precipitation=60.0)),
+        ("+ blur 1 px", replace(d, camera=replace(cam, blur_radius=1.0))),
+        ("+ JPEG q60", replace(d, camera=replace(cam, jpeg_quality=60))),
+        ("randomized (per frame)", "randomized"),
+    ]
+
+
+def effect_costs(ctx, road_map, vehicles, rounds: int = 10, per_round: int = 5) -> list[dict]:
+    """Median CPU ms per frame of each effect row (module docstring); prints the table."""
+    from dashtraj.render.randomize import frame_rng, random_look
+    from dashtraj.render.scene import Renderer
+
+    r = Renderer(road_map, 640, 360, 90.0, msaa=0, ctx=ctx)
+    rows = effect_looks()
+    rand = [random_look(frame_rng(0, i)) for i in range(rounds * per_round)]
+    for _, look in rows:  # warm up: compile every shader variant used below
+        for lk in rand if look == "randomized" else [look]:
+            r.set_look(lk)
+            r.render((-95.0, 1.75, 1.6, 0.0, 0.0, 0.0), vehicles)
+    cpu = {name: [] for name, _ in rows}
+    for k in range(rounds):
+        for name, look in rows:
+            for i in range(per_round):
+                r.set_look(rand[k * per_round + i] if look == "randomized" else look)
+                pose = (-95.0 + 0.05 * i, 1.75, 1.6, 0.0, 0.0, 0.0)
+                c = time.process_time()
+                r.render(pose, vehicles)
+                cpu[name].append(time.process_time() - c)
+    r.release()
+    med = {name: 1e3 * float(np.median(v)) for name, v in cpu.items()}
+    flat, default = med[rows[0][0]], med[rows[1][0]]
+    out = []
+    print("effect costs, 640x360, no MSAA, labels included (CPU ms/frame, one core):")
+    for name, _ in rows:
+        row = {"effect": name, "cpu_ms_median": med[name], "fps_cpu": 1e3 / med[name],
+               "delta_vs_default_ms": med[name] - default, "ratio_vs_flat": med[name] / flat}
+        out.append(row)
+        print(f"  {name:24s} {med[name]:6.2f} ms = {1e3 / med[name]:6.1f} fps  "
+              f"({med[name] - default:+6.2f} ms vs default, {med[name] / flat:4.2f}x flat)")
+    return out
 
 
 if __name__ == "__main__":

@@ -106,3 +106,18 @@ def test_kind_mismatch_and_file_parent(tmp_path):
     with pytest.raises(OutputPathError, match="is a folder"):
         check_output(tmp_path, overwrite=True, kind="file")
     assert f.read_text() == "keep"
+
+
+def test_unwritable_parent_refused_up_front(tmp_path):
+    import os
+
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        if os.access(ro, os.W_OK):  # root ignores permissions
+            pytest.skip("running as a user who can write anywhere")
+        with pytest.raises(OutputPathError, match="cannot write in"):
+            check_output(ro / "new" / "out.csv", overwrite=False, kind="file")
+    finally:
+        ro.chmod(0o755)

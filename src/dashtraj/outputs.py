@@ -61,7 +61,8 @@ def check_output(path: str | os.PathLike[str], *, overwrite: bool, kind: Kind = 
 
     Returns the path. Raises `OutputExistsError` when it exists (a non-empty folder or any
     file) and ``overwrite`` is false, and `OutputPathError` when it is a file where a folder
-    is wanted or the reverse, or when a parent is a file.
+    is wanted or the reverse, when a parent is a file, or when the nearest existing parent
+    folder is not writable.
     """
     p = Path(path)
     if str(path) == "" or p.name in ("", ".", ".."):
@@ -69,6 +70,9 @@ def check_output(path: str | os.PathLike[str], *, overwrite: bool, kind: Kind = 
     for parent in p.parents:
         if parent.exists() and not parent.is_dir():
             raise OutputPathError(f"output {p}: {parent} is a file, not a folder")
+    existing = next((q for q in p.absolute().parents if q.exists()), None)
+    if existing is not None and not os.access(existing, os.W_OK | os.X_OK):
+        raise OutputPathError(f"output {p}: cannot write in {existing} (permission denied)")
     if kind == "dir" and p.exists() and not p.is_dir():
         raise OutputPathError(f"output {p} is a file; this command writes a folder there")
     if kind == "file" and p.is_dir():
@@ -150,7 +154,7 @@ def atomic_output(path: str | os.PathLike[str], *, overwrite: bool = False,
         tmp = tmp.with_name(tmp.name + "".join(p.suffixes))
     try:
         yield tmp
-    except BaseException:
+    except BaseException as exc:
         if keep_partial and (tmp.exists() and (tmp.is_file() or any(tmp.iterdir()))):
             kept = _partial_name(p)
             tmp.rename(kept)
@@ -159,6 +163,10 @@ def atomic_output(path: str | os.PathLike[str], *, overwrite: bool = False,
                       file=sys.stderr)
         else:
             _remove(tmp)
+        if isinstance(exc, OSError) and str(tmp) in str(exc.filename or ""):
+            # name the output the user gave, not its temporary sibling
+            raise OutputPathError(f"output {p}: cannot write there "
+                                  f"({exc.strerror or exc})") from exc
         raise
     if kind == "file" and not tmp.exists():
         raise OutputPathError(f"output {p}: nothing was written")

@@ -99,3 +99,28 @@ def test_perceive_bad_settings_are_one_line_errors(small_run, gl_available, tmp_
     err = capsys.readouterr().err
     assert msg in err and err.count("\n") == 1
     assert not (tmp_path / "r.db").exists()
+
+
+def test_two_workers_write_the_same_content(small_run, small_db, tmp_path):
+    from dashtraj.perception.pipeline import PerceiveConfig, perceive
+
+    path, _ = small_db
+    other = tmp_path / "w2.db"
+    perceive(small_run, other, PerceiveConfig(observers=(1, 3)), workers=2)
+    with SightingsDB.open(path) as a, SightingsDB.open(other) as b:
+        assert a.poses() == b.poses()
+        assert a.detections() == b.detections()
+        assert a.tracks() == b.tracks()
+        assert a.crops() == b.crops()
+        assert a.observers() == b.observers()
+
+
+def test_sightings_command_takes_the_camera_pipeline(small_run, gl_available, tmp_path, capsys):
+    out = tmp_path / "s.csv"
+    assert main(["sightings", str(small_run.path), "--detector", "oracle", "--tracker", "sort",
+                 "-o", str(out)]) == 0
+    rows = read_sightings(out)
+    assert rows and {r.observer_id for r in rows} <= {1, 2, 3}
+    assert "from" in capsys.readouterr().out
+    assert main(["sightings", str(small_run.path), "-o", str(tmp_path / "x.csv")]) == 2
+    assert "choose a source" in capsys.readouterr().err

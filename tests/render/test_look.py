@@ -160,3 +160,38 @@ def test_bad_look_names_and_fields():
         LookConfig.from_dict({"weather": {"rain": 3}})
     with pytest.raises(TypeError):
         Renderer.set_look(object(), "clear")
+
+
+def test_renderers_sharing_a_context_keep_their_own_looks(gl_ctx, straight_map):
+    """Shader variants are shared per context; each renderer's look must still be its own."""
+    looks = (preset("dusk"), preset("fog"))
+    solo = []
+    for look in looks:
+        r = Renderer(straight_map, 160, 90, 90.0, msaa=0, ctx=gl_ctx, look=look)
+        solo.append(r.render(CAM, VEHICLES).rgb)
+        r.release()
+    a = Renderer(straight_map, 160, 90, 90.0, msaa=0, ctx=gl_ctx, look=looks[0])
+    b = Renderer(straight_map, 160, 90, 90.0, msaa=0, ctx=gl_ctx, look=looks[1])
+    for _ in range(2):
+        assert np.array_equal(a.render(CAM, VEHICLES).rgb, solo[0])
+        assert np.array_equal(b.render(CAM, VEHICLES).rgb, solo[1])
+    b.set_look(looks[0])
+    assert np.array_equal(b.render(CAM, VEHICLES).rgb, solo[0])
+    a.release()
+    b.release()
+
+
+@pytest.mark.parametrize("sigma", [0.4, 0.7, 1.0, 1.3])
+def test_blur_has_the_requested_sigma(sigma):
+    from dashtraj.render.post import blur
+
+    img = np.zeros((41, 41, 3), np.uint8)
+    img[20, 20] = 255
+    b = blur(img, sigma)[:, :, 0].astype(float)
+    b /= b.sum()
+    y, x = np.mgrid[:41, :41]
+    tol = 0.08 if sigma < 1.1 else 0.12  # 8-bit rounding trims the tails of wide kernels
+    assert abs(math.sqrt((b * (x - 20) ** 2).sum()) - sigma) < tol
+    assert abs(math.sqrt((b * (y - 20) ** 2).sum()) - sigma) < tol
+    flat = np.full((9, 9, 3), 77, np.uint8)
+    assert (blur(flat, sigma) == 77).all()

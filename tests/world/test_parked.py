@@ -136,5 +136,4 @@ def test_cli_parked_fraction(tmp_path):
     meta = json.loads((tmp_path / "r" / "meta.json").read_text())
     assert meta["config"]["traffic"]["parked_fraction"] == 0.5
     assert meta["parked_observer_ids"] == [3, 4]
-    with pytest.raises(SystemExit):
-        main(["simulate", "--parked-fraction", "2", "-o", str(tmp_path / "x")])
+    assert main(["simulate", "--parked-fraction", "2", "-o", str(tmp_path / "x")]) == 2

@@ -77,12 +77,15 @@ def clean_warnings() -> Iterator[None]:
 def main(argv: list[str] | None = None) -> int:
     """Run one `dashtraj` command; returns the exit code (0, 2 for bad input, 130 on Ctrl-C).
 
-    A usage error found by argparse raises ``SystemExit(2)`` after printing its one line,
-    as argparse does.
+    A usage error found by argparse returns 2 after printing its one line (``--help`` and
+    ``--version`` return 0), so in-process callers see the same code as the shell.
     """
     with clean_warnings():
         parser = build_parser()
-        args = parser.parse_args(argv)  # SystemExit(2) after a one-line usage error
+        try:
+            args = parser.parse_args(argv)
+        except SystemExit as exc:  # --help / --version (0) or a one-line usage error (2)
+            return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
         try:
             return int(args.func(args) or 0)
         except DashtrajError as exc:

@@ -46,6 +46,19 @@ def positive_float(text: str) -> float:
     return value
 
 
+MAX_DURATION_S = 86400.0
+"""Longest simulated run, seconds (a day); longer is surely a typo."""
+
+
+def duration(text: str) -> float:
+    """Simulated seconds: finite, > 0 and at most `MAX_DURATION_S`."""
+    value = positive_float(text)
+    if value > MAX_DURATION_S:
+        raise argparse.ArgumentTypeError(
+            f"expected at most {MAX_DURATION_S:g} s (a day), got {text!r}")
+    return value
+
+
 def non_negative_float(text: str) -> float:
     """A finite float >= 0."""
     value = _number(text)
@@ -190,6 +203,16 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefau
         if "default" in text or action.default in (None, False, argparse.SUPPRESS):
             return text
         return super()._get_help_string(action)
+
+
+PICTURE_SUFFIXES = ("png", "svg", "pdf", "jpg", "jpeg")
+
+
+def picture_path(text: str) -> str:
+    """A path for a matplotlib figure: .png, .svg, .pdf or .jpg."""
+    if text.rsplit(".", 1)[-1].lower() not in PICTURE_SUFFIXES or "." not in text:
+        raise argparse.ArgumentTypeError(f"name a .png, .svg, .pdf or .jpg file, got {text!r}")
+    return text
 
 
 MAX_IMAGE_SIDE_PX = 8192

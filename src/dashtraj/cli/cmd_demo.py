@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import sys
 
-from dashtraj.cli._args import HelpFormatter, count, positive_float, seed
+from dashtraj.cli._args import HelpFormatter, count, duration, seed
 from dashtraj.outputs import add_output_args
 
 DESCRIPTION = """\
@@ -35,7 +35,7 @@ def register(sub) -> None:
     p.add_argument("--observers", type=count, default=4, help="observer cars with dashcams")
     p.add_argument("--agents", type=count, default=20, help="other cars")
     p.add_argument("--seed", type=seed, default=7, help="seed of the run and of the noise")
-    p.add_argument("--duration", type=positive_float, default=180.0,
+    p.add_argument("--duration", type=duration, default=180.0,
                    help="longest drive, seconds (the run ends when the target arrives)")
     p.add_argument("--noise", choices=("paper", "none"), default="paper",
                    help="localization noise of the oracle sightings")

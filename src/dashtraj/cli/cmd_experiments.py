@@ -108,7 +108,7 @@ def run(args) -> int:
                     print(f"{'experiment':16s} {'sightings':>9s} {'observers':>9s}   "
                           + "  ".join(f"{k + ' SSPD whole / seen':>34s}" for k in cfg.methods))
                     header = True
-                row = "  ".join(f"{m[k]['sspd_m']:23.2f} / {m[k]['seen_sspd_m']:5.2f} m"
+                row = "  ".join(f"{m[k]['sspd_m']:24.2f} / {m[k]['seen_sspd_m']:5.2f} m"
                                 if k in m else f"{'(no sightings)':>34s}" for k in cfg.methods)
                 print(f"{name:16s} {res.summary['sightings']:9d} "
                       f"{res.summary['observers_that_saw_target']:9d}   {row}", flush=True)

@@ -30,8 +30,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", required=True, metavar="DB", help="database file to write")
     p.add_argument("--detector", default="oracle", metavar="oracle|M.onnx",
                    help="detector (default oracle: the renderer's exact visible boxes)")
-    p.add_argument("--tracker", choices=("sort", "ego"), default="ego",
-                   help="sort or ego (default ego)")
+    p.add_argument("--tracker", default="ego", help="sort or ego (default ego)")
     p.add_argument("--localizer", default="fused", help="paper, ground or fused (default fused)")
     p.add_argument("--mu-h", type=positive_float, metavar="PX",
                    help="Eq. 3's calibrated sensor constant (dashtraj localization calibrate)")

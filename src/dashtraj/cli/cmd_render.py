@@ -39,7 +39,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="sampling period, seconds (default 0.5)")
     p.add_argument("--size", type=image_size, default=None, metavar="WxH",
                    help="image size (default: the recording's camera)")
-    p.add_argument("--preview", action="store_true", help="also write preview pictures")
+    p.add_argument("--preview", action="store_true",
+                   help="also write preview pictures, and preview/look_sheet.png: frames before "
+                        "and after the realistic look (and a randomized one)")
+    p.add_argument("--compare", metavar="DIR", default=None,
+                   help="with --preview: reference frames (e.g. CARLA's) shown beside ours, "
+                        "the nearest layout for each row")
     add_output_args(p)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -150,11 +155,19 @@ def run_render(args: argparse.Namespace) -> int:
 
             raise ArgumentError(f"--observer {unknown[0]}: not an observer of {rec.path} "
                                 f"(observers: {', '.join(map(str, known))})")
+    if args.compare is not None:  # checked before hours of rendering, not after
+        from dashtraj.cli._args import ArgumentError
+        from dashtraj.datasets.look_sheet import reference_images
+
+        if not args.preview:
+            raise ArgumentError("--compare needs --preview (it adds a column to the look sheet)")
+        reference_images(args.compare)
     bar = _bar(args, _frame_total([rec], args.every, args.observer), "frame")
     try:
         with atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:
             s = export_frames(rec, tmp, args.every, size, args.observer, args.preview,
-                              progress=bar.update if bar is not None else None)
+                              progress=bar.update if bar is not None else None,
+                              compare_dir=args.compare)
     finally:
         if bar is not None:
             bar.close()
@@ -179,6 +192,8 @@ def run_render(args: argparse.Namespace) -> int:
 
 def run_detection(args: argparse.Namespace) -> int:
     """Build a YOLO detection set; prints a summary; returns 0."""
+    from pathlib import Path
+
     from dashtraj.datasets.detection import (
         DetectionConfig,
         build_detection_dataset,
@@ -194,6 +209,15 @@ def run_detection(args: argparse.Namespace) -> int:
                           max_occlusion=args.max_occlusion, val_fraction=args.val_fraction,
                           seed=args.seed, randomize=args.randomize,
                           randomize_seed=args.randomize_seed)
+    seen: dict = {}
+    for p in args.recordings:  # one recording twice would put the same frames in train and val
+        key = Path(p).resolve()
+        if key in seen:
+            from dashtraj.cli._args import ArgumentError
+
+            raise ArgumentError(f"recording {p} is given twice (also as {seen[key]}); "
+                                "each recording once, or its frames leak between train and val")
+        seen[key] = p
     recs = [Recording.open(p) for p in args.recordings]
     bar = _bar(args, _frame_total(recs, args.every), "frame")
     try:

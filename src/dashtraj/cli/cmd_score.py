@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     from dashtraj.trajectory.io import read_trajectory
     from dashtraj.trajectory.metrics import hausdorff, sspd
 
-    if args.resample_m is not None and not args.resample_m > 0:
+    if args.resample_m is not None and not 0 < args.resample_m < float("inf"):
         raise InputFormatError(
             f"--resample-m must be a positive number of metres, got {args.resample_m}"
         )

@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from dashtraj.cli._args import count, fraction, non_negative_float, positive_float, seed
+from dashtraj.cli._args import count, duration, fraction, non_negative_float, positive_float, seed
 from dashtraj.outputs import add_output_args
 
 
@@ -34,7 +34,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--identities", type=_id_range, metavar="LO-HI",
                    help="draw vehicle identities with LO <= identity_id < HI only (e.g. "
                    "650-700, the ReID set's test identities)")
-    p.add_argument("--duration", type=positive_float, default=180.0, metavar="S",
+    p.add_argument("--duration", type=duration, default=180.0, metavar="S",
                    help="the longest simulated time, seconds (default 180)")
     p.add_argument("--until-target-arrives", action=argparse.BooleanOptionalAction,
                    default=True,

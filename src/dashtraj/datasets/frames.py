@@ -279,16 +279,19 @@ class ExportSummary:
 
 def export_frames(recording, out_dir, every_s: float = 0.5, size: tuple[int, int] | None = None,
                   observers: Iterable[int] | None = None, preview: bool = False,
-                  progress=None) -> ExportSummary:
+                  progress=None, compare_dir=None) -> ExportSummary:
     """Write a recording's observer frames as JPEGs and their labels as Parquet.
 
     Files: ``out_dir/<observer_id>/<frame:06d>.jpg`` and ``out_dir/labels.parquet``
     (``LABEL_COLUMNS``); with ``preview`` also ``out_dir/preview/<observer>/<frame>.png``
-    (boxes drawn) and ``out_dir/preview/contact_sheet.jpg`` (crops per vehicle).
+    (boxes drawn), ``out_dir/preview/contact_sheet.jpg`` (crops per vehicle) and
+    ``out_dir/preview/look_sheet.png`` (before/after the realistic look, beside the
+    nearest frame of ``compare_dir`` if given; ``dashtraj.datasets.look_sheet``).
     Deterministic: the same inputs give byte-identical files.
 
     Args:
         progress: called with no argument after each frame, or None.
+        compare_dir: folder of reference frames (e.g. CARLA's) for the look sheet.
     """
     import pyarrow as pa
     import pyarrow.parquet as pq
@@ -326,6 +329,10 @@ def export_frames(recording, out_dir, every_s: float = 0.5, size: tuple[int, int
         preview_dir = out / "preview"
         preview_dir.mkdir(parents=True, exist_ok=True)
         sheet.render().save(preview_dir / "contact_sheet.jpg", format="JPEG", quality=90)
+        from dashtraj.datasets.look_sheet import look_sheet
+
+        look_sheet(recording, preview_dir / "look_sheet.png", every_s, size, observers,
+                   reference_dir=compare_dir)
     return ExportSummary(out, sum(per_obs.values()), len(rows),
                          sum(1 for r in rows if r["vis_x1"] > r["vis_x0"]), per_obs,
                          labels_path, preview_dir)

@@ -20,7 +20,7 @@ Estimators (`LOCALIZERS`, chosen by name with `build_localizer`):
   height, f = W / (2 tan(FOV/2)) (Eq. 4) and μ_h the sensor constant calibrated the
   paper's way: the mean of H_real f I_H / (D_true h_px) over N detections with known
   distances (`calibrate_paper_constant`; the paper used 51 and got 599.46 for its
-  camera; `PAPER_MU_H` is ours for the default camera at 1280 x 720).
+  camera; `PAPER_MU_H` = 583.96 is ours, from 51, for the default camera).
 - ``ground``: the box's bottom edge is where the vehicle touches the road: the ray
   through (box centre column, bottom row) is intersected with the road plane (camera
   height and pitch from the mount; road elevation = the observer's ground z), and the
@@ -35,7 +35,9 @@ Estimators (`LOCALIZERS`, chosen by name with `build_localizer`):
   inverse-variance weights: σ_paper = 20 % of D, the spread of real heights around
   the class height; σ_ground =
   D² / (f h_cam) × 1 px + 0.3 m), falling back to the other estimate where one is
-  unusable (bottom edge cut by the image border or above the horizon; top edge cut).
+  unusable (bottom edge cut by the image border or above the horizon; top edge cut);
+  where a nearer detection hides a box's bottom edge, the distance from the box width
+  replaces both (see `FusedLocalizer._occluded_bottoms`).
 """
 
 from __future__ import annotations
@@ -53,14 +55,18 @@ CLASS_HEIGHT_M: tuple[float, ...] = (1.6, 3.5, 3.5, 1.45, 1.45)
 """Eq. 3's real heights per vehicle class (car, truck, bus, motorcycle, bicycle), metres."""
 
 CLASS_WHEELBASE_M: tuple[float, ...] = (2.85, 4.15, 5.72, 1.43, 1.06)
+CLASS_LENGTH_M: tuple[float, ...] = (4.76, 7.32, 11.2, 2.07, 1.77)
 CLASS_WIDTH_M: tuple[float, ...] = (1.87, 2.38, 2.52, 0.77, 0.56)
 """Typical wheelbase and width per vehicle class, metres (means of the vehicle catalog):
 the lowest pixel of a vehicle is where its nearest wheels touch the road, half a
 wheelbase from its centre along its length and half a width across it."""
 
-PAPER_MU_H: float = 599.46
-"""μ_h of Eq. 3 for a 720-pixel-high image; replaced by `calibrate_paper_constant`'s value
-for our camera where one is given (scaled with the image height)."""
+PAPER_MU_H: float = 583.96
+"""μ_h of Eq. 3 for our 1280 x 720 camera (scaled with the image height), calibrated the
+paper's way from 51 known distances (the paper got 599.46 for its camera):
+``dashtraj simulate --town town01 --seed 1 --duration 60 -o cal`` then
+``dashtraj localization calibrate cal -n 51 --seed 0`` (seed 1 is a calibration seed,
+never an evaluation one)."""
 
 PAPER_SIGMA_REL = 0.20
 GROUND_SIGMA_PX = 1.0
@@ -218,8 +224,41 @@ class FusedLocalizer:
         d = np.where(both, (wp * p_dist + wg * dg) / np.where(both, wp + wg, 1.0), p_dist)
         sigma = np.where(both, 1.0 / np.sqrt(np.where(both, wp + wg, 1.0)),
                          PAPER_SIGMA_REL * p_dist)
+        d = self._occluded_bottoms(boxes, class_ids, spec, p.bearing_deg, d)
         x, y = place(pose, d, p.bearing_deg)
         return Localized(d, p.bearing_deg, x, y, sigma, np.ones(len(d), bool))
+
+
+    def _occluded_bottoms(self, boxes, class_ids, spec, bearing_deg, d):
+        """Boxes whose bottom edge is hidden by a nearer detection of the same frame: the
+        visible bottom is too high and both the ground and Eq. 3 estimates are too far.
+        Unless the box is also cut sideways by that detection, use the distance from the
+        box width (class width for back views, the vehicle seen straight; the geometric
+        mean with the fused value for front and side views, seen obliquely), never more
+        than the fused value and at least 1 m beyond the occluder."""
+        n = len(boxes)
+        if n < 2:
+            return d
+        b = boxes
+        uc = 0.5 * (b[:, 0] + b[:, 2])
+        below = (b[None, :, 3] > b[:, None, 3]) & (b[None, :, 1] <= b[:, None, 3] + 2.0)
+        covers = below & (b[None, :, 0] <= uc[:, None]) & (uc[:, None] <= b[None, :, 2])
+        np.fill_diagonal(covers, False)
+        cut = below & ((np.abs(b[:, None, 0] - b[None, :, 2]) <= 2.0)
+                       | (np.abs(b[:, None, 2] - b[None, :, 0]) <= 2.0))
+        cut = cut.any(1) | (b[:, 0] <= self.border_px) | (b[:, 2] >= spec.width_px - self.border_px)
+        hit = covers.any(1) & ~cut
+        if not hit.any():
+            return d
+        vc = VEHICLE_CLASS_INDEX[np.asarray(class_ids)]
+        back = np.array([ORIENTATION_OF_CLASS[c] == "back" for c in np.asarray(class_ids)])
+        side = np.array([ORIENTATION_OF_CLASS[c] == "side" for c in np.asarray(class_ids)])
+        extent = np.where(side, np.asarray(CLASS_LENGTH_M)[vc], np.asarray(CLASS_WIDTH_M)[vc])
+        w_px = np.maximum(b[:, 2] - b[:, 0], 1.0)
+        d_w = spec.focal_px * extent / w_px / np.cos(np.radians(bearing_deg))
+        est = np.minimum(np.where(back, d_w, np.sqrt(d_w * d)), d)
+        occluder = np.where(covers, d[None, :], 0.0).max(1)
+        return np.where(hit, np.maximum(est, occluder + 1.0), d)
 
 
 LOCALIZERS: dict[str, type] = {"paper": PaperLocalizer, "ground": GroundLocalizer,

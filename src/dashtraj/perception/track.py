@@ -55,9 +55,11 @@ def _assign(cost: np.ndarray, allowed: np.ndarray):
     r, k = linear_sum_assignment(c)
     ok = allowed[r, k]
     matches = np.column_stack([r[ok], k[ok]]).astype(np.int64)
-    ud = np.setdiff1d(np.arange(n), matches[:, 0])
-    ut = np.setdiff1d(np.arange(m), matches[:, 1])
-    return matches, ud, ut
+    free_d = np.ones(n, bool)
+    free_d[matches[:, 0]] = False
+    free_t = np.ones(m, bool)
+    free_t[matches[:, 1]] = False
+    return matches, np.flatnonzero(free_d), np.flatnonzero(free_t)
 
 
 # ----------------------------------------------------------------------------- SORT
@@ -177,7 +179,8 @@ class EgoTracker:
 
     Attributes:
         spec: the camera of the images (size, FOV, mount).
-        max_age: frames a track survives without a detection.
+        max_age_s: seconds a track survives without a detection (its ground-plane
+            prediction keeps it matchable through occlusions and short exits).
         min_hits: hits before a track is reported.
         iou_min: a pair with at least this IoU of predicted and detected box may match.
         gate_m, gate_rel: ground-distance gate, metres: gate_m + gate_rel × range.
@@ -185,7 +188,7 @@ class EgoTracker:
     """
 
     spec: CameraSpec = field(default_factory=CameraSpec)
-    max_age: int = 5
+    max_age_s: float = 2.0
     min_hits: int = 3
     iou_min: float = 0.1
     gate_m: float = 1.5
@@ -201,6 +204,7 @@ class EgoTracker:
     _votes: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)), repr=False)
     _since: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
     _hits: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
+    _last: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     _t: float | None = None
     _next_id: int = 1
 
@@ -288,13 +292,15 @@ class EgoTracker:
             self._votes = np.vstack([self._votes, votes])
             self._since = np.concatenate([self._since, np.zeros(k, np.int64)])
             self._hits = np.concatenate([self._hits, np.ones(k, np.int64)])
+            self._last = np.concatenate([self._last, np.full(k, self._t)])
         out = np.full(n, -1, np.int64)
         if len(matches):
             d, k = matches[:, 0], matches[:, 1]
             show = self._hits[k] >= self.min_hits
             out[d[show]] = self._ids[k[show]]
-        keep = self._since <= self.max_age
-        for a in ("_x", "_p", "_box", "_dist", "_ids", "_votes", "_since", "_hits"):
+        self._last[self._since == 0] = self._t
+        keep = (self._t - self._last) <= self.max_age_s + 1e-9
+        for a in ("_x", "_p", "_box", "_dist", "_ids", "_votes", "_since", "_hits", "_last"):
             setattr(self, a, getattr(self, a)[keep])
         return out
 

@@ -12,6 +12,8 @@ no GPU, no display. Modules (import them directly; nothing is built on import):
 - ``dashtraj.render.look``: ``LookConfig`` (``Weather`` with CARLA's WeatherParameters
   names, ``CameraLook`` with CARLA's camera attribute names, ``Materials``), presets
   (clear, overcast, fog, wet, rain, dusk, flat), ``lighting``.
+- ``dashtraj.render.randomize``: ``random_look(rng)`` within the stated ``RANGES``
+  (domain randomization of the training sets), ``violations(look)``.
 - ``dashtraj.render.shaders``: the GLSL (sun, sky, shadow map, materials, fog, camera
   response); ``dashtraj.render.post``: rain streaks, blur, JPEG after readback.
 - ``dashtraj.render.labels``: exact per-vehicle boxes, visibility, truncation and the

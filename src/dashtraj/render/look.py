@@ -287,7 +287,7 @@ class Lighting:
     deposits: float
 
 
-HAZE_SIGMA = 0.0012  # 1/m: clear-air haze that fades far buildings toward the horizon
+HAZE_SIGMA = 0.0007  # 1/m: clear-air haze that fades far buildings toward the horizon
 FOG_SIGMA_MAX = 0.08  # 1/m at fog_density = 100
 
 
@@ -305,7 +305,7 @@ def lighting(look: LookConfig) -> Lighting:
     direct = 2.3 * day * (1.0 - 0.88 * clouds ** 1.5) * (1.0 - 0.5 * rain)
     sun_rgb = direct * warm * (0.35 + 0.65 * s ** 0.35)
     # clear sky: deep blue zenith, pale horizon; overcast: grey
-    zen_clear = np.array([0.09, 0.20, 0.52])
+    zen_clear = np.array([0.06, 0.15, 0.46])
     hor_clear = np.array([0.42, 0.52, 0.66])
     grey = np.array([0.45, 0.47, 0.50]) * (1.0 - 0.35 * rain)
     sky_level = 0.08 + 0.92 * day * (0.55 + 0.45 * s ** 0.5)

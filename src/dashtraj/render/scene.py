@@ -63,7 +63,8 @@ FAR_M = 2000.0
 SKY_RGB = (0.62, 0.74, 0.88)  # the legacy look's flat sky
 FRONT_FACE = "ccw"  # meshes wind CCW seen from outside (image rows run along GL's +y)
 NOISE_PX = 1024  # side of the tileable noise texture of the procedural materials
-SHADOW_MAP_PX = 768  # side of the sun's shadow map, texels
+SKY_MARGIN = 0.03  # sky pass: share of the rows drawn below the horizon (map edge, rounding)
+SHADOW_MAP_PX = 512  # side of the sun's shadow map, texels
 SHADOW_RANGE_M = 45.0  # shadows are drawn this far along the optical axis
 SHADOW_CASTER_REACH_M = 60.0  # casters up to this far toward the sun from the shadowed area
 
@@ -274,7 +275,11 @@ class Renderer:
         self._prog_sil = ctx.program(vertex_shader=vs, fragment_shader=shaders.FS_SIL)
         self._prog_depth = ctx.program(vertex_shader=vs, fragment_shader=shaders.FS_DEPTH)
         self._progs = (self._prog_id, self._prog_sil, self._prog_depth)
-        self._variants: dict[tuple, Any] = {}  # (which, group, flags) -> program
+        # (which, group, flags) -> program, shared by the renderers of one context (each
+        # variant is compiled and JIT-ed once per context); ``prog.extra`` holds the token
+        # of the renderer whose look its uniforms hold
+        self._variants: dict[tuple, Any] = _shared_programs(ctx)
+        self._token = object()
         self._cvaos: dict[tuple, Any] = {}  # (which, group, flags, buffer id) -> vao
         self._uniforms: dict[str, Any] = {}
         self._flags: tuple = ()
@@ -374,7 +379,10 @@ class Renderer:
                 if name in prog:
                     prog[name].value = unit
             self._variants[key] = prog
+            prog.extra = None
+        if prog.extra is not self._token:  # last used by another renderer (or new)
             self._set_uniforms(prog, self._uniforms)
+            prog.extra = self._token
         return prog
 
     def _colour_vao(self, which, group: str, buf):
@@ -431,7 +439,7 @@ class Renderer:
             "amb_ground": lt.ambient_ground, "sky_zen": lt.sky_zenith, "sky_hor": lt.sky_horizon,
             "fog_rgb": lt.fog_rgb, "fog_sigma": lt.fog_sigma, "fog_start": lt.fog_start,
             "cloud": lt.cloud_cover, "wb": lt.white_balance,
-            "inv_gamma": 1.0 / max(float(cam.gamma), 0.1),
+            "gamma_fit": gamma_fit(cam.gamma),
             "vig_mult": float(cam.lens_circle_multiplier),
             "vig_falloff": float(cam.lens_circle_falloff),
             "noise_std": float(cam.noise_stddev), "img_size": (self.width, self.height),
@@ -445,7 +453,8 @@ class Renderer:
         values = {k: (tuple(float(x) for x in v) if np.ndim(v) else v) for k, v in values.items()}
         self._uniforms.update(values)
         for prog in self._current_colour_progs():
-            self._set_uniforms(prog, values)
+            if prog.extra is self._token:
+                self._set_uniforms(prog, values)
 
     def _frame_uniforms(self, pose, world, starts) -> None:
         """Per-frame uniforms (camera position, sky rays, noise seed) and the shadow pass."""
@@ -458,10 +467,10 @@ class Renderer:
                                   else np.eye(4, dtype="f4").tobytes())
         self._uniforms.update(per_frame)
         self._noise.use(1)
-        self._colour_prog("sky", "sky")
-        for g in (*{e[3] for e in self._static}, "vehicle"):
-            self._colour_prog(2 if not self.msaa else 0, g)
-        for prog in self._current_colour_progs():
+        progs = [self._colour_prog("sky", "sky")]
+        for g in sorted({e[3] for e in self._static} | {"vehicle"}):
+            progs.append(self._colour_prog(2 if not self.msaa else 0, g))
+        for prog in progs:
             self._set_uniforms(prog, per_frame)
 
     def light_matrix(self, pose) -> np.ndarray:
@@ -500,7 +509,8 @@ class Renderer:
         self._fbo_shadow.use()
         self._fbo_shadow.clear(depth=1.0)
         ctx.enable(mgl.DEPTH_TEST)
-        ctx.disable(mgl.CULL_FACE)
+        ctx.enable(mgl.CULL_FACE)  # closed meshes: the faces toward the sun suffice
+        ctx.front_face = "ccw"
         self._prog_depth["mvp"].write(lmb)
         if len(starts) > 1:
             inside = _vehicles_in_frustum(world, starts, lm)
@@ -514,15 +524,45 @@ class Renderer:
         self._shadow_tex.use(2)
         return lmb
 
-    def _draw_sky(self) -> None:
-        """Fill the pixels no geometry covered (depth still 1) with the sky."""
+    def _draw_sky(self, pose) -> None:
+        """Fill the pixels no geometry covered (depth still 1) with the sky, in the rows
+        above ``SKY_MARGIN`` × H below the lowest point of the horizon (beneath it the
+        ground plane covers every pixel)."""
         mgl = self._moderngl
         ctx = self.ctx
+        rows = self._sky_rows(pose)
+        if rows <= 0:
+            return
         ctx.depth_func = "<="
+        ctx.depth_mask = False
         ctx.disable(mgl.CULL_FACE)
+        ctx.scissor = (0, 0, self.width, rows)
         self._colour_vao("sky", "sky", self._sky_buf).render(mgl.TRIANGLES)
+        ctx.scissor = None
         ctx.depth_func = "<"
+        ctx.depth_mask = True
         ctx.enable(mgl.CULL_FACE)
+
+    def _sky_rows(self, pose) -> int:
+        """Image rows from the top that can show sky: up to the lowest row where a ray
+        through the left or right image edge points above the horizon (ray z is linear
+        in the pixel coordinates), plus a margin of ``SKY_MARGIN`` × H; 0 when the
+        camera sees no sky."""
+        m = world_to_opencv(pose)
+        a = m[:3, :3].T @ np.linalg.inv(self.k)  # pixel (u, v, 1) -> world ray
+        zr = a[2]  # ray z = zr[0] u + zr[1] v + zr[2]
+        h = self.height
+        best = -1.0
+        for u in (0.0, float(self.width)):
+            c = zr[0] * u + zr[2]
+            if abs(zr[1]) < 1e-12:
+                best = max(best, h if c > 0 else -1.0)
+                continue
+            v0 = -c / zr[1]  # z = 0 on this edge
+            best = max(best, v0 if zr[1] < 0 else (h if v0 < h else -1.0))
+        if best < 0:
+            return 0
+        return int(min(h, math.ceil(best + SKY_MARGIN * h)))
 
     def _post(self, rgb: np.ndarray, pose) -> np.ndarray:
         from dashtraj.render.post import camera_post
@@ -663,7 +703,7 @@ class Renderer:
             self._fbo_ms.use()
             self._fbo_ms.clear(*SKY_RGB, 1.0, depth=1.0)
             self._draw_scene(0, mvp, vruns)
-            self._draw_sky()
+            self._draw_sky(pose)
             region = None  # without depth, ids are only needed where vehicles can be
             if not depth:
                 if proj is None and n:
@@ -703,7 +743,7 @@ class Renderer:
             fbo.use()
             self._clear_buffers(True)
             self._draw_scene(2, mvp, vruns)
-            self._draw_sky()
+            self._draw_sky(pose)
             fbo.read_into(rgb, components=3, attachment=0, alignment=1)
             rgb = self._post(rgb, pose)
             a_id, a_depth = 1, 2
@@ -860,12 +900,21 @@ class Renderer:
             for vao in self._vveh.values():
                 vao.release()
             self._vbuf.release()
-        for p in (*self._progs, *self._variants.values()):
-            p.release()
+        for p in self._progs:
+            p.release()  # the shared colour variants live as long as the context
         self._sky_buf.release()
         self._fbo_shadow.release()
         self._shadow_tex.release()
         self._noise.release()
+
+
+def _shared_programs(ctx) -> dict:
+    """The colour-variant programs of a context (kept in ``ctx.extra``)."""
+    store = ctx.extra if isinstance(ctx.extra, dict) else None
+    if store is None:
+        store = {}
+        ctx.extra = store
+    return store.setdefault("dashtraj.render.colour_variants", {})
 
 
 def _subset(mesh: Mesh, tri_mask: np.ndarray) -> Mesh:
@@ -962,6 +1011,17 @@ def _boxes_outside(lo: np.ndarray, hi: np.ndarray, mvp: np.ndarray) -> np.ndarra
 
 def _overlap(a, b) -> bool:
     return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+
+
+@functools.lru_cache(maxsize=64)
+def gamma_fit(gamma: float) -> tuple[float, float, float, float]:
+    """Coefficients (a, b, c, d) with a x + b √x + c x^¼ + d x² ≈ x^(1/gamma) on [0, 1]
+    (least squares on 4,001 points; the shader's display encoding: square roots are
+    cheap on llvmpipe, pow is not). Max error 0.7 levels of 255 at gamma 2.2, 1.3 at 2.4."""
+    x = np.linspace(0.0, 1.0, 4001)
+    a = np.column_stack([x, np.sqrt(x), np.sqrt(np.sqrt(x)), x * x])
+    coef, *_ = np.linalg.lstsq(a, x ** (1.0 / max(float(gamma), 0.1)), rcond=None)
+    return tuple(float(v) for v in coef)
 
 
 @functools.lru_cache(maxsize=2)

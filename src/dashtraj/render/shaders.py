@@ -30,8 +30,8 @@ in vec4 in_color;
 in int in_id;
 out vec3 v_light;
 out vec3 v_world;
-out vec3 v_normal;
-out vec3 v_color;
+flat out vec3 v_normal;
+flat out vec3 v_color;
 flat out int v_mat;
 out float v_depth;
 flat out int v_id;
@@ -40,7 +40,7 @@ void main() {
     v_world = in_pos;
     v_normal = in_normal;
     // the shadow map's projection is affine: interpolating it per vertex is exact
-    v_light = (light_mvp * vec4(in_pos + in_normal * 0.06, 1.0)).xyz * 0.5 + 0.5;
+    v_light = (light_mvp * vec4(in_pos + in_normal * 0.2, 1.0)).xyz * 0.5 + 0.5;
     v_color = in_color.rgb;
     v_mat = int(in_color.a + 0.5);
     v_depth = gl_Position.w;
@@ -61,7 +61,7 @@ uniform float fog_start;
 uniform float cloud;
 uniform vec3 cam_pos;
 uniform vec3 wb;
-uniform float inv_gamma;
+uniform vec4 gamma_fit;
 uniform float vig_mult;
 uniform float vig_falloff;
 uniform float noise_std;
@@ -89,7 +89,8 @@ vec3 sky_color(vec3 d) {
 vec3 camera_response(vec3 c) {
     c *= wb;
     c = clamp((c * (2.51 * c + 0.03)) / (c * (2.43 * c + 0.59) + 0.14), 0.0, 1.0);
-    c = pow(c, vec3(inv_gamma));
+    vec3 r = sqrt(c);  // c^(1/gamma) as a fit in c, c^1/2, c^1/4, c^2 (error < 1.3 levels)
+    c = gamma_fit.x * c + gamma_fit.y * r + gamma_fit.z * sqrt(r) + gamma_fit.w * c * c;
     vec2 q = (gl_FragCoord.xy - 0.5 * img_size) / (0.5 * img_size.x);
     float r2 = dot(q, q);
     c *= 1.0 / (1.0 + vig_mult * 0.25 * pow(r2, 0.5 * vig_falloff) * 4.0);
@@ -117,8 +118,8 @@ uniform float shadow_px;
 
 in vec3 v_light;
 in vec3 v_world;
-in vec3 v_normal;
-in vec3 v_color;
+flat in vec3 v_normal;
+flat in vec3 v_color;
 flat in int v_mat;
 
 #if defined(G_VEHICLE) || defined(G_FACADE) || defined(WET)
@@ -150,9 +151,9 @@ vec3 shade() {
 #ifdef TEXTURES
     vec4 t1 = texture(noise_tex, uv * 0.08);
     float patch = 1.0 + road_wear * (0.5 * (t1.g - 0.5) + 0.25 * (t1.b - 0.5));
-    vec3 road = asphalt_rgb * (0.88 + 0.24 * t1.r) * patch;
+    vec3 road = asphalt_rgb * (0.91 + 0.18 * t1.r) * patch;
 #ifdef WET
-    float pth = 1.0 - 0.4 * deposits;  // puddles cover up to ~40 % of the road
+    float pth = 1.0 - 0.3 * deposits;  // puddles cover up to ~30 % of the road
     puddle = deposits > 0.0 ? smoothstep(pth, pth + 0.12, t1.g) : 0.0;
 #endif
 #else
@@ -259,7 +260,7 @@ vec3 shade() {
     float sh = 1.0;
 #ifdef SHADOWS
     if (v_light.x > 0.0 && v_light.y > 0.0 && v_light.x < 1.0 && v_light.y < 1.0 && v_light.z < 1.0)
-        sh = step(v_light.z - 0.0015, texelFetch(shadow_map, ivec2(v_light.xy * shadow_px), 0).r);
+        sh = step(v_light.z - 0.002, texelFetch(shadow_map, ivec2(v_light.xy * shadow_px), 0).r);
 #endif
     sh *= step(0.0, ndl);
     float direct = lam * (1.0 - shadow_strength * (1.0 - sh));

@@ -528,6 +528,7 @@ def resolve_map(source: str | os.PathLike[str]) -> Path:
     p = Path(source)
     if p.suffix.lower() == ".xodr" or p.exists():
         if not p.is_file():
-            raise OpenDriveError(f"map file {p} does not exist")
+            raise OpenDriveError(f"map file {p} does not exist" if not p.exists()
+                                 else f"map {p} is a folder, not an .xodr file")
         return p
     return town_path(str(source))

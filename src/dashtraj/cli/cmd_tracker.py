@@ -1,0 +1,75 @@
+"""`dashtraj tracker eval`: HOTA, IDF1, MOTA of the trackers on a recording's frames."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    from dashtraj.cli._args import image_size, positive_float
+
+    p = subparsers.add_parser(
+        "tracker", help="evaluate the trackers (HOTA, IDF1, MOTA) against the renderer's truth")
+    sub = p.add_subparsers(dest="tracker_command", metavar="SUBCOMMAND")
+    sub.required = True
+    e = sub.add_parser(
+        "eval", help="score sort, ego and the BoxMOT peers on the same detections",
+        description=(
+            "Render every observer's frames of each recording, detect (oracle: the renderer's "
+            "exact boxes, or an ONNX model), run every tracker on the same detections and "
+            "score them against the renderer's identities with HOTA, IDF1 and MOTA "
+            "(TrackEval's definitions). BoxMOT's ByteTrack, OC-SORT and BoT-SORT (ECC) run "
+            "as peers when the boxmot package can be imported (pip install '.[bench]')."),
+    )
+    e.add_argument("recordings", nargs="+", metavar="RUN", help="recording directories")
+    e.add_argument("--detector", default="oracle", metavar="oracle|M.onnx")
+    e.add_argument("--trackers", nargs="+", default=["sort", "ego"], metavar="NAME",
+                   help="our trackers (default: sort ego)")
+    e.add_argument("--peers", nargs="*", default=None, metavar="NAME",
+                   help="BoxMOT peers (default: bytetrack ocsort botsort when boxmot imports; "
+                        "give none to skip)")
+    e.add_argument("--every", type=positive_float, default=0.1, metavar="S",
+                   help="frame period, seconds (default 0.1)")
+    e.add_argument("--size", type=image_size, metavar="WxH",
+                   help="image size (default: the recording's camera)")
+    e.add_argument("--json", action="store_true", help="print the result as JSON")
+    e.set_defaults(func=run_eval)
+
+
+def run_eval(args: argparse.Namespace) -> int:
+    from dashtraj.perception.evaluate import open_recording, tracker_eval
+    from dashtraj.perception.peers import PEER_NAMES, boxmot_peers
+    from dashtraj.perception.track import build_tracker
+
+    for n in args.trackers:
+        build_tracker(n)
+    size = None
+    if args.size:
+        from dashtraj.datasets.frames import parse_size
+
+        size = parse_size(args.size)
+    wanted = list(PEER_NAMES) if args.peers is None else list(args.peers)
+    unknown = [n for n in wanted if n not in PEER_NAMES]
+    if unknown:
+        from dashtraj.cli._args import ArgumentError
+
+        raise ArgumentError(f"--peers {unknown[0]!r} is not a BoxMOT peer; valid: "
+                            f"{', '.join(PEER_NAMES)}")
+    recs = [open_recording(r) for r in args.recordings]
+    peers, why = boxmot_peers(wanted) if wanted else ({}, None)
+    res = tracker_eval(recs, args.trackers, peers, args.detector, args.every, size)
+    res["detector"] = args.detector
+    res["peers_skipped"] = None if peers or not wanted else why
+    if args.json:
+        print(json.dumps(res))
+        return 0
+    print(f"{len(recs)} recordings, {res['sequences']} observer videos, {res['frames']} frames, "
+          f"detector {args.detector}")
+    for n in [*args.trackers, *peers]:
+        r = res[n]
+        print(f"  {n:10s} HOTA {r['hota']:.3f}  IDF1 {r['idf1']:.3f}  MOTA {r['mota']:.3f}  "
+              f"IDSW {r['idsw']:4d}  {r['updates_per_s'] or 0:,.0f} updates/s")
+    if res["peers_skipped"]:
+        print(f"  BoxMOT peers skipped: {res['peers_skipped']}")
+    return 0

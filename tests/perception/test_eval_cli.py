@@ -1,0 +1,40 @@
+"""`dashtraj tracker eval`, `localization eval` and `localization calibrate` on a small run."""
+
+from __future__ import annotations
+
+import json
+
+from dashtraj.cli import main
+
+
+def test_tracker_eval_json_has_the_metrics_per_tracker(small_run, gl_available, capsys):
+    assert main(["tracker", "eval", str(small_run.path), "--every", "0.2", "--peers",
+                 "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    assert r["sequences"] == 3 and r["frames"] == 3 * 126
+    for n in ("sort", "ego"):
+        assert {"idf1", "hota", "mota", "updates_per_s"} <= set(r[n])
+        assert 0.0 <= r[n]["mota"] <= 1.0 and 0.0 <= r[n]["hota"] <= 1.0
+        assert r[n]["num_gt"] > 50
+    assert r["ego"]["idf1"] >= 0.8
+    assert r["ego"]["idf1"] >= r["sort"]["idf1"]
+
+
+def test_localization_eval_json_and_scatter(small_run, gl_available, tmp_path, capsys):
+    png = tmp_path / "scatter.png"
+    assert main(["localization", "eval", str(small_run.path), "--json", "--plot",
+                 str(png)]) == 0
+    r = json.loads(capsys.readouterr().out)
+    for n in ("paper", "ground", "fused"):
+        assert {"rmse_lt20_m", "rmse_20_60_m", "median_lt20_m", "n_lt20"} <= set(r[n])
+    assert r["fused"]["rmse_lt20_m"] < 1.5  # 320 x 180 pixels
+    assert r["fused"]["rmse_lt20_m"] < r["paper"]["rmse_lt20_m"]
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert main(["localization", "eval", str(small_run.path), "--plot", str(png)]) == 2
+
+
+def test_calibrate_fits_a_constant_near_the_papers(small_run, gl_available, capsys):
+    assert main(["localization", "calibrate", str(small_run.path), "-n", "30", "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    assert r["n"] == 30 and r["height_px"] == 180
+    assert 450.0 < r["mu_h_at_720"] < 750.0  # the paper's camera: 599.46
