@@ -122,5 +122,10 @@ def test_sightings_command_takes_the_camera_pipeline(small_run, gl_available, tm
     rows = read_sightings(out)
     assert rows and {r.observer_id for r in rows} <= {1, 2, 3}
     assert "from" in capsys.readouterr().out
-    assert main(["sightings", str(small_run.path), "-o", str(tmp_path / "x.csv")]) == 2
-    assert "choose a source" in capsys.readouterr().err
+    # without a source flag the oracle is used (the default source); --oracle excludes --detector
+    assert main(["sightings", str(small_run.path), "-o", str(tmp_path / "x.csv")]) == 0
+    assert "(noise none)" in capsys.readouterr().out
+    assert main(["sightings", str(small_run.path), "--oracle", "--detector", "oracle",
+                 "-o", str(tmp_path / "y.csv")]) == 2
+    assert "cannot be combined" in capsys.readouterr().err
+    assert not (tmp_path / "y.csv").exists()
