@@ -134,6 +134,9 @@ class ExperimentResult:
     sightings: list = field(repr=False)
     estimates: dict = field(repr=False)
     road_map: object = field(repr=False)
+    true_match: dict = field(default_factory=dict, repr=False)
+    """(observer_id, track_id) of each used sighting's track → True when its truth is
+    the target (a false match: another vehicle, e.g. a twin, accepted as the target)."""
 
 
 def run_experiment(config: ExperimentConfig, out: str | Path,
@@ -160,6 +163,7 @@ def run_experiment(config: ExperimentConfig, out: str | Path,
     rec = Recording.open(out / "recording")
     road_map = RoadMap.from_file(rec.map_path)
     sightings, reid = target_sightings(config, rec, out, road_map)
+    true_match = reid.pop("_true_match")
     write_sightings(out / "sightings.csv", sightings)
     truth = rec.target_route
     write_trajectory(out / "truth.csv", truth)
@@ -204,7 +208,8 @@ def run_experiment(config: ExperimentConfig, out: str | Path,
         "methods": results,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    return ExperimentResult(config, summary, truth, seen, sightings, estimates, road_map)
+    return ExperimentResult(config, summary, truth, seen, sightings, estimates, road_map,
+                            true_match)
 
 
 def target_sightings(config: ExperimentConfig, rec, out: Path, road_map) -> tuple[list, dict]:
@@ -272,12 +277,14 @@ def target_sightings(config: ExperimentConfig, rec, out: Path, road_map) -> tupl
     sightings = sorted((s for k in accepted for s in tracks[k]), key=lambda s: (s.t, s.observer_id))
     return sightings, {**reid_score(keep, truth, target).to_dict(),
                        "reid_candidates": len(candidates),
-                       "reid_gated_out": len(candidates) - len(keep)}
+                       "reid_gated_out": len(candidates) - len(keep),
+                       "_true_match": {k: truth.get(k) == target for k in accepted}}
 
 
 def plot_experiment(result: ExperimentResult, path: str | Path) -> Path:
     """A top view like the paper's Fig. 6: true route red, HMM estimate yellow,
-    observers as arrows with their ids where they first saw the target."""
+    observers as arrows with their ids where they first saw the target, each used
+    sighting marked as a true match (blue) or a false one (pink)."""
     from dashtraj.report.plots import draw_map, draw_observers, draw_path, new_figure, save
 
     fig, ax = new_figure(result.road_map)
@@ -295,8 +302,14 @@ def plot_experiment(result: ExperimentResult, path: str | Path) -> Path:
                                          s.observer_yaw))
     draw_observers(ax, list(first.values()))
     if result.sightings:
-        ax.scatter([s.x for s in result.sightings], [s.y for s in result.sightings], s=10,
-                   c="#1f5fbf", marker="x", zorder=9, label="sightings (estimated positions)")
+        ok = [result.true_match.get((s.observer_id, s.track_id), True) for s in result.sightings]
+        for want, colour, label in ((True, "#1f5fbf", "true match"),
+                                    (False, "#e377c2", "false match")):
+            pts = [(s.x, s.y) for s, k in zip(result.sightings, ok, strict=True) if k == want]
+            if pts:
+                ax.scatter([p[0] for p in pts], [p[1] for p in pts], s=10 if want else 18,
+                           c=colour, marker="x", zorder=9 if want else 10,
+                           label=f"sightings, {label} ({len(pts)}; estimated positions)")
     ax.legend(loc="upper right", fontsize=8)
     c = result.config
     ax.set_title(f"{c.town}, seed {c.seed}: {len(first)} observers saw the target")

@@ -11,6 +11,7 @@ from dashtraj.experiments import (
     ExperimentConfig,
     ExperimentError,
     aggregate_reid,
+    plot_experiment,
     run_experiment,
 )
 
@@ -83,14 +84,19 @@ def test_look_alikes_gate_raises_precision(tmp_path):
     # three exact twins of the target; appearance that cannot tell them apart accepts
     # every twin track it saw; the gate drops those the target could not have made
     # (town01, seed 0: 11 candidate tracks, 6 of them the target's)
-    runs = {}
+    res = {}
     for gate in (False, True):
         cfg = ExperimentConfig(town="town01", seed=0, twins=3, reid="look-alike", gate=gate)
-        runs[gate] = run_experiment(cfg, tmp_path / str(gate)).summary
-    off, on = runs[False], runs[True]
+        res[gate] = run_experiment(cfg, tmp_path / str(gate))
+    off, on = res[False].summary, res[True].summary
     assert off["reid_candidates"] == on["reid_candidates"] == 11
     assert (off["reid_true_matches"], off["reid_false_matches"]) == (6, 5)
     assert off["reid_gated_out"] == 0
     assert (on["reid_true_matches"], on["reid_false_matches"], on["reid_misses"]) == (6, 0, 0)
     assert on["reid_precision"] == 1.0 and on["reid_gated_out"] == 5
     assert on["methods"]["hmm"]["sspd_whole_m"] < off["methods"]["hmm"]["sspd_whole_m"]
+    # the picture marks each used sighting's track as a true or a false match
+    assert sorted(res[False].true_match.values()) == [False] * 5 + [True] * 6
+    assert all(res[True].true_match.values())
+    png = plot_experiment(res[False], tmp_path / "fig6.png")
+    assert png.stat().st_size > 10_000

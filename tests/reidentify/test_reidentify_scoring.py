@@ -45,3 +45,31 @@ def test_truth_from_a_sightings_db(tmp_path):
     with SightingsDB.open(path) as db:
         assert truth_of_tracks(db) == {(1, 7): 3, (1, 8): 4}
         assert truth_of_tracks(db, max_distance_m=15.0) == {(1, 7): 3}  # track 8 at 18 m
+
+
+def test_query_is_the_first_cropped_detection_in_range(tmp_path):
+    from dashtraj.reidentify.select import query_detection, tracks_of
+    from dashtraj.store import CropRow
+
+    path = tmp_path / "q.db"
+    with SightingsDB.create(path) as db:
+        db.write_run("runs/x", "town01", None, {}, {}, [(1, None), (2, None)])
+        for obs, t0 in ((1, 0.5), (2, 0.0)):
+            poses = [PoseRow(obs, f, t0 + f * 0.1, 0, 0, 0, 0, 0, 0, 1.6, 0, 0) for f in range(3)]
+            # the target (truth 0) at 20 m in frame 0 (out of range), 12 m after
+            dets = [DetectionRow(obs, f, 0, t0 + f * 0.1, 5, 0, 0, 10, 10, 0.9, 1, "car", "back",
+                                 20.0 if f == 0 else 12.0, 0.0, 1, 2, 0, None, None, None, None,
+                                 None, 0) for f in range(3)]
+            # observer 2's frame 1 has no crop
+            crops = [CropRow(obs, f, 0, b"\xff", 1, 1) for f in range(3) if (obs, f) != (2, 1)]
+            db.add_frames(poses, dets, crops, [TrackRow(obs, 5, "car", t0, t0 + 0.2, 3, 0)])
+            db.finish_observer(obs)
+        db.finish_run()
+    with SightingsDB.open(path) as db:
+        q = query_detection(db, 0)
+        assert (q.observer_id, q.frame, q.t) == (2, 2, 0.2)  # 2's frame 0 too far, 1 no crop
+        assert query_detection(db, 0, max_distance_m=25.0).frame == 0
+        assert query_detection(db, 7) is None
+        groups = tracks_of(db.sightings(max_distance_m=15.0))
+        assert sorted(groups) == [(1, 5), (2, 5)]
+        assert [s.t for s in groups[(1, 5)]] == [0.6, 0.7]

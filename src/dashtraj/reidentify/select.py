@@ -91,3 +91,42 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
     accepted = tuple(placed[i].key for i in res.accepted)
     out = tuple(k for k in cand_keys if k not in set(accepted))
     return Selection(tuple(decisions), cand_keys, accepted, out)
+
+
+def tracks_of(sightings: Sequence[Sighting]) -> dict[tuple[int, int | None], list[Sighting]]:
+    """Group sightings by (observer_id, track_id), each group in time order.
+
+    The `sightings` argument of `select_target_tracks` from a flat list, e.g. a
+    sightings DB's ``SightingsDB.sightings(max_distance_m=15, sample_s=0.5)``.
+    """
+    out: dict[tuple[int, int | None], list[Sighting]] = {}
+    for s in sorted(sightings, key=lambda s: (s.t, s.observer_id)):
+        out.setdefault((s.observer_id, s.track_id), []).append(s)
+    return out
+
+
+def query_detection(db, vehicle_id: int, max_distance_m: float = 15.0):
+    """The query of re-identification: the vehicle's first detection with a crop, within
+    `max_distance_m` (estimated) of a camera, as ``calc_traj`` takes ``veh_t1.image``.
+
+    Picking it needs the vehicle's identity (the user points at the car to follow);
+    the truth ids of the DB stand for that choice.
+
+    Args:
+        db: an open `dashtraj.store.SightingsDB`.
+        vehicle_id: the renderer's vehicle id of the target.
+        max_distance_m: the ReID range, metres.
+
+    Returns:
+        The `DetectionRow` (its (observer_id, track_id) is the gate's anchor), or None
+        when no such detection has a crop.
+    """
+    with_crop = {(c.observer_id, c.frame, c.idx) for c in db.crops()}
+    best = None
+    for d in db.detections():
+        if (d.truth_vehicle_id == vehicle_id and d.distance_m <= max_distance_m
+                and (d.observer_id, d.frame, d.idx) in with_crop
+                and (best is None or (d.t, d.observer_id, d.idx) < (best.t, best.observer_id,
+                                                                     best.idx))):
+            best = d
+    return best
