@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 export MPLBACKEND := Agg
 
-.PHONY: setup demo test lint bench clean
+.PHONY: setup demo test lint bench clean reid-data reid-train
 
 $(STAMP): pyproject.toml scripts/install_render_deps.sh
 	bash scripts/install_render_deps.sh || echo "warning: could not install the EGL/Mesa packages; rendering tests will skip"
@@ -28,6 +28,17 @@ lint: $(STAMP)
 bench: $(STAMP)
 	$(PY) -m pip install -q -e '.[bench]' || echo "some bench peers could not be installed; their ratios are skipped"
 	for b in bench/bench_*.py; do $(PY) $$b || exit 1; done
+
+# ReID: the paper-sized VeRi-layout set, then the cpu recipe (resumes when REID_RUN has last.pt).
+REID_DATA ?= runs/reid/veri_town10
+REID_RUN ?= runs/reid/osnet_x0_25_cpu
+reid-data: $(STAMP)
+	$(VENV)/bin/dashtraj reid-dataset -o $(REID_DATA) --workers 2
+
+reid-train: $(STAMP)
+	$(PY) -m pip install -q -e '.[train]'
+	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN) --recipe cpu --seed 0 \
+		$$(test -f $(REID_RUN)/last.pt && echo --resume)
 
 clean:
 	rm -rf $(VENV) build *.egg-info src/*.egg-info runs

@@ -250,6 +250,10 @@ CASES: list[tuple[str, list[str], str]] = [
      "argument --trips"),
     ("bench-reconstruct-method", ["bench-reconstruct", "--map", "town01", "--trips", "1",
                                   "--methods", "astar"], "valid: hmm, shortest-path"),
+    ("reid-eval-not-veri", ["reid", "eval", "--data", "{OUT_DIR}"],
+     "not a VeRi-776 layout folder"),
+    ("reid-eval-missing", ["reid", "eval", "--data", "{MISSING}"], "no such folder"),
+    ("reid-moving-not-a-set", ["reid", "moving-queries", "{OUT_DIR}", "{REC}"], "no reid.json"),
     ("no-command", [], "the following arguments are required: COMMAND"),
     ("unknown-command", ["frobnicate"], "invalid choice: 'frobnicate'"),
 ]

@@ -98,6 +98,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     r.add_argument("--size", type=int_at_least(16), default=256, metavar="PX",
                    help="crop long side, pixels, 16 or more (default 256)")
     r.add_argument("--town", default="town10", help="built-in town of the stage (town10)")
+    r.add_argument("--fov", default="90", metavar="DEG|zoom",
+                   help="horizontal FOV of every ring camera, degrees (default 90, a fixed lens "
+                        "as the paper's cameras); 'zoom' fits a FOV per camera instead")
+    r.add_argument("--image-size", default="800x600", metavar="WxH",
+                   help="ring camera image size with a fixed FOV (default 800x600)")
     r.add_argument("--seed", type=seed_int, default=0, help="camera and split seed (default 0)")
     _randomize_args(r, "identity (scene) and camera (effects)")
     r.add_argument("--workers", type=positive_int, default=1, help="render processes (default 1)")
@@ -243,6 +248,7 @@ def run_detection(args: argparse.Namespace) -> int:
 
 def run_reid(args: argparse.Namespace) -> int:
     """Build a VeRi-layout ReID set; prints a summary; returns 0."""
+    from dashtraj.datasets.frames import DatasetError, parse_size
     from dashtraj.datasets.reid import ReidConfig, build_reid_dataset
     from dashtraj.outputs import atomic_output, check_output
     from dashtraj.world.recording import Recording
@@ -253,9 +259,19 @@ def run_reid(args: argparse.Namespace) -> int:
 
         raise ArgumentError(f"--test-ids {args.test_ids} must be fewer than --ids {args.ids} "
                             "(at least one train identity)")
+    if args.fov == "zoom":
+        fov = None
+    else:
+        try:
+            fov = float(args.fov)
+        except ValueError:
+            fov = float("nan")
+        if not 1.0 <= fov <= 170.0:
+            raise DatasetError(f"--fov {args.fov!r}: degrees in [1, 170] or 'zoom'")
     cfg = ReidConfig(n_ids=args.ids, n_cameras=args.cameras, size=args.size, seed=args.seed,
                      n_test_ids=args.test_ids, town=args.town, randomize=args.randomize,
-                     randomize_seed=args.randomize_seed)
+                     randomize_seed=args.randomize_seed, fov_deg=fov,
+                     image_size=parse_size(args.image_size))
     recs = [Recording.open(p) for p in args.from_recordings]
     bar = _bar(args, args.ids, "id")
     try:

@@ -1,0 +1,95 @@
+"""Write the model card of a shipped ReID model from its run folder and evaluations.
+
+Usage:
+    python scripts/reid_model_card.py RUN_DIR MODEL.onnx CARD.md \\
+        --eval ring.json [--eval moving.json] [--note TEXT] [--data-json DATA/reid.json]
+
+RUN_DIR is a `dashtraj reid train` folder (run.json, log.jsonl); each --eval file is the
+output of `dashtraj reid eval --json`. The card states the data, recipe, command,
+hardware, wall time, sha256 and the evaluation table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import platform
+from pathlib import Path
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("run")
+    ap.add_argument("onnx")
+    ap.add_argument("card")
+    ap.add_argument("--eval", action="append", default=[])
+    ap.add_argument("--data-json", default=None)
+    ap.add_argument("--note", default="")
+    ap.add_argument("--export-command", default="")
+    a = ap.parse_args()
+    run = Path(a.run)
+    info = json.loads((run / "run.json").read_text())
+    epochs = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()
+              if '"val"' in line]
+    onnx = Path(a.onnx).read_bytes()
+    sha = hashlib.sha256(onnx).hexdigest()
+    r = info["recipe"]
+    prog = info.get("progress", {})
+    wall = prog.get("train_wall_s") or (epochs[-1]["wall_s"] if epochs else 0.0)
+    lines = [f"# {Path(a.onnx).name}: vehicle ReID embedding ({r['model']}, {r['name']} recipe)",
+             "", a.note, "",
+             "## Files", "",
+             f"- `{Path(a.onnx).name}`: {len(onnx):,} bytes, sha256 `{sha}`",
+             "- input `images` (N, 3, "
+             f"{r['height']}, {r['width']}) float32 RGB, /255, ImageNet mean/std "
+             "(`dashtraj.reid.preprocess`); output `embedding` (N, 512) float32 "
+             "(L2-normalised by `dashtraj.reid.embed`)", "",
+             "## Data", ""]
+    lines.append(f"- training folder: `{info['data']}`: {info['train_images']:,} images of "
+                 f"{info['num_classes']} identities (ids {info['class_pids'][0]}–"
+                 f"{info['class_pids'][-1]})")
+    if a.data_json:
+        d = json.loads(Path(a.data_json).read_text())
+        c = d["counts"]
+        cfg = d["config"]
+        lines.append(f"- evaluation set: `dashtraj reid-dataset` on {cfg['town']}, seed "
+                     f"{cfg['seed']}, {cfg['n_cameras']} ring cameras (fixed lens "
+                     f"{cfg.get('fov_deg')}° over {cfg.get('image_size')} px), {cfg['n_ids']} "
+                     f"ids: train {c['train']['images']:,} images / {c['train']['ids']} ids, "
+                     f"query {c['query']['images']}, gallery {c['test']['images']:,} of "
+                     f"{c['test']['ids']} test ids"
+                     + (f"; moving-observer query {c['query_moving']['images']} crops of "
+                        f"{c['query_moving']['ids']} ids" if "query_moving" in c else ""))
+    lines += ["", "## Recipe", "", "```json", json.dumps(r, indent=1), "```", "",
+              f"- seed {info['seed']}; torch {info['torch']}, {info['threads']} threads",
+              f"- epochs done: {prog.get('epochs_done', len(epochs))} of {r['epochs']}; best "
+              f"epoch {prog.get('best', {}).get('epoch') if prog.get('best') else '-'}",
+              "", "## Command", "", "```", info.get("command") or "", a.export_command, "```",
+              "", "## Hardware and wall time", "",
+              f"- {platform.machine()} CPU, {os.cpu_count()} cores shared with other jobs "
+              "(nice 10), no GPU",
+              f"- training wall time {wall / 3600:.2f} h (steps + per-epoch evaluation)", "",
+              "## Evaluation (VeRi-776 protocol: same-id same-camera gallery images "
+              "excluded)", "",
+              "| query set | queries | gallery | rank-1 % | rank-5 % | rank-10 % | mAP % | "
+              "mINP % |", "|---|---|---|---|---|---|---|---|"]
+    for e in a.eval:
+        m = json.loads(Path(e).read_text())
+        lines.append(f"| {m['query']} | {m['queries']} | {m['gallery']} | "
+                     f"{100 * m['rank1']:.2f} | {100 * m['rank5']:.2f} | "
+                     f"{100 * m['rank10']:.2f} | {100 * m['map']:.2f} | {100 * m['minp']:.2f} |")
+    if epochs:
+        lines += ["", "## Validation per epoch (ring queries)", "",
+                  "| epoch | loss | train acc % | rank-1 % | mAP % |", "|---|---|---|---|---|"]
+        for ep in epochs:
+            v = ep["val"].get("image_query")
+            lines.append(f"| {ep['epoch']} | {ep['loss']:.3f} | {100 * ep['train_acc']:.1f} | "
+                         + (f"{100 * v['rank1']:.2f} | {100 * v['map']:.2f} |" if v else
+                            "- | - |"))
+    Path(a.card).write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,11 @@
+"""Vehicle re-identification (layer after perception).
+
+- ``models``: the paper's six backbones and the small OSNets by name (torch, ``.[train]``);
+- ``train``: recipes and the resumable training loop (torch); ``export``: ONNX export;
+- ``evaluate``: the VeRi-776 protocol (CMC, mAP, mINP; numpy);
+- ``preprocess`` / ``embed``: crops → 512-d L2-normalised embeddings on onnxruntime;
+- ``gallery``: nearest-neighbour search over embeddings (faiss flat/IVF/HNSW, numpy).
+
+Run time (``embed``, ``gallery``, ``evaluate``) needs no torch. ``embed`` and
+``gallery`` take crops and arrays, so the sightings database can feed them directly.
+"""

@@ -1,0 +1,166 @@
+"""Evaluation on the VeRi-776 protocol (numpy only).
+
+A VeRi-layout folder holds ``image_query/`` (queries), ``image_test/`` (the gallery) and
+usually ``image_train/``; each image is named ``<id>_c<cam>_<rest>.jpg`` (VeRi-776's
+own names, e.g. ``0002_c002_00030600_0.jpg``, and dashtraj's ``reid-dataset`` names).
+For each query the gallery is ranked by distance; gallery images of the query's
+identity seen by the query's camera are removed first (VeRi's rule: a match must come
+from another camera). Then, over the queries that keep at least one true match:
+
+- CMC rank-k: the share of queries with a true match among the first k (the paper's
+  Eq. 10, averaged);
+- AP: the mean over the true matches of the precision at each match's rank; mAP the
+  mean AP;
+- INP (Ye et al. 2021): (number of true matches) / (rank of the hardest, i.e. last,
+  true match); mINP the mean.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dashtraj.errors import DashtrajError
+
+VERI_NAME = re.compile(r"^(\d+)_c(\d+)_.*\.(?:jpe?g|png)$", re.IGNORECASE)
+"""Identity and camera of a VeRi image name: ``<id>_c<cam>_<anything>.jpg``."""
+QUERY_SETS = ("image_query", "image_query_moving")
+
+
+class VeriLayoutError(DashtrajError):
+    """A folder is not in the VeRi-776 layout; the message names the folder or file."""
+
+
+@dataclass(frozen=True)
+class VeriSplit:
+    """The images of one folder of a VeRi-layout set.
+
+    paths: image files, sorted by name. pids: identity per image (the name's id).
+    camids: camera per image (the name's c<cam>).
+    """
+
+    paths: tuple[Path, ...]
+    pids: np.ndarray
+    camids: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+
+def read_split(folder: str | Path) -> VeriSplit:
+    """All images of a VeRi folder (``image_train``, ``image_query``, ...).
+
+    Raises VeriLayoutError: the folder is missing, empty, or holds a file whose name is
+    not ``<id>_c<cam>_....jpg``.
+    """
+    d = Path(folder)
+    if not d.is_dir():
+        raise VeriLayoutError(f"{d}: no such folder (a VeRi-776 layout needs image_query/ and "
+                              "image_test/ with <id>_c<cam>_....jpg images)")
+    paths, pids, cams = [], [], []
+    for p in sorted(d.iterdir()):
+        if not p.is_file() or p.name.startswith("."):
+            continue
+        m = VERI_NAME.match(p.name)
+        if m is None:
+            if p.suffix.lower() in (".jpg", ".jpeg", ".png"):
+                raise VeriLayoutError(f"{p}: not a VeRi image name (<id>_c<cam>_....jpg)")
+            continue  # e.g. Thumbs.db
+        paths.append(p)
+        pids.append(int(m.group(1)))
+        cams.append(int(m.group(2)))
+    if not paths:
+        raise VeriLayoutError(f"{d}: no <id>_c<cam>_....jpg images")
+    return VeriSplit(tuple(paths), np.asarray(pids, np.int64), np.asarray(cams, np.int64))
+
+
+def open_veri(root: str | Path, query: str = "image_query") -> tuple[VeriSplit, VeriSplit]:
+    """(query, gallery) of a VeRi-layout folder; the gallery is ``image_test``.
+
+    Raises VeriLayoutError naming what is missing.
+    """
+    r = Path(root)
+    if not r.is_dir():
+        raise VeriLayoutError(f"--data {r}: no such folder")
+    missing = [n for n in (query, "image_test") if not (r / n).is_dir()]
+    if missing:
+        raise VeriLayoutError(f"--data {r}: not a VeRi-776 layout folder (missing "
+                              f"{', '.join(n + '/' for n in missing)}; expected image_query/, "
+                              "image_test/ and optionally image_train/)")
+    return read_split(r / query), read_split(r / "image_test")
+
+
+def l2_normalize(x: np.ndarray) -> np.ndarray:
+    """Rows scaled to unit length (zero rows stay zero), float32."""
+    x = np.asarray(x, np.float32)
+    n = np.linalg.norm(x, axis=1, keepdims=True)
+    return x / np.maximum(n, 1e-12)
+
+
+def distance_matrix(qf: np.ndarray, gf: np.ndarray) -> np.ndarray:
+    """Squared Euclidean distances (n_query, n_gallery), float64, clipped at 0.
+
+    The paper ranks by the L2 distance between feature vectors; the square ranks the same.
+    """
+    q = np.asarray(qf, np.float64)
+    g = np.asarray(gf, np.float64)
+    d = (q * q).sum(1)[:, None] + (g * g).sum(1)[None, :] - 2.0 * q @ g.T
+    return np.maximum(d, 0.0)
+
+
+def evaluate_rank(distmat: np.ndarray, q_pids, g_pids, q_camids, g_camids,
+                  max_rank: int = 50) -> dict:
+    """CMC, mAP and mINP under VeRi's rule (module docstring).
+
+    Args:
+        distmat: (n_query, n_gallery) distances; smaller is more similar. Ties are
+            broken by gallery order (stable sort).
+        q_pids, g_pids, q_camids, g_camids: identities and cameras.
+        max_rank: length of the CMC curve returned.
+
+    Returns:
+        {"cmc": float array (max_rank,), "map", "minp", "rank1", "rank5", "rank10",
+        "queries": queries evaluated, "skipped": queries without a true match left}.
+        Fractions in [0, 1].
+    """
+    d = np.asarray(distmat, np.float64)
+    q_pids, g_pids = np.asarray(q_pids), np.asarray(g_pids)
+    q_camids, g_camids = np.asarray(q_camids), np.asarray(g_camids)
+    nq, ng = d.shape
+    if len(q_pids) != nq or len(g_pids) != ng:
+        raise ValueError(f"distance matrix {d.shape} does not match {len(q_pids)} queries and "
+                         f"{len(g_pids)} gallery images")
+    order = np.argsort(d, axis=1, kind="stable")
+    matches = g_pids[order] == q_pids[:, None]
+    remove = matches & (g_camids[order] == q_camids[:, None])
+    cmc_sum = np.zeros(max_rank)
+    aps, inps, skipped = [], [], 0
+    for i in range(nq):
+        m = matches[i][~remove[i]]
+        if not m.any():
+            skipped += 1
+            continue
+        hits = np.flatnonzero(m)  # 0-based ranks of the true matches
+        first = hits[0]
+        if first < max_rank:
+            cmc_sum[first:] += 1
+        k = np.arange(1, len(hits) + 1)
+        aps.append(float(np.mean(k / (hits + 1))))
+        inps.append(len(hits) / (hits[-1] + 1))
+    n = nq - skipped
+    if n == 0:
+        raise ValueError("no query has a true match in the gallery from another camera")
+    cmc = cmc_sum / n
+    return {"cmc": cmc, "map": float(np.mean(aps)), "minp": float(np.mean(inps)),
+            "rank1": float(cmc[0]), "rank5": float(cmc[min(4, max_rank - 1)]),
+            "rank10": float(cmc[min(9, max_rank - 1)]), "queries": n, "skipped": skipped}
+
+
+def evaluate_features(qf, gf, q: VeriSplit, g: VeriSplit, normalize: bool = True) -> dict:
+    """``evaluate_rank`` on the squared L2 distances of (optionally L2-normalised) features."""
+    if normalize:
+        qf, gf = l2_normalize(qf), l2_normalize(gf)
+    return evaluate_rank(distance_matrix(qf, gf), q.pids, g.pids, q.camids, g.camids)

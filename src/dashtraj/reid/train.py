@@ -1,0 +1,502 @@
+"""Training a ReID backbone on a VeRi-layout set (needs the ``.[train]`` extra: torch).
+
+One run = one folder (``-o DIR``) holding everything needed to resume and to report:
+
+- ``run.json``: the data folder, model, recipe, seed, command line, class map;
+- ``last.pt``: the latest checkpoint (model, optimizer, epoch, step, history, wall time),
+  written every ``checkpoint_every`` steps and at every epoch end (atomically);
+- ``best.pt``: the weights with the best validation (rank-1, then mAP) so far;
+- ``log.jsonl``: one JSON line per logged step and per epoch (loss, accuracy, lr,
+  images/s, validation CMC/mAP/mINP on the ring queries and, when present, the
+  moving-observer queries);
+- ``curves.png``: loss, train accuracy and validation rank-1 / mAP per epoch;
+- ``cache/``: the decoded, resized images (uint8 memory maps; rebuilt if missing).
+
+Recipes (``RECIPES``): ``paper`` is the paper's Table I (Adam, lr 3e-4, 256 × 256,
+softmax, 512-d, 60 epochs) with torchreid's defaults for what the table leaves open
+(batch 32, weight decay 5e-4, label smoothing 0.1, lr × 0.1 after epoch 20 and 40,
+random flip and translation); it needs a GPU to finish in hours. ``cpu`` trains
+``osnet_x0_25`` at 128 × 128 in channels-last layout on 2 CPU cores: Adam 2e-3 with
+half an epoch of warm-up and cosine decay, batch 64, 6 epochs (≈ 330k images: ≈ 1.5 h
+at the 65 img/s measured on an idle 2-core machine, ≤ 3 h down to 30 img/s).
+
+Determinism: batches and augmentation come from ``numpy.random.default_rng([seed,
+epoch])`` and weights from ``torch.manual_seed(seed)``; on the CPU with the same thread
+count the same seed gives the same weights, and a resumed run continues the same
+sequence (the step within the epoch is saved). Across thread counts or on a GPU torch's
+float reductions may differ in the last bits.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from dashtraj.errors import DashtrajError
+from dashtraj.reid.evaluate import QUERY_SETS, VeriSplit, evaluate_features, read_split
+from dashtraj.reid.preprocess import IMAGENET_MEAN, IMAGENET_STD, resize_uint8
+
+
+class TrainError(DashtrajError):
+    """A training run cannot start or resume; the message names the argument or file."""
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """Training settings (written into run.json and the model card).
+
+    Attributes:
+        name: recipe name. model: backbone (``dashtraj.reid.models``).
+        height, width: input size, pixels. epochs: passes over the train set.
+        batch_size: images per step. lr: Adam learning rate. weight_decay: L2 on weights.
+        schedule: "cosine" (cosine decay to 1 % after ``warmup_epochs`` of linear warm-up)
+            or "step" (× 0.1 at each of ``milestones``). label_smoothing: of the softmax
+            cross-entropy. triplet: add the batch-hard triplet loss (margin
+            ``triplet_margin``; batches of ``instances`` images per identity).
+        channels_last: NHWC memory layout (1.5–2× faster on this CPU).
+        flip: random horizontal flip. translate: random shift, fraction of the size.
+        checkpoint_every: steps between checkpoints.
+    """
+
+    name: str
+    model: str
+    height: int
+    width: int
+    epochs: int
+    batch_size: int
+    lr: float
+    weight_decay: float = 5e-4
+    schedule: str = "cosine"
+    warmup_epochs: float = 1.0
+    milestones: tuple[int, ...] = ()
+    label_smoothing: float = 0.1
+    triplet: bool = False
+    triplet_margin: float = 0.3
+    instances: int = 4
+    channels_last: bool = True
+    flip: bool = True
+    translate: float = 0.0625
+    checkpoint_every: int = 100
+
+
+RECIPES = {
+    "cpu": Recipe(name="cpu", model="osnet_x0_25", height=128, width=128, epochs=6,
+                  batch_size=64, lr=2e-3, schedule="cosine", warmup_epochs=0.5),
+    "paper": Recipe(name="paper", model="osnet_x1_0", height=256, width=256, epochs=60,
+                    batch_size=32, lr=3e-4, schedule="step", warmup_epochs=0.0,
+                    milestones=(20, 40)),
+}
+
+
+def lr_at(recipe: Recipe, epoch_f: float) -> float:
+    """Learning rate at a fractional epoch."""
+    if recipe.schedule == "step":
+        return recipe.lr * 0.1 ** sum(epoch_f >= m for m in recipe.milestones)
+    if epoch_f < recipe.warmup_epochs:
+        return recipe.lr * max(0.01, epoch_f / recipe.warmup_epochs)
+    span = max(1e-9, recipe.epochs - recipe.warmup_epochs)
+    t = min(1.0, (epoch_f - recipe.warmup_epochs) / span)
+    return recipe.lr * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * t)))
+
+
+# ---------------------------------------------------------------------------------------------
+# data
+
+
+def image_cache(split: VeriSplit, height: int, width: int, path: Path, log=None) -> np.ndarray:
+    """The split's images resized to (N, height, width, 3) uint8, as a memory map file.
+
+    Built once (``path`` + ``.json`` lists the file names it holds) and reused when the
+    names match.
+    """
+    names = [p.name for p in split.paths]
+    meta = path.with_suffix(".json")
+    shape = (len(names), height, width, 3)
+    if path.exists() and meta.exists():
+        m = json.loads(meta.read_text())
+        if m.get("names") == names and tuple(m.get("shape", ())) == shape:
+            return np.memmap(path, np.uint8, "r", shape=shape)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    arr = np.memmap(tmp, np.uint8, "w+", shape=shape)
+    t0 = time.time()
+    for i, p in enumerate(split.paths):
+        arr[i] = resize_uint8(p, height, width)
+        if log and (i + 1) % 5000 == 0:
+            log(f"cache {path.name}: {i + 1}/{len(names)} images, {time.time() - t0:.0f} s")
+    arr.flush()
+    del arr
+    os.replace(tmp, path)
+    meta.write_text(json.dumps({"names": names, "shape": list(shape)}))
+    return np.memmap(path, np.uint8, "r", shape=shape)
+
+
+def epoch_batches(labels: np.ndarray, recipe: Recipe, seed: int, epoch: int) -> list[np.ndarray]:
+    """The epoch's batches of image indices (deterministic per seed and epoch).
+
+    Softmax: a permutation cut into full batches. Triplet: identities shuffled and
+    ``instances`` images of each (with replacement when an identity has fewer).
+    """
+    rng = np.random.default_rng([seed, epoch])
+    if not recipe.triplet:
+        perm = rng.permutation(len(labels))
+        n = len(perm) // recipe.batch_size
+        return [perm[i * recipe.batch_size:(i + 1) * recipe.batch_size] for i in range(n)]
+    by_id = [np.flatnonzero(labels == c) for c in range(int(labels.max()) + 1)]
+    k = recipe.instances
+    p = recipe.batch_size // k
+    chunks = []
+    for c in rng.permutation(len(by_id)):
+        idx = rng.permutation(by_id[c])
+        for j in range(0, max(1, len(idx) // k)):
+            sel = idx[j * k:(j + 1) * k]
+            if len(sel) < k:
+                sel = rng.choice(by_id[c], size=k, replace=True)
+            chunks.append(sel)
+    order = rng.permutation(len(chunks))
+    chunks = [chunks[i] for i in order]
+    # no identity twice in a batch: greedy fill
+    batches, cur, used = [], [], set()
+    pending = list(range(len(chunks)))
+    while pending:
+        rest = []
+        for i in pending:
+            cid = int(labels[chunks[i][0]])
+            if cid in used:
+                rest.append(i)
+                continue
+            cur.append(chunks[i])
+            used.add(cid)
+            if len(cur) == p:
+                batches.append(np.concatenate(cur))
+                cur, used = [], set()
+        if rest == pending:
+            break
+        pending = rest
+    return batches
+
+
+def augment(images: np.ndarray, recipe: Recipe, rng: np.random.Generator) -> np.ndarray:
+    """Random horizontal flip and translation (edge-replicated), (N, H, W, 3) uint8."""
+    out = np.array(images)
+    n, h, w, _ = out.shape
+    if recipe.flip:
+        f = rng.random(n) < 0.5
+        out[f] = out[f, :, ::-1]
+    if recipe.translate > 0:
+        ph, pw = round(h * recipe.translate), round(w * recipe.translate)
+        padded = np.pad(out, ((0, 0), (ph, ph), (pw, pw), (0, 0)), mode="edge")
+        dy = rng.integers(0, 2 * ph + 1, n)
+        dx = rng.integers(0, 2 * pw + 1, n)
+        for i in range(n):
+            out[i] = padded[i, dy[i]:dy[i] + h, dx[i]:dx[i] + w]
+    return out
+
+
+def _to_tensor(batch: np.ndarray, channels_last: bool):
+    import torch
+
+    x = torch.from_numpy(np.array(batch, np.uint8)).permute(0, 3, 1, 2).float().div_(255.0)
+    mean = torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1)
+    std = torch.tensor(IMAGENET_STD).view(1, 3, 1, 1)
+    x = (x - mean) / std
+    return x.contiguous(memory_format=torch.channels_last) if channels_last else x.contiguous()
+
+
+def embed_array(model, images: np.ndarray, channels_last: bool, batch: int = 128) -> np.ndarray:
+    """Embeddings (N, 512) float32 of (N, H, W, 3) uint8 images with a torch model (eval)."""
+    import torch
+
+    model.eval()
+    out = []
+    with torch.inference_mode():
+        for i in range(0, len(images), batch):
+            out.append(model(_to_tensor(images[i:i + batch], channels_last)).float().numpy())
+    return np.concatenate(out) if out else np.zeros((0, 512), np.float32)
+
+
+def batch_hard_triplet(features, labels, margin: float):
+    """Batch-hard triplet loss (Hermans et al. 2017) on Euclidean distances."""
+    import torch
+
+    d = torch.cdist(features, features).clamp_min(1e-12)
+    same = labels[:, None] == labels[None, :]
+    hardest_pos = (d * same).max(1).values
+    hardest_neg = d.masked_fill(same, float("inf")).min(1).values
+    return torch.relu(hardest_pos - hardest_neg + margin).mean()
+
+
+# ---------------------------------------------------------------------------------------------
+# the run
+
+
+def _save_atomic(obj, path: Path) -> None:
+    import torch
+
+    tmp = path.with_suffix(".tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def _write_json(path: Path, obj) -> None:
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(obj, indent=1) + "\n", encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def plot_curves(history: list[dict], path: Path) -> None:
+    """Loss, train accuracy and validation rank-1 / mAP per epoch as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ep = [h["epoch"] for h in history]
+    fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
+    ax[0].plot(ep, [h["loss"] for h in history], "o-", label="train loss")
+    ax[0].set_xlabel("epoch")
+    ax[0].set_ylabel("loss")
+    ax2 = ax[0].twinx()
+    ax2.plot(ep, [100 * h["train_acc"] for h in history], "s--", color="C1", label="train acc")
+    ax2.set_ylabel("train accuracy, %")
+    ax[0].legend(loc="upper left")
+    ax2.legend(loc="upper right")
+    for key, style in (("image_query", "-"), ("image_query_moving", "--")):
+        pts = [(h["epoch"], h["val"][key]) for h in history if key in h.get("val", {})]
+        if pts:
+            ax[1].plot([p[0] for p in pts], [100 * p[1]["rank1"] for p in pts], "o" + style,
+                       color="C0", label=f"rank-1 {key[6:]}")
+            ax[1].plot([p[0] for p in pts], [100 * p[1]["map"] for p in pts], "s" + style,
+                       color="C2", label=f"mAP {key[6:]}")
+    ax[1].set_xlabel("epoch")
+    ax[1].set_ylabel("%")
+    ax[1].legend(fontsize=8)
+    ax[1].grid(alpha=0.3)
+    fig.tight_layout()
+    tmp = path.with_suffix(".tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
+          resume: bool = False, overwrite: bool = False, max_hours: float | None = None,
+          threads: int | None = None, command: str | None = None, log=print) -> dict:
+    """Train (or resume) a run; returns the final run summary (also in run.json).
+
+    Args:
+        data: VeRi-layout folder (image_train/, image_query/, image_test/).
+        out: run folder (see the module docstring). An existing non-empty folder is
+            refused unless ``resume`` (continue it) or ``overwrite`` (start afresh).
+        recipe: a ``Recipe``. seed: weights, batches and augmentation seed.
+        max_hours: stop (checkpointed, resumable) after this much wall time in this call.
+        threads: torch intra-op threads (None: torch's default).
+
+    Raises:
+        TrainError: bad data folder, run folder conflicts, resume of a different run.
+    """
+    import torch
+    import torch.nn.functional as F
+
+    from dashtraj.reid.models import build_model
+
+    data, out = Path(data), Path(out)
+    if log is None:
+        def log(_msg):
+            return None
+    if threads:
+        torch.set_num_threads(threads)
+    if not (data / "image_train").is_dir():
+        raise TrainError(f"{data}: no image_train/ (a VeRi-layout folder from "
+                         "'dashtraj reid-dataset' or VeRi-776 itself)")
+    ckpt_path = out / "last.pt"
+    if out.exists() and any(out.iterdir()):
+        if resume:
+            if not ckpt_path.exists():
+                raise TrainError(f"--resume: {out} has no last.pt")
+        elif overwrite:
+            import shutil
+
+            keep_cache = out / "cache"
+            for p in out.iterdir():
+                if p != keep_cache:
+                    shutil.rmtree(p) if p.is_dir() else p.unlink()
+        else:
+            raise TrainError(f"{out} exists and is not empty; --resume continues that run, "
+                             "--overwrite starts afresh")
+    elif resume:
+        raise TrainError(f"--resume: {out} has no run to resume")
+    out.mkdir(parents=True, exist_ok=True)
+
+    train_split = read_split(data / "image_train")
+    pids = sorted(set(train_split.pids.tolist()))
+    label_of = {p: i for i, p in enumerate(pids)}
+    labels = np.asarray([label_of[p] for p in train_split.pids], np.int64)
+    val_sets = {}
+    gallery = read_split(data / "image_test") if (data / "image_test").is_dir() else None
+    if gallery is not None:
+        for q in QUERY_SETS:
+            if (data / q).is_dir() and any((data / q).iterdir()):
+                val_sets[q] = read_split(data / q)
+
+    run_info = {"data": str(data.resolve()), "seed": seed, "recipe": asdict(recipe),
+                "command": command, "num_classes": len(pids), "train_images": len(labels),
+                "class_pids": pids, "torch": torch.__version__,
+                "threads": torch.get_num_threads()}
+    if resume:
+        old = json.loads((out / "run.json").read_text())
+        if old["recipe"] != json.loads(json.dumps(asdict(recipe))) or old["seed"] != seed:
+            raise TrainError(f"--resume: {out}/run.json has another recipe or seed "
+                             f"({old['recipe']['name']}, seed {old['seed']})")
+    _write_json(out / "run.json", run_info)
+
+    cache = out / "cache"
+    size = (recipe.height, recipe.width)
+    log(f"caching {len(labels)} train images at {size[0]}x{size[1]} ...")
+    x_train = image_cache(train_split, *size, cache / f"train_{size[0]}x{size[1]}.u8", log)
+    x_gal = x_val = None
+    if gallery is not None:
+        x_gal = image_cache(gallery, *size, cache / f"test_{size[0]}x{size[1]}.u8", log)
+        x_val = {q: image_cache(s, *size, cache / f"{q[6:]}_{size[0]}x{size[1]}.u8", log)
+                 for q, s in val_sets.items()}
+
+    torch.manual_seed(seed)
+    model = build_model(recipe.model, len(pids))
+    if recipe.channels_last:
+        model = model.to(memory_format=torch.channels_last)
+    opt = torch.optim.Adam(model.parameters(), lr=recipe.lr, weight_decay=recipe.weight_decay)
+    state = {"epoch": 0, "step_in_epoch": 0, "global_step": 0, "history": [],
+             "best": None, "wall_s": 0.0}
+    if resume:
+        ck = torch.load(ckpt_path, map_location="cpu", weights_only=False)
+        model.load_state_dict(ck["model"])
+        opt.load_state_dict(ck["optimizer"])
+        state = ck["state"]
+        torch.set_rng_state(ck["torch_rng"])
+        log(f"resumed {out} at epoch {state['epoch']} step {state['step_in_epoch']}")
+
+    def checkpoint():
+        _save_atomic({"model": model.state_dict(), "optimizer": opt.state_dict(),
+                      "state": state, "torch_rng": torch.get_rng_state(),
+                      "recipe": asdict(recipe), "num_classes": len(pids)}, ckpt_path)
+
+    logf = open(out / "log.jsonl", "a", encoding="utf-8")
+    t_call = t_prev = time.time()
+    stopped = False
+    try:
+        while state["epoch"] < recipe.epochs:
+            ep = state["epoch"]
+            batches = epoch_batches(labels, recipe, seed, ep)
+            nb = len(batches)
+            acc_loss, acc_hit, acc_n = state.get("epoch_acc", {}).get(str(ep), [0.0, 0, 0])
+            model.train()
+            t_log, n_log = time.time(), 0
+            while state["step_in_epoch"] < nb:
+                s = state["step_in_epoch"]
+                lr = lr_at(recipe, ep + s / nb)
+                for g in opt.param_groups:
+                    g["lr"] = lr
+                idx = np.sort(batches[s])
+                rng = np.random.default_rng([seed, ep, s, 7])
+                xb = _to_tensor(augment(x_train[idx], recipe, rng), recipe.channels_last)
+                yb = torch.from_numpy(labels[idx])
+                logits, feats = model(xb, return_features=True)
+                loss = F.cross_entropy(logits, yb, label_smoothing=recipe.label_smoothing)
+                if recipe.triplet:
+                    loss = loss + batch_hard_triplet(feats, yb, recipe.triplet_margin)
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+                now = time.time()
+                state["wall_s"] += now - t_prev
+                t_prev = now
+                acc_loss += float(loss.detach()) * len(idx)
+                acc_hit += int((logits.argmax(1) == yb).sum())
+                acc_n += len(idx)
+                n_log += len(idx)
+                state["step_in_epoch"] += 1
+                state["global_step"] += 1
+                state.setdefault("epoch_acc", {})[str(ep)] = [acc_loss, acc_hit, acc_n]
+                if state["global_step"] % 25 == 0:
+                    dt = time.time() - t_log
+                    rec = {"epoch": ep, "step": s + 1, "steps": nb,
+                           "loss": float(loss.detach()), "lr": lr, "img_s": n_log / max(dt, 1e-9)}
+                    logf.write(json.dumps(rec) + "\n")
+                    logf.flush()
+                    log(f"epoch {ep + 1}/{recipe.epochs} step {s + 1}/{nb} loss {rec['loss']:.3f}"
+                        f" lr {lr:.2e} {rec['img_s']:.1f} img/s")
+                    t_log, n_log = time.time(), 0
+                if state["global_step"] % recipe.checkpoint_every == 0:
+                    checkpoint()
+                if max_hours is not None and time.time() - t_call > max_hours * 3600:
+                    stopped = True
+                    break
+            if stopped:
+                checkpoint()
+                log(f"stopped after {max_hours} h (resumable: --resume)")
+                break
+            tot = state.get("epoch_acc", {}).pop(str(ep), [acc_loss, acc_hit, acc_n])
+            rec = {"epoch": ep + 1, "loss": tot[0] / max(tot[2], 1),
+                   "train_acc": tot[1] / max(tot[2], 1), "wall_s": state["wall_s"], "val": {}}
+            if gallery is not None:
+                gf = embed_array(model, x_gal, recipe.channels_last)
+                for q, split in val_sets.items():
+                    qf = embed_array(model, x_val[q], recipe.channels_last)
+                    r = evaluate_features(qf, gf, split, gallery)
+                    rec["val"][q] = {k: r[k] for k in ("rank1", "rank5", "rank10", "map",
+                                                       "minp", "queries")}
+            now = time.time()
+            state["wall_s"] += now - t_prev
+            t_prev = now
+            rec["wall_s"] = state["wall_s"]
+            state["history"].append(rec)
+            state["epoch"] += 1
+            state["step_in_epoch"] = 0
+            logf.write(json.dumps(rec) + "\n")
+            logf.flush()
+            v = rec["val"].get("image_query")
+            log(f"epoch {ep + 1} done: loss {rec['loss']:.3f} train acc {rec['train_acc']:.3f}"
+                + (f"; ring query rank-1 {v['rank1']:.4f} mAP {v['map']:.4f}" if v else "")
+                + "".join(f"; {q[6:]} rank-1 {m['rank1']:.4f} mAP {m['map']:.4f}"
+                          for q, m in rec["val"].items() if q != "image_query"))
+            key = (v["rank1"], v["map"]) if v else (rec["train_acc"], 0.0)
+            if state["best"] is None or list(key) > list(state["best"]["key"]):
+                state["best"] = {"key": list(key), "epoch": ep + 1}
+                _save_atomic({"model": model.state_dict(), "recipe": asdict(recipe),
+                              "num_classes": len(pids), "epoch": ep + 1, "val": rec["val"],
+                              "seed": seed}, out / "best.pt")
+            checkpoint()
+            plot_curves(state["history"], out / "curves.png")
+    finally:
+        logf.close()
+    summary = {**run_info, "epochs_done": state["epoch"], "finished": state["epoch"]
+               >= recipe.epochs, "train_wall_s": state["wall_s"], "best": state["best"],
+               "history": state["history"]}
+    _write_json(out / "run.json", {**run_info, "progress": {
+        "epochs_done": state["epoch"], "best": state["best"], "train_wall_s": state["wall_s"]}})
+    return summary
+
+
+def recipe_for(name: str, model: str | None = None, **overrides) -> Recipe:
+    """A named recipe with the model and any field replaced; TrainError lists valid names."""
+    if name not in RECIPES:
+        raise TrainError(f"--recipe {name!r}: valid recipes: {', '.join(sorted(RECIPES))}")
+    r = RECIPES[name]
+    if model is not None:
+        from dashtraj.reid.models import model_names
+
+        if model not in model_names():
+            raise TrainError(f"--model {model!r}: valid names: {', '.join(model_names())}")
+        r = replace(r, model=model)
+    return replace(r, **{k: v for k, v in overrides.items() if v is not None})
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit("use: dashtraj reid train DATA -o DIR")

@@ -1,0 +1,142 @@
+"""The backbones by name, training (determinism, resume) and the ONNX export (torch)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from dashtraj.reid.models import PAPER_MODELS, UnknownModelError, build_model, model_names  # noqa: E402
+
+
+def test_registry_and_unknown_name():
+    assert set(PAPER_MODELS) <= set(model_names())
+    assert {"osnet_x0_25", "osnet_x0_5"} <= set(model_names())
+    with pytest.raises(KeyError) as e:
+        build_model("osnet_x9", 10)
+    assert isinstance(e.value, UnknownModelError)
+    assert "osnet_x9" in str(e.value) and "osnet_x0_25, osnet_x0_5" in str(e.value)
+
+
+@pytest.mark.parametrize("name,params_m", [("osnet_x1_0", 2.2), ("osnet_x0_5", 0.6),
+                                           ("osnet_x0_25", 0.2), ("osnet_ain_x1_0", 2.2),
+                                           ("osnet_ibn_x1_0", 2.2)])
+def test_osnet_sizes_match_the_model_zoo(name, params_m):
+    # torchreid's MODEL_ZOO: x1_0 2.2 M, x0_5 0.6 M, x0_25 0.2 M parameters (512-d head)
+    m = build_model(name, 5)
+    n = sum(p.numel() for k, p in m.named_parameters() if not k.startswith("head.classifier"))
+    assert n / 1e6 == pytest.approx(params_m, rel=0.06)
+
+
+@pytest.mark.parametrize("name", model_names())
+def test_every_model_embeds_512(name):
+    torch.manual_seed(0)
+    m = build_model(name, 7)
+    x = torch.randn(2, 3, 96, 96) if not name.startswith("inception") else torch.randn(2, 3,
+                                                                                         128, 128)
+    m.train()
+    logits, feats = m(x, return_features=True)
+    assert logits.shape == (2, 7) and feats.shape == (2, 512)
+    with torch.no_grad():
+        assert m.eval()(x).shape == (2, 512)
+
+
+def _tiny_set(root):
+    """A synthetic VeRi folder: 4 train ids, 2 test ids, 5 cameras, colour-coded cars."""
+    from PIL import Image
+
+    rng = np.random.default_rng(0)
+    colours = rng.integers(0, 256, (7, 3))
+    for sub in ("image_train", "image_query", "image_test"):
+        (root / sub).mkdir(parents=True)
+    for vid in range(1, 7):
+        for cam in range(1, 6):
+            a = np.full((24, 40, 3), 90, np.uint8)
+            a[6:20, 4 + cam:30 + cam] = colours[vid]
+            a = np.clip(a + rng.integers(-20, 21, a.shape), 0, 255).astype(np.uint8)
+            sub = "image_train" if vid <= 4 else ("image_query" if cam == 1 else "image_test")
+            Image.fromarray(a).save(root / sub / f"{vid:04d}_c{cam:03d}_00000000_0.jpg",
+                                    quality=95)
+
+
+def _recipe(epochs):
+    from dashtraj.reid.train import RECIPES
+
+    return replace(RECIPES["cpu"], height=32, width=32, epochs=epochs, batch_size=8,
+                   checkpoint_every=1)
+
+
+def _weights(path):
+    ck = torch.load(path, map_location="cpu", weights_only=False)
+    return {k: v.clone() for k, v in ck["model"].items()}
+
+
+def test_training_is_deterministic_and_resumes_exactly(tmp_path):
+    from dashtraj.reid.train import TrainError, train
+
+    _tiny_set(tmp_path / "data")
+    s = train(tmp_path / "data", tmp_path / "a", _recipe(2), seed=3, threads=1, log=None)
+    assert s["epochs_done"] == 2 and s["finished"]
+    assert {"query"} <= {k[6:] for k in s["history"][-1]["val"]}
+    for f in ("run.json", "last.pt", "best.pt", "log.jsonl", "curves.png"):
+        assert (tmp_path / "a" / f).is_file(), f
+    # the same seed twice: the same weights
+    train(tmp_path / "data", tmp_path / "b", _recipe(2), seed=3, threads=1, log=None)
+    wa, wb = _weights(tmp_path / "a" / "last.pt"), _weights(tmp_path / "b" / "last.pt")
+    assert all(torch.equal(wa[k], wb[k]) for k in wa)
+    # one epoch, then --resume to two: the same weights as two epochs straight
+    train(tmp_path / "data", tmp_path / "c", _recipe(1), seed=3, threads=1, log=None)
+    assert json.loads((tmp_path / "c" / "run.json").read_text())["recipe"]["epochs"] == 1
+    # resuming with another schedule is refused (it would not continue the same run)
+    with pytest.raises(TrainError, match="another recipe"):
+        train(tmp_path / "data", tmp_path / "c", _recipe(2), seed=3, threads=1, resume=True,
+              log=None)
+    with pytest.raises(TrainError, match="not empty"):
+        train(tmp_path / "data", tmp_path / "a", _recipe(2), seed=3, threads=1, log=None)
+
+
+def test_resume_mid_epoch_is_exact(tmp_path):
+    from dashtraj.reid.train import train
+
+    _tiny_set(tmp_path / "data")
+    train(tmp_path / "data", tmp_path / "full", _recipe(2), seed=5, threads=1, log=None)
+    # stop right after the first step (max_hours ~ 0), then resume to the end
+    s = train(tmp_path / "data", tmp_path / "cut", _recipe(2), seed=5, threads=1,
+              max_hours=1e-9, log=None)
+    assert not s["finished"]
+    train(tmp_path / "data", tmp_path / "cut", _recipe(2), seed=5, threads=1, resume=True,
+          log=None)
+    wa, wb = _weights(tmp_path / "full" / "last.pt"), _weights(tmp_path / "cut" / "last.pt")
+    assert all(torch.equal(wa[k], wb[k]) for k in wa)
+
+
+def test_onnx_export_equals_torch(tmp_path):
+    pytest.importorskip("onnx")
+    pytest.importorskip("onnxruntime")
+    from dashtraj.reid.embed import ReidEmbedder
+    from dashtraj.reid.export import export_onnx
+    from dashtraj.reid.train import RECIPES, _to_tensor
+
+    torch.manual_seed(0)
+    m = build_model("osnet_x0_25", 11)
+    m.train()
+    with torch.no_grad():  # move the BatchNorm statistics off their initial values
+        for _ in range(3):
+            m(torch.randn(8, 3, 128, 128))
+    recipe = RECIPES["cpu"]
+    from dataclasses import asdict
+
+    torch.save({"model": m.state_dict(), "recipe": asdict(recipe), "num_classes": 11,
+                "epoch": 1}, tmp_path / "best.pt")
+    meta = export_onnx(tmp_path / "best.pt", tmp_path / "m.onnx")
+    assert meta["input_height"] == "128" and meta["model"] == "osnet_x0_25"
+    imgs = np.random.default_rng(1).integers(0, 256, (5, 128, 128, 3)).astype(np.uint8)
+    got = ReidEmbedder(tmp_path / "m.onnx", threads=1).embed_array(imgs, normalize=False)
+    with torch.no_grad():
+        want = m.eval()(_to_tensor(imgs, channels_last=False)).numpy()
+    assert np.abs(got - want).max() < 1e-4
+    assert np.abs(want).max() > 1e-2  # not a trivially zero embedding

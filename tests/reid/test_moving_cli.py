@@ -1,0 +1,33 @@
+"""`dashtraj reid moving-queries` adds the moving-observer query set to a ReID set."""
+
+from __future__ import annotations
+
+import json
+import re
+
+from dashtraj.cli import main
+from dashtraj.datasets.reid import NAME_PATTERN, ReidConfig, build_reid_dataset
+from dashtraj.world.camera import CameraSpec
+from dashtraj.world.recording import RunConfig, simulate
+
+
+def test_moving_queries_command(gl_available, tmp_path, capsys):
+    cfg = ReidConfig(n_ids=40, n_test_ids=30, n_cameras=2, size=32, fov_deg=None)
+    build_reid_dataset(cfg, tmp_path / "set")
+    run = RunConfig(map="town10", seed=4, duration_s=8.0, n_observers=2, n_agents=8,
+                    identity_range=(10, 40), camera=CameraSpec(width_px=640, height_px=360))
+    simulate(run, tmp_path / "rec")
+    args = ["reid", "moving-queries", str(tmp_path / "set"), str(tmp_path / "rec"),
+            "--every", "0.5", "--json"]
+    assert main(args) == 0
+    counts = json.loads(capsys.readouterr().out)
+    files = sorted(p.name for p in (tmp_path / "set" / "image_query_moving").iterdir())
+    assert files == (tmp_path / "set" / "name_query_moving.txt").read_text().split()
+    assert counts["images"] == len(files) > 0
+    assert all(re.match(NAME_PATTERN, n) and 11 <= int(n[:4]) <= 40 and int(n[6:9]) > 2
+               for n in files)
+    info = json.loads((tmp_path / "set" / "reid.json").read_text())
+    assert info["counts"]["query_moving"] == counts and len(info["moving_cameras"]) == 2
+    assert main(args) == 2  # an existing query set is kept unless --overwrite
+    assert "--overwrite" in capsys.readouterr().err
+    assert main([*args, "--overwrite"]) == 0
