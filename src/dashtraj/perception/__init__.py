@@ -1,0 +1,1 @@
+"""Perception (per observer): detection (ONNX run time), tracking, localization."""
