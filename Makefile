@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml scripts/install_render_deps.sh
 setup: $(STAMP)
 
 demo: $(STAMP)
-	$(VENV)/bin/dashtraj demo -o runs/demo
+	$(VENV)/bin/dashtraj demo -o runs/demo --overwrite
 
 test: $(STAMP)
 	$(PY) -m pytest -n 2 -q

@@ -1,8 +1,8 @@
 """Benchmark of dashtraj.render: frames per second with 20 vehicles in view.
 
 Labels included (instance, depth and silhouette passes), image encoding excluded.
-Scene: the synthetic straight town of the render tests, camera on a lane looking
-down the road at 20 vehicles (dense: most overlap in the image, 11 hidden).
+Scene: the synthetic straight town of the render tests (`dashtraj.render.synthetic`),
+camera on a lane looking down the road at 20 vehicles (dense: most overlap in the image, 11 hidden).
 
 Usage:
     .venv/bin/python bench/bench_render.py [--frames 60] [--threads 0] [--msaa 4 0]
@@ -20,18 +20,15 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "render"))
-
 
 def scene_vehicles(n: int, rng: np.random.Generator):
     """``n`` vehicles on the straight town's four lanes, 8–90 m ahead of a camera at x=-95."""
-    from conftest import BIKE, BUS, MOTO, SEDAN, SUV, TRUCK, VAN, identity
+    from dashtraj.render.synthetic import BIKE, BUS, MOTO, SEDAN, SUV, TRUCK, VAN, identity
 
     models = [SEDAN, SEDAN, SUV, SUV, VAN, TRUCK, BUS, MOTO, BIKE, SEDAN]
     lanes = [(-5.25, 180.0), (-1.75, 180.0), (1.75, 0.0), (5.25, 0.0)]
@@ -64,10 +61,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     os.environ["LP_NUM_THREADS"] = str(args.threads)
 
-    from conftest import STRAIGHT_XODR
-
     from dashtraj.render.gl import context_info, create_context
     from dashtraj.render.scene import Renderer
+    from dashtraj.render.synthetic import STRAIGHT_XODR
     from dashtraj.roads import RoadMap
 
     ctx = create_context(args.threads)

@@ -17,12 +17,12 @@ from pathlib import Path
 from dashtraj.world.recording import RunConfig, simulate
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--town", default="town10")
     ap.add_argument("--duration", type=float, default=180.0)
     ap.add_argument("--repeat", type=int, default=3)
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     cfg = RunConfig(map=args.town, seed=7, duration_s=args.duration, n_observers=4, n_agents=20)
     best = float("inf")
     with tempfile.TemporaryDirectory() as tmp:
@@ -34,7 +34,8 @@ def main() -> None:
     print(f"{args.town}: {s.vehicles} vehicles, {s.frames} frames, {s.truth_rows} truth rows; "
           f"best of {args.repeat}: {best:.2f} s = {args.duration / best:.0f}x real time "
           f"(goal >= 18x)")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

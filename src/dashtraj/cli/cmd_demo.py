@@ -8,21 +8,40 @@ a top view like the paper's Fig. 6.
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
-from pathlib import Path
+
+from dashtraj.cli._args import count, positive_float, seed
+from dashtraj.outputs import add_output_args
+
+DESCRIPTION = """\
+The main job on a built-in town, end to end, in about ten seconds: simulate one target car
+driving to a destination with observer cars (dashcams) and agents around it, until it
+arrives; take oracle sightings of the target within 15 m of a dashcam (with the paper's
+localization noise by default); reconstruct its route with the paper's method
+(shortest-path) and dashtraj's HMM; score both against the true route (SSPD, Hausdorff,
+metres) and draw a top view like the paper's Fig. 6.
+
+Writes OUT/recording/, sightings.csv, truth.csv, estimate_<method>.csv, summary.json and
+trajectory.png. The built-in towns town01 and town10 are generated after CARLA's (not
+CARLA's assets); a CARLA .xodr file works too."""
 
 
 def register(sub) -> None:
-    p = sub.add_parser("demo", help="simulate, sight, reconstruct and score on a built-in town")
+    p = sub.add_parser("demo", help="simulate, sight, reconstruct and score on a built-in town",
+                       description=DESCRIPTION,
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--town", default="town10", help="built-in town name or .xodr path")
-    p.add_argument("--observers", type=int, default=4)
-    p.add_argument("--agents", type=int, default=20)
-    p.add_argument("--seed", type=int, default=7)
-    p.add_argument("--duration", type=float, default=180.0, help="longest drive, seconds")
+    p.add_argument("--observers", type=count, default=4, help="observer cars with dashcams")
+    p.add_argument("--agents", type=count, default=20, help="other cars")
+    p.add_argument("--seed", type=seed, default=7, help="seed of the run and of the noise")
+    p.add_argument("--duration", type=positive_float, default=180.0,
+                   help="longest drive, seconds (the run ends when the target arrives)")
     p.add_argument("--noise", choices=("paper", "none"), default="paper",
                    help="localization noise of the oracle sightings")
     p.add_argument("-o", "--output", default="runs/demo", help="output folder")
+    add_output_args(p)
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -60,19 +79,22 @@ def print_scores(summary: dict) -> None:
 
 def run(args) -> int:
     from dashtraj.experiments import ExperimentConfig, plot_experiment, run_experiment
+    from dashtraj.outputs import atomic_output, check_output
 
-    out = Path(args.output)
+    out = check_output(args.output, overwrite=args.overwrite, kind="dir")
     config = ExperimentConfig(town=args.town, seed=args.seed, observers=args.observers,
                               agents=args.agents, duration_s=args.duration, noise=args.noise)
     update, bar = progress_bar(args.duration, args.quiet)
-    try:
-        result = run_experiment(config, out, progress=update)
-    finally:
-        if bar is not None:
-            bar.close()
-    png = plot_experiment(result, out / "trajectory.png")
-    summary = {**result.summary, "picture": str(png)}
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    with atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:
+        try:
+            result = run_experiment(config, tmp, progress=update)
+        finally:
+            if bar is not None:
+                bar.close()
+        plot_experiment(result, tmp / "trajectory.png")
+        png = out / "trajectory.png"
+        summary = {**result.summary, "picture": str(png)}
+        (tmp / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     if args.json:
         print(json.dumps(summary, indent=2))
         return 0

@@ -2,18 +2,14 @@
 
 from __future__ import annotations
 
-import argparse
 import json
-import sys
-import warnings
 
+from dashtraj.cli._args import MAX_OFF_ROAD_M, non_negative_float, positive_float
+from dashtraj.cli._args import xy as _xy
+from dashtraj.outputs import add_output_args
 
-def _xy(text: str) -> tuple[float, float]:
-    try:
-        x, y = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected X,Y in metres, got {text!r}") from None
-    return x, y
+_OFF_ROAD_HELP = (f"refuse a point farther than M metres from every driving lane "
+                  f"(default {MAX_OFF_ROAD_M:g})")
 
 
 def register(sub) -> None:
@@ -32,10 +28,13 @@ def register(sub) -> None:
                        help="origin, CARLA world metres (--from=-4,20 for a negative x)")
     route.add_argument("--to", dest="destination", type=_xy, required=True, metavar="X,Y",
                        help="destination, CARLA world metres")
-    route.add_argument("--lane-change-cost", type=float, default=15.0, metavar="M",
+    route.add_argument("--lane-change-cost", type=non_negative_float, default=15.0, metavar="M",
                        help="penalty of one lane change in metres (default 15)")
     route.add_argument("--json", action="store_true", help="print JSON (with the polyline)")
     route.add_argument("-o", "--output", help="also write the route polyline as CSV (x,y)")
+    route.add_argument("--max-off-road", type=positive_float, default=MAX_OFF_ROAD_M,
+                       metavar="M", help=_OFF_ROAD_HELP)
+    add_output_args(route)
     route.set_defaults(func=run_route)
 
     plot = msub.add_parser("plot", help="top view of the lanes as a PNG")
@@ -47,21 +46,22 @@ def register(sub) -> None:
                       help="also draw the route from this point (write --route-from=-4,20 "
                       "for a negative x)")
     plot.add_argument("--route-to", type=_xy, metavar="X,Y", help="… to this point")
+    plot.add_argument("--max-off-road", type=positive_float, default=MAX_OFF_ROAD_M,
+                      metavar="M", help=_OFF_ROAD_HELP)
+    add_output_args(plot)
     plot.set_defaults(func=run_plot)
 
 
 def load(map_arg: str):
-    """A RoadMap from a path, or from a built-in town name when no such file exists."""
-    from dashtraj.roads import RoadMap
-    from dashtraj.world.towns import resolve_map
+    """A RoadMap from a path, or from a built-in town name when no such file exists
+    (named ``town01`` etc., not by its cache file); reader warnings print as ``warning:``."""
+    import warnings
 
-    path = resolve_map(map_arg)
-    with warnings.catch_warnings(record=True) as caught:
+    from dashtraj.cli._args import load_map
+
+    with warnings.catch_warnings():
         warnings.simplefilter("always")
-        m = RoadMap.from_file(path)
-    for w in caught:
-        print(f"warning: {w.message}", file=sys.stderr)
-    return m
+        return load_map(map_arg, "map")
 
 
 def run_info(args) -> int:
@@ -84,13 +84,21 @@ def run_info(args) -> int:
 
 
 def run_route(args) -> int:
+    from dashtraj.cli._args import check_near_road
+    from dashtraj.outputs import atomic_output, check_output
+
+    if args.output:
+        check_output(args.output, overwrite=args.overwrite, kind="file")
     m = load(args.map)
+    check_near_road(m, args.origin, "--from", args.max_off_road)
+    check_near_road(m, args.destination, "--to", args.max_off_road)
     r = m.route(args.origin, args.destination, lane_change_cost_m=args.lane_change_cost)
     if args.output:
         from dashtraj.trajectory import Trajectory
         from dashtraj.trajectory.io import write_trajectory
 
-        write_trajectory(args.output, Trajectory(r.polyline))
+        with atomic_output(args.output, overwrite=args.overwrite, kind="file") as tmp:
+            write_trajectory(tmp, Trajectory(r.polyline))
     if args.json:
         print(json.dumps({
             "length_m": r.length_m,
@@ -113,18 +121,28 @@ def run_route(args) -> int:
 
 
 def run_plot(args) -> int:
+    from dashtraj.cli._args import ArgumentError, check_near_road
+    from dashtraj.outputs import atomic_output, check_output
     from dashtraj.report.plots import draw_map, draw_path, new_figure, save
 
+    check_output(args.output, overwrite=args.overwrite, kind="file")
+    if args.output.rsplit(".", 1)[-1].lower() not in ("png", "svg", "pdf", "jpg", "jpeg"):
+        raise ArgumentError(f"-o {args.output}: name a .png, .svg, .pdf or .jpg file")
+    if (args.route_from is None) != (args.route_to is None):
+        raise ArgumentError("give both --route-from and --route-to, or neither")
     m = load(args.map)
+    r = None
+    if args.route_from is not None:
+        check_near_road(m, args.route_from, "--route-from", args.max_off_road)
+        check_near_road(m, args.route_to, "--route-to", args.max_off_road)
+        r = m.route(args.route_from, args.route_to)
     fig, ax = new_figure(m)
     draw_map(ax, m, lane_ids=args.ids == "lanes", road_ids=args.ids == "roads")
-    if (args.route_from is None) != (args.route_to is None):
-        raise SystemExit("dashtraj map plot: give both --route-from and --route-to")
-    if args.route_from is not None:
-        r = m.route(args.route_from, args.route_to)
+    if r is not None:
         draw_path(ax, r.polyline, "#ffcc00", label=f"route {r.length_m:.0f} m")
         ax.legend(loc="upper right")
     ax.set_title(m.name)
-    out = save(fig, args.output)
-    print(f"wrote {out}")
+    with atomic_output(args.output, overwrite=args.overwrite, kind="file") as tmp:
+        save(fig, tmp)
+    print(f"wrote {args.output}")
     return 0

@@ -5,6 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 
+from dashtraj.cli._args import MAX_OFF_ROAD_M, positive_float, positive_int, seed
+from dashtraj.outputs import add_output_args
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `reconstruct` and `bench-reconstruct` commands to the `dashtraj` parser.
@@ -28,6 +31,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--method", default="hmm", metavar="NAME",
                    help="reconstruction method: hmm (default) or shortest-path")
     p.add_argument("-o", "--output", required=True, metavar="T.csv", help="trajectory CSV to write")
+    p.add_argument("--max-off-road", type=positive_float, default=MAX_OFF_ROAD_M, metavar="M",
+                   help="drop sightings farther than M metres from every driving lane, with a "
+                        "warning naming their lines; refuse a file where none is nearer "
+                        f"(default {MAX_OFF_ROAD_M:g})")
+    add_output_args(p)
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     p.set_defaults(func=run_reconstruct)
 
@@ -43,8 +51,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     b.add_argument("--map", required=True, metavar="MAP",
                    help="OpenDRIVE .xodr file, or a built-in town name")
-    b.add_argument("--trips", type=int, default=50, metavar="N", help="number of trips (50)")
-    b.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (0)")
+    b.add_argument("--trips", type=positive_int, default=50, metavar="N",
+                   help="number of trips (50)")
+    b.add_argument("--seed", type=seed, default=0, metavar="S", help="random seed (0)")
     b.add_argument("--methods", nargs="+", default=["shortest-path", "hmm"], metavar="NAME",
                    help="methods to compare (default: shortest-path hmm)")
     b.add_argument("--json", action="store_true",
@@ -54,16 +63,59 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def _load_map(arg: str):
     """A RoadMap from an .xodr path, or from a built-in town name when no such file exists."""
-    from dashtraj.errors import DashtrajError, InputFormatError
-    from dashtraj.roads import RoadMap
-    from dashtraj.world.towns import resolve_map
+    from dashtraj.cli._args import load_map
 
-    try:
-        path = resolve_map(arg)
-    except DashtrajError as exc:
-        raise InputFormatError(f"--map {arg!r}: neither a file nor a built-in town ({exc})") \
-            from None
-    return RoadMap.from_file(path)
+    return load_map(arg, "--map")
+
+
+def _data_lines(path) -> list[int]:
+    """The file line of each data row of a CSV (blank rows skipped, as the reader does)."""
+    import csv
+
+    lines: list[int] = []
+    with open(path, newline="", encoding="utf-8-sig") as fh:
+        reader = csv.reader(fh)
+        header = False
+        for row in reader:
+            if not any(cell.strip() for cell in row):
+                continue
+            if header:
+                lines.append(reader.line_num)
+            header = True
+    return lines
+
+
+def drop_off_road(road_map, sightings, path, max_off_road_m: float):
+    """The sightings within ``max_off_road_m`` of a driving lane; warns naming the others.
+
+    Raises:
+        InputFormatError: every sighting is off the map (wrong map or wrong frame).
+    """
+    import warnings
+
+    import numpy as np
+
+    from dashtraj.errors import InputFormatError
+
+    xy = np.array([[s.x, s.y] for s in sightings], dtype=float)
+    dist = road_map.project(xy).distance_m
+    far = np.flatnonzero(dist > max_off_road_m)
+    if len(far) == 0:
+        return list(sightings)
+    lines = _data_lines(path)
+    where = ", ".join(f"line {lines[i]} ({xy[i, 0]:g}, {xy[i, 1]:g}) {dist[i]:.0f} m"
+                      for i in far[:3]) + (f" and {len(far) - 3} more" if len(far) > 3 else "")
+    if len(far) == len(sightings):
+        raise InputFormatError(
+            f"{path}: all {len(far)} sightings lie more than {max_off_road_m:g} m from every "
+            f"driving lane of {road_map.name} ({where}); wrong map or frame? "
+            f"(--max-off-road sets the limit)")
+    warnings.warn(f"{path}: dropped {len(far)} of {len(sightings)} sightings more than "
+                  f"{max_off_road_m:g} m from every driving lane of {road_map.name}: {where} "
+                  f"(--max-off-road sets the limit)", stacklevel=2)
+    keep = np.ones(len(sightings), dtype=bool)
+    keep[far] = False
+    return [s for s, k in zip(sightings, keep, strict=True) if k]
 
 
 def run_reconstruct(args: argparse.Namespace) -> int:
@@ -76,16 +128,26 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         $ dashtraj reconstruct --map Town10HD.xodr --sightings s.csv -o t.csv
         hmm: 20 of 20 sightings used, 512 points, 498.3 m -> t.csv
     """
+    from dashtraj.outputs import atomic_output, check_output
     from dashtraj.trajectory.io import read_sightings, write_trajectory
-    from dashtraj.trajectory.reconstruct import reconstruct
+    from dashtraj.trajectory.reconstruct import METHODS, reconstruct
 
+    check_output(args.output, overwrite=args.overwrite, kind="file")
+    if args.method not in METHODS:
+        from dashtraj.cli._args import ArgumentError
+
+        raise ArgumentError(f"--method {args.method!r} is not a reconstruction method; "
+                            f"valid: {', '.join(sorted(METHODS))}")
     road_map = _load_map(args.map)
-    sightings = read_sightings(args.sightings)
+    read = read_sightings(args.sightings)
+    sightings = drop_off_road(road_map, read, args.sightings, args.max_off_road)
     rec = reconstruct(road_map, sightings, method=args.method)
-    write_trajectory(args.output, rec.trajectory)
+    with atomic_output(args.output, overwrite=args.overwrite, kind="file") as tmp:
+        write_trajectory(tmp, rec.trajectory)
     summary = {
         "method": rec.method,
-        "sightings": len(sightings),
+        "sightings": len(read),
+        "dropped_off_road": len(read) - len(sightings),
         "sightings_used": int(rec.details.get("sightings_used", len(rec.matched))),
         "points": len(rec.trajectory),
         "length_m": rec.trajectory.length_m,
@@ -95,7 +157,10 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         print(json.dumps(summary))
     else:
         print(f"{summary['method']}: {summary['sightings_used']} of {summary['sightings']} "
-              f"sightings used, {summary['points']} points, {summary['length_m']:.1f} m "
+              f"sightings used"
+              + (f" ({summary['dropped_off_road']} off the road, dropped)"
+                 if summary["dropped_off_road"] else "")
+              + f", {summary['points']} points, {summary['length_m']:.1f} m "
               f"-> {summary['output']}")
     return 0
 
@@ -109,11 +174,8 @@ def run_bench_reconstruct(args: argparse.Namespace) -> int:
     Example:
         $ dashtraj bench-reconstruct --map Town01.xodr --trips 5 --seed 0
     """
-    from dashtraj.errors import InputFormatError
     from dashtraj.trajectory.synth import run_bench
 
-    if args.trips < 1:
-        raise InputFormatError(f"--trips must be at least 1, got {args.trips}")
     road_map = _load_map(args.map)
     res = run_bench(road_map, args.trips, seed=args.seed, methods=args.methods)
     if args.json:

@@ -6,6 +6,10 @@ import argparse
 import json
 import sys
 
+from dashtraj.cli._args import count, fraction, non_negative_float, positive_float, positive_int
+from dashtraj.cli._args import seed as seed_int
+from dashtraj.outputs import add_output_args
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `render`, `detection-dataset` and `reid-dataset` commands."""
@@ -21,13 +25,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("recording", metavar="RUN", help="recording directory")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
-    p.add_argument("--observer", type=int, action="append", metavar="ID",
+    p.add_argument("--observer", type=count, action="append", metavar="ID",
                    help="only this observer (repeatable; default all)")
-    p.add_argument("--every", type=float, default=0.5, metavar="S",
+    p.add_argument("--every", type=positive_float, default=0.5, metavar="S",
                    help="sampling period, seconds (default 0.5)")
     p.add_argument("--size", default=None, metavar="WxH",
                    help="image size (default: the recording's camera)")
     p.add_argument("--preview", action="store_true", help="also write preview pictures")
+    add_output_args(p)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=run_render)
@@ -44,16 +49,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     d.add_argument("recordings", nargs="+", metavar="RUN", help="recording directories")
     d.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
-    d.add_argument("--every", type=float, default=0.5, metavar="S",
+    d.add_argument("--every", type=positive_float, default=0.5, metavar="S",
                    help="sampling period, seconds (default 0.5)")
     d.add_argument("--size", default="640x360", metavar="WxH", help="image size (640x360)")
-    d.add_argument("--min-box-height", type=float, default=10.0, metavar="PX",
+    d.add_argument("--min-box-height", type=non_negative_float, default=10.0, metavar="PX",
                    help="smallest labelled visible box height, pixels (default 10)")
-    d.add_argument("--max-occlusion", type=float, default=0.7,
+    d.add_argument("--max-occlusion", type=fraction, default=0.7,
                    help="largest labelled occlusion 1 - visible fraction (default 0.7)")
-    d.add_argument("--val-fraction", type=float, default=0.2,
+    d.add_argument("--val-fraction", type=fraction, default=0.2,
                    help="share of recordings in val (default 0.2)")
-    d.add_argument("--seed", type=int, default=0, help="split seed (default 0)")
+    d.add_argument("--seed", type=seed_int, default=0, help="split seed (default 0)")
+    add_output_args(d)
     d.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     d.add_argument("--json", action="store_true", help="print the summary as JSON")
     d.set_defaults(func=run_detection)
@@ -70,17 +76,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     r.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
-    r.add_argument("--ids", type=int, default=700, help="identities (default 700)")
-    r.add_argument("--cameras", type=int, default=85, help="ring cameras (default 85)")
-    r.add_argument("--test-ids", type=int, default=None,
+    r.add_argument("--ids", type=positive_int, default=700, help="identities (default 700)")
+    r.add_argument("--cameras", type=positive_int, default=85, help="ring cameras (default 85)")
+    r.add_argument("--test-ids", type=positive_int, default=None,
                    help="test identities (default round(ids * 50 / 700), at least 1)")
-    r.add_argument("--size", type=int, default=256, metavar="PX",
+    r.add_argument("--size", type=positive_int, default=256, metavar="PX",
                    help="crop long side, pixels (default 256)")
     r.add_argument("--town", default="town10", help="built-in town of the stage (town10)")
-    r.add_argument("--seed", type=int, default=0, help="camera and split seed (default 0)")
-    r.add_argument("--workers", type=int, default=1, help="render processes (default 1)")
+    r.add_argument("--seed", type=seed_int, default=0, help="camera and split seed (default 0)")
+    r.add_argument("--workers", type=positive_int, default=1, help="render processes (default 1)")
     r.add_argument("--from-recordings", nargs="+", default=(), metavar="RUN",
                    help="recordings whose observers' crops make image_query_moving/")
+    add_output_args(r)
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     r.add_argument("--json", action="store_true", help="print the summary as JSON")
     r.set_defaults(func=run_reid)
@@ -106,47 +113,74 @@ def _frame_total(recordings, every_s: float, observers=None) -> int:
 
 def run_render(args: argparse.Namespace) -> int:
     """Render one recording's frames; prints a summary; returns 0."""
-    from dashtraj.datasets.frames import export_frames, parse_size
+    from pathlib import Path
+
+    from dashtraj.datasets.frames import export_frames, observer_ids, parse_size
+    from dashtraj.outputs import atomic_output, check_output
     from dashtraj.world.recording import Recording
 
-    rec = Recording.open(args.recording)
+    out = check_output(args.output, overwrite=args.overwrite, kind="dir")
     size = parse_size(args.size) if args.size else None
+    rec = Recording.open(args.recording)
+    if args.observer:
+        known = observer_ids(rec)
+        unknown = sorted(set(args.observer) - set(known))
+        if unknown:
+            from dashtraj.cli._args import ArgumentError
+
+            raise ArgumentError(f"--observer {unknown[0]}: not an observer of {rec.path} "
+                                f"(observers: {', '.join(map(str, known))})")
     bar = _bar(args, _frame_total([rec], args.every, args.observer), "frame")
     try:
-        s = export_frames(rec, args.output, args.every, size, args.observer, args.preview,
-                          progress=bar.update if bar is not None else None)
+        with atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:
+            s = export_frames(rec, tmp, args.every, size, args.observer, args.preview,
+                              progress=bar.update if bar is not None else None)
     finally:
         if bar is not None:
             bar.close()
-    info = {"output": str(s.out_dir), "frames": s.frames, "labels": s.labels,
+
+    def final(p: Path | None) -> Path | None:  # the paths inside the moved folder
+        return None if p is None else out / Path(p).relative_to(tmp)
+
+    labels_path, preview_dir = final(s.labels_path), final(s.preview_dir)
+    info = {"output": str(out), "frames": s.frames, "labels": s.labels,
             "in_view": s.in_view, "per_observer": {str(k): v for k, v in s.per_observer.items()},
-            "labels_path": str(s.labels_path),
-            "preview": str(s.preview_dir) if s.preview_dir else None}
+            "labels_path": str(labels_path),
+            "preview": str(preview_dir) if preview_dir else None}
     if args.json:
         print(json.dumps(info))
     else:
         obs = ", ".join(f"{k}: {v}" for k, v in s.per_observer.items())
-        print(f"{s.out_dir}: {s.frames} frames ({obs}), {s.labels} labels "
-              f"({s.in_view} with visible pixels) in {s.labels_path.name}"
-              + (f"; previews in {s.preview_dir}" if s.preview_dir else ""))
+        print(f"{out}: {s.frames} frames ({obs}), {s.labels} labels "
+              f"({s.in_view} with visible pixels) in {labels_path.name}"
+              + (f"; previews in {preview_dir}" if preview_dir else ""))
     return 0
 
 
 def run_detection(args: argparse.Namespace) -> int:
     """Build a YOLO detection set; prints a summary; returns 0."""
-    from dashtraj.datasets.detection import DetectionConfig, build_detection_dataset
+    from dashtraj.datasets.detection import (
+        DetectionConfig,
+        build_detection_dataset,
+        data_yaml,
+    )
     from dashtraj.datasets.frames import parse_size
+    from dashtraj.outputs import atomic_output, check_output
     from dashtraj.world.recording import Recording
 
-    recs = [Recording.open(p) for p in args.recordings]
+    out = check_output(args.output, overwrite=args.overwrite, kind="dir")
     cfg = DetectionConfig(every_s=args.every, size=parse_size(args.size),
                           min_box_height_px=args.min_box_height,
                           max_occlusion=args.max_occlusion, val_fraction=args.val_fraction,
                           seed=args.seed)
+    recs = [Recording.open(p) for p in args.recordings]
     bar = _bar(args, _frame_total(recs, args.every), "frame")
     try:
-        info = build_detection_dataset(recs, args.output, cfg,
-                                       progress=bar.update if bar is not None else None)
+        with atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:
+            info = build_detection_dataset(recs, tmp, cfg,
+                                           progress=bar.update if bar is not None else None)
+            # data.yaml names the set's folder: the final one, not the temporary sibling
+            (tmp / "data.yaml").write_text(data_yaml(out), encoding="utf-8")
     finally:
         if bar is not None:
             bar.close()
@@ -158,22 +192,30 @@ def run_detection(args: argparse.Namespace) -> int:
               f"boxes, val {c['val']['images']} images / {c['val']['labels']} boxes; split by "
               f"{info['split_by']} (val: {', '.join(map(str, info['val'])) or 'none'})")
         if "warning" in info:
-            print(f"dashtraj: warning: {info['warning']}", file=sys.stderr)
+            print(f"warning: {info['warning']}", file=sys.stderr)
     return 0
 
 
 def run_reid(args: argparse.Namespace) -> int:
     """Build a VeRi-layout ReID set; prints a summary; returns 0."""
     from dashtraj.datasets.reid import ReidConfig, build_reid_dataset
+    from dashtraj.outputs import atomic_output, check_output
     from dashtraj.world.recording import Recording
 
-    recs = [Recording.open(p) for p in args.from_recordings]
+    out = check_output(args.output, overwrite=args.overwrite, kind="dir")
+    if args.test_ids is not None and args.test_ids >= args.ids:
+        from dashtraj.cli._args import ArgumentError
+
+        raise ArgumentError(f"--test-ids {args.test_ids} must be fewer than --ids {args.ids} "
+                            "(at least one train identity)")
     cfg = ReidConfig(n_ids=args.ids, n_cameras=args.cameras, size=args.size, seed=args.seed,
                      n_test_ids=args.test_ids, town=args.town)
+    recs = [Recording.open(p) for p in args.from_recordings]
     bar = _bar(args, args.ids, "id")
     try:
-        info = build_reid_dataset(cfg, args.output, workers=args.workers, recordings=recs,
-                                  progress=bar.update if bar is not None else None)
+        with atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:
+            info = build_reid_dataset(cfg, tmp, workers=args.workers, recordings=recs,
+                                      progress=bar.update if bar is not None else None)
     finally:
         if bar is not None:
             bar.close()

@@ -6,6 +6,9 @@ import argparse
 import json
 import sys
 
+from dashtraj.cli._args import count, fraction, positive_float, seed
+from dashtraj.outputs import add_output_args
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `simulate` and `sightings` commands to the `dashtraj` parser."""
@@ -20,9 +23,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--town", default="town01", metavar="NAME|PATH.xodr",
                    help="built-in town (town01, town10) or an OpenDRIVE file (default town01)")
-    p.add_argument("--observers", type=int, default=4, help="observer cars (default 4)")
-    p.add_argument("--agents", type=int, default=20, help="other cars (default 20)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--observers", type=count, default=4, help="observer cars (default 4)")
+    p.add_argument("--agents", type=count, default=20,
+                   help="other cars (default 20; a town holds about one vehicle per 20 m of "
+                        "lane, e.g. town01 about 230)")
+    p.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
     p.add_argument("--identities", type=_id_range, metavar="LO-HI",
                    help="draw vehicle identities with LO <= identity_id < HI only (e.g. "
                    "650-700, the ReID set's test identities)")
@@ -32,21 +37,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--vehicle-mix", choices=("catalog", "balanced"), default="catalog",
                    help="catalog: identities uniformly from the catalog (mostly cars); "
                    "balanced: an equal share of vehicles per class (default catalog)")
-    p.add_argument("--duration", type=float, default=180.0, metavar="S",
-                   help="simulated seconds (default 180; the most with --until-target-arrives)")
-    p.add_argument("--until-target-arrives", action="store_true",
-                   help="stop when the target reaches its destination")
-    p.add_argument("--step", type=float, default=0.05, metavar="S",
+    p.add_argument("--duration", type=positive_float, default=180.0, metavar="S",
+                   help="the longest simulated time, seconds (default 180)")
+    p.add_argument("--until-target-arrives", action=argparse.BooleanOptionalAction,
+                   default=True,
+                   help="stop when the target reaches its destination (default); with "
+                        "--no-until-target-arrives the others drive on to --duration "
+                        "(target_route.csv still ends at the target's arrival)")
+    p.add_argument("--step", type=positive_float, default=0.05, metavar="S",
                    help="simulation step, seconds (default 0.05 = 20 Hz)")
     p.add_argument("--observer-placement", choices=("meet", "random"), default="meet",
                    help="meet: observers start where the target will pass (oncoming, "
                         "following, waiting at a crossing); random: anywhere (default meet)")
-    p.add_argument("--parked-fraction", type=_fraction, default=0.25, metavar="F",
+    p.add_argument("--parked-fraction", type=fraction, default=0.25, metavar="F",
                    help="share of the observers that are parked at the roadside for the whole "
                         "run, dashcam on (random placement: the last round(F * observers); "
                         "meet placement: F > 0 adds a 'parked' role to the cycle oncoming, "
                         "crossing, following, parked; 0: none) (default 0.25)")
-    p.add_argument("-o", "--output", required=True, metavar="DIR", help="recording directory")
+    p.add_argument("-o", "--output", required=True, metavar="DIR",
+                   help="recording directory (a new one; an interrupted run is kept as "
+                        "DIR.partial-N, marked incomplete)")
+    add_output_args(p)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=run_simulate)
@@ -55,33 +66,29 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "sightings",
         help="turn a recording's ground truth into a sightings CSV (oracle detector)",
         description=(
-            "Oracle sightings of one vehicle from a recording: truth within --max-distance "
+            "Sightings of one vehicle from a recording. Source 'oracle' (the default, and "
+            "for now the only one): truth within --max-distance "
             "of a camera, one per observer track every 0.5 s, with no noise or the paper's "
             "localization errors; positions from camera pose + distance along "
             "(yaw + signed bearing)."
         ),
     )
     s.add_argument("recording", metavar="RUN", help="recording directory")
-    s.add_argument("--oracle", action="store_true", required=True,
-                   help="use the ground truth as a perfect detector (the only source for now)")
-    s.add_argument("--noise", default="none", help="none or paper (default none)")
+    s.add_argument("--source", choices=("oracle",), default="oracle",
+                   help="where sightings come from: oracle = the ground truth as a perfect "
+                        "detector (default, the only source for now)")
+    s.add_argument("--oracle", dest="source", action="store_const", const="oracle",
+                   help="same as --source oracle (kept for old scripts)")
+    s.add_argument("--noise", choices=("none", "paper"), default="none",
+                   help="localization noise: none or paper (default none)")
     s.add_argument("--vehicle", default="target", metavar="ID|target",
                    help="vehicle to report (default: the target)")
-    s.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
-    s.add_argument("--max-distance", type=float, default=15.0, metavar="M",
+    s.add_argument("--seed", type=seed, default=0, help="noise seed (default 0)")
+    s.add_argument("--max-distance", type=positive_float, default=15.0, metavar="M",
                    help="keep detections this close to the camera, metres (default 15)")
     s.add_argument("-o", "--output", required=True, metavar="CSV", help="sightings CSV to write")
+    add_output_args(s)
     s.set_defaults(func=run_sightings)
-
-
-def _fraction(text: str) -> float:
-    try:
-        f = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
-    if not 0.0 <= f <= 1.0:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
-    return f
 
 
 def _classes(text: str) -> tuple[str, ...]:
@@ -109,9 +116,15 @@ def run_simulate(args: argparse.Namespace) -> int:
     """Run the simulation, print a summary; returns 0 (130 is handled by the caller)."""
     from dataclasses import replace
 
+    from dashtraj.cli._args import ArgumentError
+    from dashtraj.outputs import atomic_output, check_output
     from dashtraj.world.recording import RunConfig, simulate
     from dashtraj.world.traffic import TrafficConfig
 
+    out = check_output(args.output, overwrite=args.overwrite, kind="dir")
+    if args.step > args.duration:
+        raise ArgumentError(f"--step {args.step:g} s is longer than --duration "
+                            f"{args.duration:g} s")
     config = RunConfig(map=args.town, seed=args.seed, duration_s=args.duration,
                        n_observers=args.observers, n_agents=args.agents,
                        until_target_arrives=args.until_target_arrives,
@@ -134,11 +147,14 @@ def run_simulate(args: argparse.Namespace) -> int:
             if round(t / config.traffic.step_s) % 20 == 0:
                 bar.refresh()
     try:
-        summary = simulate(config, args.output, progress=progress)
+        # written into a temporary sibling and moved into place whole; Ctrl-C keeps the
+        # readable partial recording (complete: false) as OUT.partial-N and says so
+        with atomic_output(out, overwrite=args.overwrite, kind="dir", keep_partial=True) as tmp:
+            summary = simulate(config, tmp, progress=progress)
     finally:
         if bar is not None:
             bar.close()
-    info = {"recording": str(summary.path), "vehicles": summary.vehicles,
+    info = {"recording": str(out), "vehicles": summary.vehicles,
             "frames": summary.frames, "truth_rows": summary.truth_rows,
             "simulated_s": summary.simulated_to_t,
             "target_arrived_t": summary.target_arrived_t, "complete": summary.complete}
@@ -147,26 +163,31 @@ def run_simulate(args: argparse.Namespace) -> int:
     else:
         arrived = (f"target arrived at t={summary.target_arrived_t:.1f} s"
                    if summary.target_arrived_t is not None else "target did not arrive")
-        print(f"{summary.path}: {summary.vehicles} vehicles, {summary.frames} frames "
+        if summary.target_arrived_t is not None and not args.until_target_arrives:
+            arrived += " (the others drove on; target_route.csv ends at its arrival)"
+        print(f"{out}: {summary.vehicles} vehicles, {summary.frames} frames "
               f"({summary.simulated_to_t:.1f} s), {summary.truth_rows} truth rows; {arrived}")
     return 0
 
 
 def run_sightings(args: argparse.Namespace) -> int:
     """Write oracle sightings of one vehicle to a CSV and print how many; returns 0."""
+    from dashtraj.outputs import atomic_output, check_output
     from dashtraj.trajectory.io import write_sightings
     from dashtraj.world.oracle import OracleConfig, oracle_sightings
     from dashtraj.world.recording import Recording
 
+    check_output(args.output, overwrite=args.overwrite, kind="file")
     rec = Recording.open(args.recording)
     cfg = OracleConfig(vehicle=args.vehicle, max_distance_m=args.max_distance, noise=args.noise,
                        seed=args.seed)
     sightings = oracle_sightings(rec, cfg)
-    write_sightings(args.output, sightings)
+    with atomic_output(args.output, overwrite=args.overwrite, kind="file") as tmp:
+        write_sightings(tmp, sightings)
     observers = len({s.observer_id for s in sightings})
     tracks = len({s.track_id for s in sightings})
     if not sightings:
-        print(f"dashtraj: warning: no sightings of vehicle {args.vehicle} within "
+        print(f"warning: no sightings of vehicle {args.vehicle} within "
               f"{args.max_distance:g} m of a camera; {args.output} has only its header",
               file=sys.stderr)
     print(f"{args.output}: {len(sightings)} sightings of vehicle {args.vehicle} by "

@@ -33,7 +33,7 @@ import networkx as nx
 import numpy as np
 
 from dashtraj.errors import NoRouteError
-from dashtraj.roads.types import LaneType, as_xy
+from dashtraj.roads.types import LaneType, as_xyz
 
 if TYPE_CHECKING:
     from dashtraj.roads.map import LaneKey, RoadMap, Waypoint
@@ -304,7 +304,8 @@ class LaneGraph:
 
         if isinstance(loc, Waypoint):
             return loc
-        return self.map.get_waypoint(as_xy(loc), lane_type=self.lane_type)
+        x, y, z = as_xyz(loc)  # a z makes the match height-aware (see RoadMap.project)
+        return self.map.get_waypoint((x, y) if z is None else (x, y, z), lane_type=self.lane_type)
 
     # ------------------------------------------------------------------ route geometry
     def _legs(self, a: Waypoint, b: Waypoint, how, parent) -> list[RouteLeg]:

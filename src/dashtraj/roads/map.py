@@ -11,6 +11,17 @@ unseen segment can be nearer) and then refines the foot point on the cubic
 Hermite curve through the segment's end samples, which is within micrometres of
 the true lane centre.
 
+Height (the z rule, CARLA's): a query that carries a z (a `Location`, a
+carla.Location, an (x, y, z) tuple, or an (N, 3) array) picks the lane-centre
+segment nearest in 3-D, i.e. by the Euclidean distance from (x, y, z) to the
+3-D polyline of lane-centre samples (x, y and the road's elevation), exactly as
+CARLA's ``Map::GetClosestWaypointOnRoad`` asks its R-tree of 3-D lane segments
+for the nearest one to ``(x, y, z)``. The foot point on that segment is then the
+plan-view (2-D) one, as CARLA's ``DistanceSegmentToPoint`` projects in 2-D. So a
+point under a bridge maps to the road it is on, not to the bridge above. A query
+with no z (an (x, y) tuple, an (N, 2) array, or z = NaN in a row of an (N, 3)
+array) is matched in plan view only, as before.
+
 Example:
     >>> m = RoadMap.from_file("Town10HD.xodr")  # doctest: +SKIP
     >>> wp = m.get_waypoint(Location(-41.0, 20.0))  # doctest: +SKIP
@@ -39,7 +50,14 @@ from dashtraj.roads.opendrive import (
     parse_opendrive,
     read_opendrive,
 )
-from dashtraj.roads.types import LaneType, Location, Rotation, Transform, as_xy, normalize_yaw
+from dashtraj.roads.types import (
+    LaneType,
+    Location,
+    Rotation,
+    Transform,
+    as_xyz,
+    normalize_yaw,
+)
 
 LaneKey = tuple[int, int, int]  # (road_id, section_id, lane_id)
 
@@ -226,8 +244,9 @@ class LaneProjection:
     Arrays, all (N,): `road_id`, `section_id`, `lane_id` (int), `s` (m from road
     start), `x`, `y`, `z` (lane-centre point, CARLA world, m), `yaw` (deg, driving
     direction), `lateral_m` (signed offset of the query from the centre, positive to
-    the right of the driving direction), `distance_m` (2-D distance to the
-    centre line), `lane_width` (m), `lane_index` (index into `RoadMap.lane_list`).
+    the right of the driving direction), `distance_m` (distance from the query to the
+    lane-centre point: plan-view, or 3-D for a query that carries a z), `lane_width`
+    (m), `lane_index` (index into `RoadMap.lane_list`).
     """
 
     road_id: np.ndarray
@@ -378,6 +397,23 @@ class RoadMap:
                                                  f"junction {rlink.element_id} connection {c.id}")
                                 if t:
                                     targets.append(t)
+            # The link against the driving direction (a forward lane's predecessor, a
+            # backward lane's successor) builds nothing (CARLA links lanes from their
+            # successors), but one naming a lane that does not exist is still a quirk
+            # of the map: warn about it, as for the successor links.
+            back_id = rec.predecessor if forward else rec.successor
+            if back_id is not None:
+                if (forward and k > 0) or (not forward and k < last):
+                    lane_or_warn(rid, k - 1 if forward else k + 1, back_id,
+                                 f"{where} {'predecessor' if forward else 'successor'}")
+                else:
+                    blink = road.predecessor if forward else road.successor
+                    if (blink is not None and blink.element_type == "road"
+                            and blink.element_id in self.roads):
+                        other = self.roads[blink.element_id]
+                        lane_or_warn(other.id, self._section_of(other, blink.contact_point),
+                                     back_id,
+                                     f"{where} {'predecessor' if forward else 'successor'}")
             seen = set()
             for t in targets:
                 if t not in seen:
@@ -513,11 +549,11 @@ class RoadMap:
 
     # ------------------------------------------------------------------ spatial index
     def _index(self, lane_type: LaneType) -> tuple[cKDTree, np.ndarray, float]:
+        """Plan-view index of the lane-centre segments of a type: k-d tree of the
+        segment midpoints (x, y), the segment ids, and the largest half length."""
         key = int(lane_type)
         if key not in self._trees:
-            seg = self._seg[(self._lane_types[self._vlane[self._seg]] & key) != 0]
-            if len(seg) == 0:
-                raise OffRoadError(f"{self.name} has no lanes of type {lane_type!r}")
+            seg = self._segments_of(lane_type)
             mx = 0.5 * (self._vx[seg] + self._vx[seg + 1])
             my = 0.5 * (self._vy[seg] + self._vy[seg + 1])
             half = 0.5 * np.hypot(self._vx[seg + 1] - self._vx[seg],
@@ -525,11 +561,69 @@ class RoadMap:
             self._trees[key] = (cKDTree(np.column_stack([mx, my])), seg, float(half.max()))
         return self._trees[key]
 
+    def _index3(self, lane_type: LaneType) -> tuple[cKDTree, np.ndarray, float]:
+        """As `_index`, in 3-D: midpoints (x, y, z) and the largest 3-D half length.
+
+        Built on the first query that carries a z."""
+        key = -int(lane_type)  # negative keys: the 3-D trees
+        if key not in self._trees:
+            seg = self._segments_of(lane_type)
+            a = np.column_stack([self._vx[seg], self._vy[seg], self._vz[seg]])
+            b = np.column_stack([self._vx[seg + 1], self._vy[seg + 1], self._vz[seg + 1]])
+            half = 0.5 * np.sqrt(((b - a) ** 2).sum(axis=1))
+            self._trees[key] = (cKDTree(0.5 * (a + b)), seg, float(half.max()))
+        return self._trees[key]
+
+    def _segments_of(self, lane_type: LaneType) -> np.ndarray:
+        seg = self._seg[(self._lane_types[self._vlane[self._seg]] & int(lane_type)) != 0]
+        if len(seg) == 0:
+            raise OffRoadError(f"{self.name} has no lanes of type {lane_type!r}")
+        return seg
+
+    def _nearest_segments(self, q: np.ndarray, lane_type: LaneType) -> np.ndarray:
+        """Id of the nearest lane-centre segment to each row of q, exactly.
+
+        q is (N, 2) (plan-view distance) or (N, 3) (3-D distance, CARLA's rule).
+        """
+        three = q.shape[1] == 3
+        tree, seg, half = self._index3(lane_type) if three else self._index(lane_type)
+        dist_fn = self._segment_distance3 if three else self._segment_distance
+        n_seg = len(seg)
+        k = min(8, n_seg)
+        d, j = tree.query(q, k=k)
+        d = d.reshape(len(q), -1)
+        cand = seg[j.reshape(len(q), -1)]
+        dist = dist_fn(q[:, None, :], cand)
+        a = np.argmin(dist, axis=1)
+        rows = np.arange(len(q))
+        best = cand[rows, a]
+        best_d = dist[rows, a]
+        # A segment whose midpoint is farther than best_d + half cannot beat best_d;
+        # where the k-th midpoint is nearer than that, look at every such segment.
+        unsure = np.flatnonzero((d[:, -1] - half < best_d) & (k < n_seg))
+        if len(unsure):
+            lists = tree.query_ball_point(q[unsure], best_d[unsure] + half + 1e-9,
+                                          return_sorted=False)
+            counts = np.fromiter((len(c) for c in lists), dtype=np.int64, count=len(lists))
+            flat = seg[np.fromiter((i for c in lists for i in c), dtype=np.int64,
+                                   count=int(counts.sum()))]
+            owner = np.repeat(unsure, counts)
+            dd = dist_fn(q[owner], flat)
+            starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+            order = np.lexsort((dd, owner))  # per point, nearest first
+            first = order[starts]
+            better = dd[first] < best_d[unsure]
+            best[unsure[better]] = flat[first[better]]
+            best_d[unsure[better]] = dd[first[better]]
+        return best
+
     def project(self, points, lane_type: LaneType = LaneType.Driving) -> LaneProjection:
         """Project many points onto the nearest lane centre of the given type(s).
 
         Args:
-            points: (N, 2) or (N, 3) array, CARLA world, metres (z is ignored).
+            points: (N, 2) or (N, 3) array, CARLA world, metres. With a z column
+                the lane is chosen by 3-D distance (the module's z rule, CARLA's);
+                a row whose z is NaN is matched in plan view.
             lane_type: a `LaneType` flag; lanes of any type in the flag are searched.
 
         Returns:
@@ -538,53 +632,48 @@ class RoadMap:
         Raises:
             OffRoadError: the map has no lane of that type.
         """
-        pts = np.asarray(points, dtype=float).reshape(-1, np.shape(points)[-1])[:, :2]
-        tree, seg, half = self._index(lane_type)
-        n_seg = len(seg)
-        k = min(8, n_seg)
-        d, j = tree.query(pts, k=k)
-        d = d.reshape(len(pts), -1)
-        cand = seg[j.reshape(len(pts), -1)]
-        dist = self._segment_distance(pts[:, None, :], cand)
-        a = np.argmin(dist, axis=1)
-        rows = np.arange(len(pts))
-        best = cand[rows, a]
-        best_d = dist[rows, a]
-        # A segment whose midpoint is farther than best_d + half cannot beat best_d;
-        # where the k-th midpoint is nearer than that, look at every such segment.
-        unsure = np.flatnonzero((d[:, -1] - half < best_d) & (k < n_seg))
-        if len(unsure):
-            lists = tree.query_ball_point(pts[unsure], best_d[unsure] + half + 1e-9,
-                                          return_sorted=False)
-            counts = np.fromiter((len(c) for c in lists), dtype=np.int64, count=len(lists))
-            flat = seg[np.fromiter((i for c in lists for i in c), dtype=np.int64,
-                                   count=int(counts.sum()))]
-            owner = np.repeat(unsure, counts)
-            dd = self._segment_distance(pts[owner], flat)
-            starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-            order = np.lexsort((dd, owner))  # per point, nearest first
-            first = order[starts]
-            better = dd[first] < best_d[unsure]
-            best[unsure[better]] = flat[first[better]]
-            best_d[unsure[better]] = dd[first[better]]
-        return self._refine(pts, best)
+        arr = np.asarray(points, dtype=float)
+        arr = arr.reshape(-1, arr.shape[-1])
+        pts = arr[:, :2]
+        qz = arr[:, 2] if arr.shape[1] >= 3 else None
+        has_z = np.isfinite(qz) if qz is not None else None
+        if qz is None or not has_z.any():
+            return self._refine(pts, self._nearest_segments(pts, lane_type))
+        best = np.empty(len(pts), dtype=np.int64)
+        rows3 = np.flatnonzero(has_z)
+        best[rows3] = self._nearest_segments(np.column_stack([pts[rows3], qz[rows3]]),
+                                             lane_type)
+        rows2 = np.flatnonzero(~has_z)
+        if len(rows2):
+            best[rows2] = self._nearest_segments(pts[rows2], lane_type)
+        return self._refine(pts, best, qz)
 
     def candidates(self, location, radius_m: float,
                    lane_type: LaneType = LaneType.Driving) -> LaneProjection:
         """Every lane whose centre line passes within `radius_m` of a point.
 
         One row per lane (its nearest foot point), sorted by distance; empty when
-        no lane is that close. CARLA world, metres.
+        no lane is that close. CARLA world, metres. When `location` carries a z
+        (a `Location`, carla.Location or (x, y, z)), distances are 3-D (the
+        module's z rule), so a road 10 m above or below is 10 m away, and
+        `distance_m` is 3-D; with (x, y) they are plan-view, as before.
 
         Example:
             >>> c = m.candidates((10.0, 2.0), radius_m=8.0)  # doctest: +SKIP
             >>> list(zip(c.road_id, c.lane_id))  # doctest: +SKIP
         """
-        q = np.asarray(as_xy(location), dtype=float)
-        tree, seg, half = self._index(lane_type)
+        x, y, z = as_xyz(location)
+        if z is None:
+            q = np.array([x, y])
+            tree, seg, half = self._index(lane_type)
+            dist_fn = self._segment_distance
+        else:
+            q = np.array([x, y, z])
+            tree, seg, half = self._index3(lane_type)
+            dist_fn = self._segment_distance3
         idx = np.asarray(tree.query_ball_point(q, radius_m + half), dtype=np.int64)
         segs = seg[idx]
-        d = self._segment_distance(q[None, :], segs)
+        d = dist_fn(q[None, :], segs)
         keep = d <= radius_m
         segs, d = segs[keep], d[keep]
         order = np.lexsort((d, self._vlane[segs]))
@@ -593,7 +682,9 @@ class RoadMap:
         first = np.concatenate([[True], lanes[1:] != lanes[:-1]]) if len(lanes) else lanes
         segs, d = segs[first], d[first]
         segs = segs[np.argsort(d, kind="stable")]
-        return self._refine(np.repeat(q[None, :], len(segs), axis=0), segs)
+        n = len(segs)
+        return self._refine(np.repeat(q[None, :2], n, axis=0), segs,
+                            None if z is None else np.full(n, z))
 
     def _segment_distance(self, q: np.ndarray, i: np.ndarray) -> np.ndarray:
         ax, ay = self._vx[i], self._vy[i]
@@ -604,8 +695,24 @@ class RoadMap:
         np.clip(t, 0.0, 1.0, out=t)
         return np.hypot(ax + t * dx - q[..., 0], ay + t * dy - q[..., 1])
 
-    def _refine(self, q: np.ndarray, i: np.ndarray) -> LaneProjection:
-        """Foot point on the cubic Hermite curve of segment i (Newton, from the chord)."""
+    def _segment_distance3(self, q: np.ndarray, i: np.ndarray) -> np.ndarray:
+        """3-D distance from points q (..., 3) to the 3-D segments i (CARLA's metric)."""
+        ax, ay, az = self._vx[i], self._vy[i], self._vz[i]
+        dx, dy, dz = self._vx[i + 1] - ax, self._vy[i + 1] - ay, self._vz[i + 1] - az
+        l2 = dx * dx + dy * dy + dz * dz
+        px, py, pz = q[..., 0] - ax, q[..., 1] - ay, q[..., 2] - az
+        t = (px * dx + py * dy + pz * dz) / np.where(l2 > 0, l2, 1.0)
+        np.clip(t, 0.0, 1.0, out=t)
+        ex, ey, ez = t * dx - px, t * dy - py, t * dz - pz
+        return np.sqrt(ex * ex + ey * ey + ez * ez)
+
+    def _refine(self, q: np.ndarray, i: np.ndarray, qz: np.ndarray | None = None
+                ) -> LaneProjection:
+        """Foot point on the cubic Hermite curve of segment i (Newton, from the chord).
+
+        The foot point is the plan-view one; `qz` (N,), NaN where unknown, only
+        makes `distance_m` 3-D where it is given.
+        """
         p0 = np.column_stack([self._vx[i], self._vy[i]])
         p1 = np.column_stack([self._vx[i + 1], self._vy[i + 1]])
         chord = np.linalg.norm(p1 - p0, axis=1)[:, None]
@@ -632,9 +739,12 @@ class RoadMap:
         lateral = np.where(backward, -lateral, lateral)
         w = self._vw[i] + t * (self._vw[i + 1] - self._vw[i])
         z = self._vz[i] + t * (self._vz[i + 1] - self._vz[i])
+        dist = np.hypot(r[:, 0], r[:, 1])
+        if qz is not None:
+            dz = qz - z
+            dist = np.where(np.isfinite(dz), np.hypot(dist, dz), dist)
         return LaneProjection(keys[:, 0], keys[:, 1], keys[:, 2], s, c[:, 0], c[:, 1], z, yaw,
-                              lateral, np.hypot(r[:, 0], r[:, 1]), w, lane_idx.astype(np.int64),
-                              self)
+                              lateral, dist, w, lane_idx.astype(np.int64), self)
 
     # ------------------------------------------------------------------ CARLA queries
     def get_waypoint(self, location, project_to_road: bool = True,
@@ -643,18 +753,21 @@ class RoadMap:
 
         Args:
             location: `Location`, carla.Location or (x, y[, z]); CARLA world, metres.
+                A location with a z is matched by 3-D distance, as CARLA does (a
+                `Location` always has one, 0 by default); (x, y) in plan view.
             project_to_road: when False, return a waypoint only if the point lies
                 within half a lane width of the nearest centre line, else None.
             lane_type: `LaneType` flag of the lanes to consider.
         """
-        p = self.project(np.array([as_xy(location)]), lane_type)
+        x, y, z = as_xyz(location)
+        p = self.project(np.array([[x, y]] if z is None else [[x, y, z]]), lane_type)
         if not project_to_road and not p.inside[0]:
             return None
         return p.waypoint(0)
 
     def get_waypoints(self, points, project_to_road: bool = True,
                       lane_type: LaneType = LaneType.Driving) -> list[Waypoint | None]:
-        """`get_waypoint` for (N, 2) points at once."""
+        """`get_waypoint` for (N, 2) or (N, 3) points at once (z: see `project`)."""
         p = self.project(points, lane_type)
         inside = p.inside
         return [p.waypoint(i) if (project_to_road or inside[i]) else None for i in range(len(p))]

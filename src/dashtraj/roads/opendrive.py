@@ -6,14 +6,18 @@ plan view (line, arc, spiral, poly3, paramPoly3), elevation profile, laneOffset,
 lane sections with lanes (type, width or border, links, road marks) and junctions
 with connections and lane links. Signals, objects and the rest are ignored.
 
-Quirks of real maps (a link to a lane that does not exist, a zero-length
-geometry, an unknown geometry element) give an `OpenDriveWarning` naming the
-road and element, and the reader goes on. A file that is not XML, or whose root
-is not ``<OpenDRIVE>``, raises `OpenDriveError` naming the file.
+Quirks of real maps (a link to a lane that does not exist, a zero-length or
+negative-length geometry, an unknown geometry element) give an
+`OpenDriveWarning` naming the road and element, and the reader goes on. A file
+that is not XML, or whose root is not ``<OpenDRIVE>``, raises `OpenDriveError`
+naming the file; so does a NaN or infinite number in the geometry (plan view,
+elevation, laneOffset, lane widths, road length, section starts), naming the
+road and element.
 """
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -145,6 +149,28 @@ def _f(el, attr: str, default: float | None = None) -> float:
     return float(v)
 
 
+def _check_finite(source: str, where: str, what: str, values, names=None) -> None:
+    """Raise `OpenDriveError` naming the element when a number is NaN or infinite.
+
+    One sum tells: any NaN or infinity makes it non-finite (inf − inf is NaN).
+    `names` (same length as `values`) names the attributes in the message.
+    """
+    if not math.isfinite(sum(values)):
+        names = names or ("s", "a", "b", "c", "d")[:len(values)]
+        bad = ", ".join(f"{n}={v!r}" for n, v in zip(names, values, strict=False)
+                        if not math.isfinite(v))
+        raise OpenDriveError(f"{source}: {where}: {what} has a non-finite value ({bad}); "
+                             "the map's geometry must be finite numbers")
+
+
+def _check_records(source: str, where: str, tag: str, key: str, records) -> None:
+    """`_check_finite` over (start, a, b, c, d) records, naming the bad one."""
+    if not math.isfinite(sum(map(sum, records))):
+        for r in records:
+            _check_finite(source, where, f"<{tag}> at {key}={r[0]:g}", r,
+                          (key, "a", "b", "c", "d"))
+
+
 def _int(v: str | None, what: str, source: str) -> int:
     if v is None:
         raise OpenDriveError(f"{source}: {what} has no id")
@@ -253,6 +279,7 @@ def _parse_road(el, source: str) -> RoadRecord | None:
     rid = _int(el.get("id"), "road", source)
     where = f"road {rid}"
     length = _f(el, "length", 0.0)
+    _check_finite(source, where, "<road>", (length,), ("length",))
     junction = _int(el.get("junction", "-1"), f"{where} junction", source)
     pred = succ = None
     link = el.find("link")
@@ -279,11 +306,19 @@ def _parse_road(el, source: str) -> RoadRecord | None:
                 kind, params = "line", {}
             if kind == "paramPoly3":
                 params["pRange"] = kind_el.get("pRange", "normalized")
+        gx, gy, hdg = _f(g, "x", 0.0), _f(g, "y", 0.0), _f(g, "hdg", 0.0)
+        nums = {k: v for k, v in params.items() if v.__class__ is float}
+        _check_finite(source, where, f"geometry <{kind}> at s={gs:g} (line {g.sourceline})",
+                      (gs, gx, gy, hdg, gl, *nums.values()),
+                      ("s", "x", "y", "hdg", "length", *nums))
+        if gl < 0:
+            _warn(source, f"{where} geometry <{kind}> at s={gs:g} has negative length "
+                  f"{gl:g} m; skipped")
+            continue
         if gl <= 1e-9:
             _warn(source, f"{where} geometry <{kind}> at s={gs:g} has zero length; skipped")
             continue
-        geoms.append(Geometry(gs, _f(g, "x", 0.0), _f(g, "y", 0.0), _f(g, "hdg", 0.0), gl,
-                              kind, params))
+        geoms.append(Geometry(gs, gx, gy, hdg, gl, kind, params))
     if not geoms:
         _warn(source, f"{where} has no usable plan-view geometry; road skipped")
         return None
@@ -297,13 +332,16 @@ def _parse_road(el, source: str) -> RoadRecord | None:
         length = plan_view.length
 
     ep = el.find("elevationProfile")
-    elevation = Cubic.from_records(
-        [_poly(e, "s") for e in (ep.iterfind("elevation") if ep is not None else ())])
+    elev_records = [_poly(e, "s") for e in (ep.iterfind("elevation") if ep is not None else ())]
+    _check_records(source, where, "elevation", "s", elev_records)
+    elevation = Cubic.from_records(elev_records)
     lanes_el = el.find("lanes")
     if lanes_el is None:
         _warn(source, f"{where} has no <lanes>; road skipped")
         return None
-    lane_offset = Cubic.from_records([_poly(e, "s") for e in lanes_el.iterfind("laneOffset")])
+    offset_records = [_poly(e, "s") for e in lanes_el.iterfind("laneOffset")]
+    _check_records(source, where, "laneOffset", "s", offset_records)
+    lane_offset = Cubic.from_records(offset_records)
     sections = [_parse_section(ls, source, where) for ls in lanes_el.iterfind("laneSection")]
     if not sections:
         _warn(source, f"{where} has no <laneSection>; road skipped")
@@ -345,6 +383,7 @@ def _lane_id(el, what, source: str) -> int:
 
 def _parse_section(ls, source: str, road_where: str) -> LaneSectionRecord:
     s = _f(ls, "s", 0.0)
+    _check_finite(source, road_where, "<laneSection>", (s,), ("s",))
     lanes: dict[int, LaneRecord] = {}
     center = None
     for side in ("left", "center", "right"):
@@ -373,6 +412,12 @@ def _parse_section(ls, source: str, road_where: str) -> LaneSectionRecord:
                     if p is not None else None
                 succ = _lane_id(q, lambda lid=lid: f"{road_where} lane {lid} successor", source) \
                     if q is not None else None
+            if widths:
+                _check_records(source, f"{road_where} section at s={s:g} lane {lid}", "width",
+                               "sOffset", widths)
+            if borders:
+                _check_records(source, f"{road_where} section at s={s:g} lane {lid}", "border",
+                               "sOffset", borders)
             if not widths and not borders:
                 _warn(source, f"{road_where} section at s={s:g} lane {lid} has no <width>; "
                       "width 0")

@@ -104,6 +104,24 @@ def as_xy(location) -> tuple[float, float]:
     return float(location[0]), float(location[1])
 
 
+def as_xyz(location) -> tuple[float, float, float | None]:
+    """(x, y, z) from a Location, carla.Location or a sequence; z is None when absent.
+
+    A location object always has a z (CARLA's default is 0); a sequence has one
+    only when it has three items; a z that is NaN counts as absent.
+    """
+    if hasattr(location, "x"):
+        x, y, z = float(location.x), float(location.y), getattr(location, "z", None)
+    else:
+        x, y = float(location[0]), float(location[1])
+        z = location[2] if len(location) > 2 else None
+    if z is not None:
+        z = float(z)
+        if math.isnan(z):
+            z = None
+    return x, y, z
+
+
 def normalize_yaw(yaw_deg):
     """Wrap degrees into (-180, 180]."""
     import numpy as np

@@ -4,7 +4,7 @@ Sightings CSV columns (any order; a header row names them):
 
     required: t, observer_id, observer_x, observer_y, observer_yaw, x, y,
               orientation, vehicle_class
-    optional: track_id, distance, bearing   (an empty cell means None)
+    optional: track_id, distance, bearing, z   (an empty cell means None)
 
 Trajectory CSV columns: x, y, and optionally t.
 
@@ -15,7 +15,8 @@ the file, the 1-based line number and the column, for example
 ``sightings.csv line 7, column 'x': 'abc' is not a number``.
 
 Writing is deterministic: columns in the fixed order above (the optional
-sighting columns always written, empty for None; a trajectory's `t` column only
+sighting columns always written, empty for None, except z, written only when
+some sighting has a height; a trajectory's `t` column only
 when it has times), ``\\n`` line ends, and floats as ``repr(float)`` -- the
 shortest text that reads back to the very same double, so a file written by
 dashtraj reads back and re-writes byte-identically.
@@ -52,7 +53,7 @@ SIGHTING_REQUIRED: tuple[str, ...] = (
     "orientation",
     "vehicle_class",
 )
-SIGHTING_OPTIONAL: tuple[str, ...] = ("track_id", "distance", "bearing")
+SIGHTING_OPTIONAL: tuple[str, ...] = ("track_id", "distance", "bearing", "z")
 TRAJECTORY_REQUIRED: tuple[str, ...] = ("x", "y")
 TRAJECTORY_OPTIONAL: tuple[str, ...] = ("t",)
 
@@ -107,6 +108,7 @@ _SIGHTING_PARSERS: dict[str, Callable[[str], Any]] = {
     "track_id": _int,
     "distance": _non_negative,
     "bearing": _float,
+    "z": _float,
 }
 
 
@@ -272,7 +274,9 @@ def write_sightings(path: str | Path, sightings: Iterable[Sighting]) -> None:
     """
     with Path(path).open("w", newline="", encoding="utf-8") as handle:
         writer = csv.writer(handle, lineterminator="\n")
-        writer.writerow(SIGHTING_REQUIRED + SIGHTING_OPTIONAL)
+        sightings = list(sightings)
+        with_z = any(s.z is not None for s in sightings)
+        writer.writerow(SIGHTING_REQUIRED + SIGHTING_OPTIONAL[:None if with_z else -1])
         for s in sightings:
             writer.writerow(
                 [
@@ -288,6 +292,7 @@ def write_sightings(path: str | Path, sightings: Iterable[Sighting]) -> None:
                     _fmt_optional(s.track_id, lambda v: str(int(v))),
                     _fmt_optional(s.distance, _fmt_float),
                     _fmt_optional(s.bearing, _fmt_float),
+                    *([_fmt_optional(s.z, _fmt_float)] if with_z else []),
                 ]
             )
 

@@ -252,15 +252,17 @@ class _Candidates:
     s: np.ndarray         # (n,) road s, m
 
 
-def _candidates(road_map: RoadMap, x: float, y: float, radius_m: float,
+def _candidates(road_map: RoadMap, s: Sighting, radius_m: float,
                 max_candidates: int, nearest: LaneProjection, k: int) -> _Candidates:
     """Lanes within `radius_m`, nearest first, at most `max_candidates`.
 
     `candidates` sorts by distance, so its first row is the nearest lane; when no
     lane is that close, the nearest lane (row `k` of the batch projection
-    `nearest`) is the only candidate.
+    `nearest`) is the only candidate. A sighting with a height `z` is matched in
+    3-D (the map's z rule): distances, and so the emissions, count the height
+    difference, so a road on a bridge above is not a near candidate.
     """
-    c = road_map.candidates((x, y), radius_m)
+    c = road_map.candidates((s.x, s.y) if s.z is None else (s.x, s.y, s.z), radius_m)
     proj, rows = (c, np.arange(min(len(c), max_candidates))) if len(c) else (nearest, np.array([k]))
     wps = [proj.waypoint(int(i)) for i in rows]
     return _Candidates(wps, np.column_stack([proj.x[rows], proj.y[rows]]), proj.yaw[rows],
@@ -314,8 +316,10 @@ def _merge_close(ordered: list[Sighting], merge_dt_s: float) -> tuple[list[Sight
             out.append(group[0])
         else:
             merged += len(group) - 1
+            zs = [g.z for g in group if g.z is not None]
             out.append(replace(group[0], x=float(np.mean([g.x for g in group])),
-                               y=float(np.mean([g.y for g in group]))))
+                               y=float(np.mean([g.y for g in group])),
+                               z=float(np.mean(zs)) if zs else None))
         group.clear()
 
     for s in ordered:
@@ -360,7 +364,9 @@ def reconstruct_hmm(road_map: RoadMap, sightings: Sequence[Sighting], *,
 
     States at step k are the lanes within `radius_m` of sighting k's estimated
     position (at most `max_candidates`, nearest first; the nearest
-    lane when none is that close), each at its foot point.
+    lane when none is that close), each at its foot point. Sightings with a
+    height `z` are matched by 3-D distance (the map's z rule, CARLA's), so a
+    vehicle under a bridge is matched among the lanes at its own level.
 
     Emission (log): 2-D Gaussian in the distance d from the estimated position to
     the candidate, σ = min(sigma_base_m + sigma_per_m · D, sigma_max_m) where D is
@@ -406,8 +412,12 @@ def reconstruct_hmm(road_map: RoadMap, sightings: Sequence[Sighting], *,
     router = _Router(road_map, lane_change_cost_m)
     n = len(ordered)
     z = np.array([[s.x, s.y] for s in ordered])
-    nearest = road_map.project(z)
-    cands = [_candidates(road_map, s.x, s.y, radius_m, max_candidates, nearest, k)
+    if any(s.z is not None for s in ordered):
+        nearest = road_map.project(np.array(
+            [[s.x, s.y, math.nan if s.z is None else s.z] for s in ordered]))
+    else:
+        nearest = road_map.project(z)
+    cands = [_candidates(road_map, s, radius_m, max_candidates, nearest, k)
              for k, s in enumerate(ordered)]
     t = np.array([s.t for s in ordered])
 

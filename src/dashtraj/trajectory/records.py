@@ -55,6 +55,9 @@ class Sighting:
         distance: estimated camera-to-vehicle distance, metres (>= 0), or None.
         bearing: signed angle of the vehicle off the camera axis, degrees,
             positive to the right (toward +y when yaw = 0), or None.
+        z: estimated height of the seen vehicle, CARLA world, metres, or None.
+            When given, map matching is height-aware (a vehicle under a bridge
+            matches the road it is on; see `dashtraj.roads.map`).
 
     Raises:
         InputFormatError: a number is not finite, a distance is negative, or
@@ -80,6 +83,7 @@ class Sighting:
     track_id: int | None = None
     distance: float | None = None
     bearing: float | None = None
+    z: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("t", "observer_x", "observer_y", "observer_yaw", "x", "y"):
@@ -102,6 +106,8 @@ class Sighting:
                 )
         if self.bearing is not None:
             _check_finite("bearing", self.bearing)
+        if self.z is not None:
+            _check_finite("z", self.z)
 
 
 @dataclass(frozen=True, slots=True, eq=False)

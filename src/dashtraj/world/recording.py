@@ -28,7 +28,8 @@ A recording is a directory:
     length, width, height), box_yaw, u_min, v_min, u_max, v_max (pixels),
     truncation, distance_m, bearing_deg, orientation, label.
 ``target_route.csv``
-    the target's true trajectory, columns x, y, t (`dashtraj.trajectory.io`).
+    the target's true trajectory, columns x, y, t (`dashtraj.trajectory.io`), from
+    t = 0 to its arrival (or the end of the run if it did not arrive).
 ``map.xodr``
     a copy of the map.
 
@@ -56,6 +57,7 @@ import pyarrow.parquet as pq
 
 from dashtraj.errors import DashtrajError, InputFormatError
 from dashtraj.world.camera import CameraSpec, visible_boxes
+from dashtraj.world.traffic import CAPACITY_SPACING_M as CAPACITY_HINT_M
 from dashtraj.world.traffic import LaneNetwork, TrafficConfig, TrafficSim, VehicleSpec
 
 FORMAT = "dashtraj-recording"
@@ -287,10 +289,29 @@ class _ChunkWriter:
             self.writer.close()
 
 
+def _check_config(config: RunConfig) -> None:
+    """Refuse a run that cannot mean anything (RecordingError naming the field)."""
+    for name in ("duration_s", "truth_step_s", "chunk_s", "max_range_m"):
+        v = getattr(config, name)
+        if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+            raise RecordingError(f"run config: {name} must be a finite number > 0, got {v!r}")
+    step = config.traffic.step_s
+    if not (math.isfinite(step) and 0 < step <= config.duration_s):
+        raise RecordingError(f"run config: step_s must be > 0 and at most duration_s "
+                             f"({config.duration_s:g} s), got {step!r}")
+    for name in ("n_observers", "n_agents"):
+        v = getattr(config, name)
+        if not (isinstance(v, int) and v >= 0):
+            raise RecordingError(f"run config: {name} must be an integer >= 0, got {v!r}")
+
+
 def simulate(config: RunConfig, out_dir: str | Path,
              progress: Callable[[float], None] | None = None) -> RunSummary:
     """Simulate a drive and write it as a recording in `out_dir` (created; emptied parts
-    are overwritten).
+    are overwritten; the CLI writes into a fresh temporary folder, see `dashtraj.outputs`).
+
+    ``target_route.csv`` covers the target's trip only: from t = 0 to its arrival (or
+    to the end of the run when it does not arrive), even when the run goes on after it.
 
     Args:
         config: the run.
@@ -302,13 +323,15 @@ def simulate(config: RunConfig, out_dir: str | Path,
         with ``complete: false`` and the exception propagates.
     """
     from dashtraj.roads import RoadMap
+    from dashtraj.world.traffic import vehicle_capacity
 
+    _check_config(config)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     map_path = resolve_map(config.map)
     xodr = map_path.read_bytes()
-    (out / "map.xodr").write_bytes(xodr)
-    road_map = RoadMap.from_string(xodr, name=map_path.stem)
+    # a built-in town is named as the user named it, not by its cache file
+    name = map_path.stem if map_path == Path(config.map) else str(config.map).lower()
+    road_map = RoadMap.from_string(xodr, name=name)
     seeds = np.random.SeedSequence(config.seed).spawn(2)
     rng_ids, rng_traffic = (np.random.default_rng(s) for s in seeds)
     n = 1 + config.n_observers + config.n_agents
@@ -318,10 +341,6 @@ def simulate(config: RunConfig, out_dir: str | Path,
     for vid, (row, role) in enumerate(zip(rows, roles, strict=True)):
         row["vehicle_id"] = vid
         row["role"] = role
-    with open(out / "vehicles.csv", "w", newline="", encoding="utf-8") as fh:
-        w = csv.DictWriter(fh, fieldnames=VEHICLE_COLUMNS, lineterminator="\n")
-        w.writeheader()
-        w.writerows(rows)
     specs = [VehicleSpec(r["vehicle_id"], r["role"], r["length_m"], r["width_m"], r["height_m"])
              for r in rows]
     length = np.array([r["length_m"] for r in rows])
@@ -330,7 +349,19 @@ def simulate(config: RunConfig, out_dir: str | Path,
     classes = np.array([r["vehicle_class"] for r in rows])
     net = LaneNetwork(road_map, max_vehicle_length_m=max(12.5, float(length.max())),
                       max_vehicle_width_m=max(2.6, float(width.max())))
+    capacity = vehicle_capacity(net)
+    if n > capacity:
+        raise RecordingError(
+            f"{name} has room for about {capacity} vehicles (one per "
+            f"{CAPACITY_HINT_M:g} m of lane outside junctions); asked for {n} (1 target + "
+            f"{config.n_observers} observers + {config.n_agents} agents): ask for fewer agents")
     sim = TrafficSim(net, specs, config.traffic, rng_traffic, target_route=config.target_route)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "map.xodr").write_bytes(xodr)
+    with open(out / "vehicles.csv", "w", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=VEHICLE_COLUMNS, lineterminator="\n")
+        w.writeheader()
+        w.writerows(rows)
     obs_idx = np.array([i for i, r in enumerate(roles) if r == "observer"], dtype=np.int64)
     step = config.traffic.step_s
     n_steps = round(config.duration_s / step)
@@ -365,7 +396,8 @@ def simulate(config: RunConfig, out_dir: str | Path,
             f = sim.frame()
             states_w.add({"t": np.full(n, t), **f})
             frames += 1
-            route_xy.append((float(f["x"][0]), float(f["y"][0]), t))
+            if sim.target_arrived_t is None or t <= sim.target_arrived_t + 1e-9:
+                route_xy.append((float(f["x"][0]), float(f["y"][0]), t))
             if k % truth_every == 0 and len(obs_idx):
                 g = visible_boxes(config.camera, f["x"][obs_idx], f["y"][obs_idx],
                                   f["z"][obs_idx], f["yaw"][obs_idx], f["x"], f["y"], f["z"],

@@ -193,6 +193,21 @@ class VehicleSpec:
     height_m: float
 
 
+CAPACITY_SPACING_M = 20.0
+"""Lane length per vehicle when placing vehicles at the start of a run (metres): a
+network holds about (length of its lanes outside junctions) / 20 m vehicles."""
+
+
+def vehicle_capacity(net: LaneNetwork) -> int:
+    """About how many vehicles `TrafficSim` can place on ``net`` at the start of a run.
+
+    One per `CAPACITY_SPACING_M` metres of the lanes longer than 12 m outside junction
+    regions (vehicles are placed there, at least 12 m plus half a length apart).
+    """
+    free = (net.region == -1) & (net.length > 12.0)
+    return int(float(net.length[free].sum()) // CAPACITY_SPACING_M)
+
+
 class LaneNetwork:
     """The drivable lanes of a map (largest strongly connected set of Driving lanes,
     lane-following links only), their sampled centre lines, and junction regions.
@@ -463,7 +478,8 @@ class TrafficSim:
                     break
             else:
                 raise TrafficError(
-                    f"{net.map.name}: no room to place {self.n} vehicles; ask for fewer")
+                    f"{net.map.name}: no room to place {self.n} vehicles (it holds about "
+                    f"{vehicle_capacity(net)}); ask for fewer")
             placed.setdefault(lane, []).append(p)
             self.lane[i], self.p[i] = lane, p
 
@@ -743,7 +759,8 @@ class TrafficSim:
                 self.lane[i], self.p[i] = lane, p
                 self.routes[i] = []
                 return
-        raise TrafficError(f"{net.map.name}: no room to place {self.n} vehicles; ask for fewer")
+        raise TrafficError(f"{net.map.name}: no room to place {self.n} vehicles (it holds "
+                          f"about {vehicle_capacity(net)}); ask for fewer")
 
     def _opposite(self, lane: int) -> int | None:
         """The opposite-direction driving lane of the same road section nearest the

@@ -1,0 +1,145 @@
+"""Argument types and checks shared by the commands: every value is checked at the boundary.
+
+The ``type=`` functions raise `argparse.ArgumentTypeError`, which argparse turns into one
+line naming the argument (``argument --step: expected a number > 0, got '0'``). The checks
+that need more than the text (a point must lie near a driving lane of the map it is used
+on) raise `ArgumentError`, a `DashtrajError`: the CLI prints one line and exits 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+
+from dashtraj.errors import DashtrajError
+
+MAX_OFF_ROAD_M = 50.0
+"""Default of ``--max-off-road``: points farther than this from every driving lane
+centre line (metres, plan view) are refused (map route) or dropped (reconstruct)."""
+
+
+class ArgumentError(DashtrajError):
+    """A command-line value that is well-formed but unusable; the message names the argument."""
+
+
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def finite_float(text: str) -> float:
+    """A finite float (no nan, no inf)."""
+    return _number(text)
+
+
+def positive_float(text: str) -> float:
+    """A finite float > 0 (durations, steps, periods, distances that must not vanish)."""
+    value = _number(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+    return value
+
+
+def non_negative_float(text: str) -> float:
+    """A finite float >= 0."""
+    value = _number(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return value
+
+
+def fraction(text: str) -> float:
+    """A finite float in [0, 1]."""
+    value = _number(text)
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
+    return value
+
+
+def int_at_least(low: int) -> Callable[[str], int]:
+    """A ``type=`` for integers >= ``low`` (counts, seeds)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < low:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {text!r}")
+        return value
+
+    parse.__name__ = f"int_at_least_{low}"
+    return parse
+
+
+count = int_at_least(0)
+"""A count that may be zero (observers, agents)."""
+positive_int = int_at_least(1)
+"""A count of at least one (seeds per town, identities, workers, trips)."""
+seed = int_at_least(0)
+"""A random seed (numpy's SeedSequence takes integers >= 0)."""
+
+
+def xy(text: str) -> tuple[float, float]:
+    """``"X,Y"`` → (x, y), CARLA world metres, both finite."""
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X,Y in metres, got {text!r}") from None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise argparse.ArgumentTypeError(f"expected finite X,Y in metres, got {text!r}")
+    return x, y
+
+
+def check_near_road(road_map, point: tuple[float, float], what: str,
+                    max_off_road_m: float = MAX_OFF_ROAD_M) -> None:
+    """Refuse a point farther than ``max_off_road_m`` (plan view, metres) from every
+    driving lane centre line of ``road_map``.
+
+    Raises:
+        ArgumentError: naming ``what`` (the argument), the point, its distance and the limit.
+    """
+    import numpy as np
+
+    proj = road_map.project(np.array([point], dtype=float))
+    d = float(proj.distance_m[0])
+    if d > max_off_road_m:
+        raise ArgumentError(
+            f"{what} ({point[0]:g}, {point[1]:g}) is {d:.0f} m from the nearest driving lane "
+            f"of {road_map.name} (more than {max_off_road_m:g} m; see --max-off-road); "
+            f"'dashtraj map info' prints the map's extent")
+
+
+def load_map(arg: str, what: str = "map"):
+    """The `RoadMap` a user named: an .xodr path, or a built-in town name.
+
+    A built-in town is named as the user wrote it (``town01``), not by its cache file;
+    a file keeps its path as name. Warnings of the reader print as ``warning: ...``.
+
+    Raises:
+        ArgumentError: neither a file nor a built-in town (naming ``what``).
+        OpenDriveError: the file is not OpenDRIVE (naming the file and element).
+    """
+    from pathlib import Path
+
+    from dashtraj.errors import OpenDriveError
+    from dashtraj.roads import RoadMap
+    from dashtraj.world.towns import UnknownTownError, resolve_map
+
+    try:
+        path = resolve_map(arg)
+    except UnknownTownError as exc:
+        raise ArgumentError(f"{what} {arg!r} is neither a file nor a built-in town "
+                            f"({' '.join(str(exc).split())})") from None
+    except OpenDriveError as exc:
+        raise ArgumentError(f"{what} {arg!r}: {exc}") from None
+    road_map = RoadMap.from_file(path)
+    if path != Path(arg):
+        road_map.name = str(arg).lower()
+    return road_map

@@ -1,0 +1,169 @@
+"""Whole-or-nothing outputs: the one discipline every command that writes a file or folder uses.
+
+A command writes into a temporary sibling of its output (same folder, so the final move is a
+``rename`` on one file system) and moves it into place only when everything was written:
+
+    with atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:
+        write_everything_into(tmp)
+
+- An existing non-empty output is refused (`OutputExistsError`, exit code 2) unless
+  ``overwrite`` is true; then it is replaced whole, never merged.
+- On an exception or Ctrl-C the temporary sibling is removed and what was there before is
+  untouched. With ``keep_partial=True`` (a recording interrupted mid-run) the partial output is
+  kept under its own new name ``<name>.partial-<n>`` beside the output, never inside an older
+  one, and stderr says where.
+- Missing parent folders are created.
+
+The replacement of an existing output is two renames (old → backup, new → output) followed by
+removing the backup; if the second rename fails the backup is renamed back, so at every instant
+the output path holds either the old output or the new one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import shutil
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Literal
+
+from dashtraj.errors import DashtrajError
+
+Kind = Literal["dir", "file"]
+
+
+class OutputExistsError(DashtrajError):
+    """The output exists and ``--overwrite`` was not given."""
+
+
+class OutputPathError(DashtrajError):
+    """The output path cannot be used (a file where a folder is needed, or the reverse)."""
+
+
+def add_output_args(parser: argparse.ArgumentParser) -> None:
+    """Add ``--overwrite`` to a command's parser (see `atomic_output`)."""
+    parser.add_argument(
+        "--overwrite", action="store_true",
+        help="replace an existing output whole (default: refuse to touch it)")
+
+
+def _is_nonempty(path: Path) -> bool:
+    if path.is_dir() and not path.is_symlink():
+        return any(path.iterdir())
+    return path.exists() or path.is_symlink()
+
+
+def check_output(path: str | os.PathLike[str], *, overwrite: bool, kind: Kind = "dir") -> Path:
+    """Check up front that ``path`` may be written (call before expensive work).
+
+    Returns the path. Raises `OutputExistsError` when it exists (a non-empty folder or any
+    file) and ``overwrite`` is false, and `OutputPathError` when it is a file where a folder
+    is wanted or the reverse, or when a parent is a file.
+    """
+    p = Path(path)
+    if str(path) == "" or p.name in ("", ".", ".."):
+        raise OutputPathError(f"output {str(path)!r}: name a file or folder, not {str(path)!r}")
+    for parent in p.parents:
+        if parent.exists() and not parent.is_dir():
+            raise OutputPathError(f"output {p}: {parent} is a file, not a folder")
+    if kind == "dir" and p.exists() and not p.is_dir():
+        raise OutputPathError(f"output {p} is a file; this command writes a folder there")
+    if kind == "file" and p.is_dir():
+        raise OutputPathError(f"output {p} is a folder; this command writes a file there")
+    if _is_nonempty(p) and not overwrite:
+        raise OutputExistsError(
+            f"output {p} exists; pass --overwrite to replace it whole, or choose another path")
+    return p
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+
+
+def _free_sibling(path: Path, tag: str) -> Path:
+    """``.<name>.<tag>-<pid>`` beside ``path``, or the same with a counter if taken."""
+    base = path.parent / f".{path.name}.{tag}-{os.getpid()}"
+    cand, n = base, 0
+    while cand.exists() or cand.is_symlink():
+        n += 1
+        cand = base.with_name(f"{base.name}-{n}")
+    return cand
+
+
+def _partial_name(path: Path) -> Path:
+    n = 1
+    while True:
+        cand = path.with_name(f"{path.name}.partial-{n}")
+        if not (cand.exists() or cand.is_symlink()):
+            return cand
+        n += 1
+
+
+def _commit(tmp: Path, path: Path) -> None:
+    """Move ``tmp`` to ``path``; an existing ``path`` is replaced whole (never merged)."""
+    if not (path.exists() or path.is_symlink()):
+        tmp.rename(path)
+        return
+    backup = _free_sibling(path, "old")
+    path.rename(backup)
+    try:
+        tmp.rename(path)
+    except BaseException:
+        backup.rename(path)
+        raise
+    _remove(backup)
+
+
+@contextlib.contextmanager
+def atomic_output(path: str | os.PathLike[str], *, overwrite: bool = False,
+                  kind: Kind = "dir", keep_partial: bool = False,
+                  quiet: bool = False) -> Iterator[Path]:
+    """Yield a temporary sibling of ``path`` to write into; move it into place on success.
+
+    Args:
+        path: the output file or folder.
+        overwrite: replace an existing output whole; otherwise an existing non-empty
+            output raises `OutputExistsError` before anything is written.
+        kind: ``"dir"`` yields a new empty folder; ``"file"`` yields a path (not created)
+            with the output's suffix, to be written by the caller.
+        keep_partial: on an exception or Ctrl-C keep what was written as
+            ``<name>.partial-<n>`` beside the output (and say so on stderr) instead of
+            removing it. Used for recordings, which stay readable when interrupted.
+        quiet: do not print where a partial output was kept.
+
+    Raises:
+        OutputExistsError, OutputPathError: before anything is written.
+    """
+    p = check_output(path, overwrite=overwrite, kind=kind)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp = _free_sibling(p, "tmp")
+    if kind == "dir":
+        tmp.mkdir()
+    else:
+        tmp = tmp.with_name(tmp.name + "".join(p.suffixes))
+    try:
+        yield tmp
+    except BaseException:
+        if keep_partial and (tmp.exists() and (tmp.is_file() or any(tmp.iterdir()))):
+            kept = _partial_name(p)
+            tmp.rename(kept)
+            if not quiet:
+                print(f"dashtraj: kept the partial output in {kept} ({p} is unchanged)",
+                      file=sys.stderr)
+        else:
+            _remove(tmp)
+        raise
+    if kind == "file" and not tmp.exists():
+        raise OutputPathError(f"output {p}: nothing was written")
+    try:
+        _commit(tmp, p)
+    except BaseException:
+        _remove(tmp)
+        raise

@@ -1,0 +1,364 @@
+"""Bad input anywhere in the CLI: exit code 2, ONE line on stderr naming the culprit, and no
+output touched.
+
+Each row of `CASES` is run in-process through `dashtraj.cli.main` in a fresh folder that
+holds a pre-filled output folder (``OUT_DIR``) and a pre-filled output file
+(``OUT_FILE``, ``OUT_PNG``); afterwards every file under that folder must be byte-for-byte
+what it was, and nothing may have been added (no temporary sibling, no partial output).
+The inputs (a small recording, sightings CSVs) live in a separate folder made once.
+
+Also here: the happy-path counterparts the issue listed as tracebacks (``reconstruct -o
+missing/dir/x.csv`` creates the folders), ``--overwrite`` replacing an output whole, an
+interrupted ``simulate`` keeping its partial recording under its own new folder, and
+``target_route.csv`` ending at the target's arrival.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import warnings
+from pathlib import Path
+
+import pytest
+
+from dashtraj.cli import main
+
+# (id, argv with placeholders, fragment the one stderr line must contain)
+CASES: list[tuple[str, list[str], str]] = [
+    # --- the issue's "Why" list
+    ("simulate-agents-500-town01", ["simulate", "--town", "town01", "--agents", "500",
+                                    "-o", "{OUT_DIR}", "--overwrite"], "room for about 236"),
+    ("simulate-agents-500-new", ["simulate", "--town", "town01", "--agents", "500",
+                                 "-o", "{NEW_DIR}"], "asked for 505"),
+    ("simulate-duration-negative", ["simulate", "--duration", "-5", "-o", "{NEW_DIR}"],
+     "argument --duration: expected a number > 0"),
+    ("simulate-observers-negative", ["simulate", "--observers", "-1", "-o", "{NEW_DIR}"],
+     "argument --observers: expected an integer >= 0"),
+    ("simulate-step-zero", ["simulate", "--step", "0", "-o", "{NEW_DIR}"],
+     "argument --step: expected a number > 0"),
+    ("simulate-output-is-file", ["simulate", "--duration", "1", "-o", "{OUT_FILE}"],
+     "is a file; this command writes a folder"),
+    ("experiments-seeds-zero", ["experiments", "--seeds", "0", "-o", "{NEW_DIR}"],
+     "argument --seeds: expected an integer >= 1"),
+    ("map-route-from-nan", ["map", "route", "town01", "--from=nan,20", "--to=100,60"],
+     "argument --from: expected finite X,Y"),
+    ("map-route-from-far", ["map", "route", "town01", "--from=1e6,1e6", "--to=100,60"],
+     "--from (1e+06, 1e+06) is"),
+    ("reconstruct-all-off-road", ["reconstruct", "--map", "town01", "--sightings",
+                                  "{FAR_CSV}", "-o", "{NEW_FILE}"],
+     "more than 50 m from every driving lane"),
+    # --- an existing output is refused without --overwrite, for every writer
+    ("simulate-exists", ["simulate", "--duration", "1", "-o", "{OUT_DIR}"], "--overwrite"),
+    ("sightings-exists", ["sightings", "{REC}", "-o", "{OUT_FILE}"], "--overwrite"),
+    ("reconstruct-exists", ["reconstruct", "--map", "town01", "--sightings", "{SIGHTINGS}",
+                            "-o", "{OUT_FILE}"], "--overwrite"),
+    ("map-route-exists", ["map", "route", "town01", "--from=150,60", "--to=100,60",
+                          "-o", "{OUT_FILE}"], "--overwrite"),
+    ("map-plot-exists", ["map", "plot", "town01", "-o", "{OUT_PNG}"], "--overwrite"),
+    ("render-exists", ["render", "{REC}", "-o", "{OUT_DIR}"], "--overwrite"),
+    ("detection-dataset-exists", ["detection-dataset", "{REC}", "-o", "{OUT_DIR}"],
+     "--overwrite"),
+    ("reid-dataset-exists", ["reid-dataset", "--ids", "3", "-o", "{OUT_DIR}"], "--overwrite"),
+    ("experiments-exists", ["experiments", "--seeds", "1", "-o", "{OUT_DIR}"], "--overwrite"),
+    ("demo-exists", ["demo", "-o", "{OUT_DIR}"], "--overwrite"),
+    ("sightings-output-is-folder", ["sightings", "{REC}", "-o", "{OUT_DIR}", "--overwrite"],
+     "is a folder; this command writes a file"),
+    # --- simulate
+    ("simulate-duration-nan", ["simulate", "--duration", "nan", "-o", "{NEW_DIR}"],
+     "argument --duration: expected a finite number"),
+    ("simulate-duration-inf", ["simulate", "--duration", "inf", "-o", "{NEW_DIR}"],
+     "argument --duration"),
+    ("simulate-step-longer-than-duration", ["simulate", "--duration", "1", "--step", "5",
+                                            "-o", "{NEW_DIR}"], "--step 5 s is longer"),
+    ("simulate-agents-fraction", ["simulate", "--agents", "1.5", "-o", "{NEW_DIR}"],
+     "argument --agents: expected an integer"),
+    ("simulate-seed-negative", ["simulate", "--seed", "-3", "-o", "{NEW_DIR}"],
+     "argument --seed"),
+    ("simulate-parked-fraction", ["simulate", "--parked-fraction", "2", "-o", "{NEW_DIR}"],
+     "argument --parked-fraction"),
+    ("simulate-identities", ["simulate", "--identities", "9-2", "-o", "{NEW_DIR}"],
+     "argument --identities"),
+    ("simulate-unknown-town", ["simulate", "--town", "town99", "-o", "{NEW_DIR}"],
+     "valid names: town01, town10"),
+    ("simulate-missing-map-file", ["simulate", "--town", "{MISSING}.xodr", "-o", "{NEW_DIR}"],
+     "does not exist"),
+    ("simulate-no-output", ["simulate"], "the following arguments are required: -o/--output"),
+    # --- sightings
+    ("sightings-max-distance-zero", ["sightings", "{REC}", "--max-distance", "0",
+                                     "-o", "{NEW_FILE}"], "argument --max-distance"),
+    ("sightings-noise", ["sightings", "{REC}", "--noise", "loud", "-o", "{NEW_FILE}"],
+     "argument --noise: invalid choice"),
+    ("sightings-vehicle", ["sightings", "{REC}", "--vehicle", "999", "-o", "{NEW_FILE}"],
+     "no vehicle 999"),
+    ("sightings-missing-recording", ["sightings", "{MISSING}", "-o", "{NEW_FILE}"],
+     "is not a directory"),
+    # --- reconstruct
+    ("reconstruct-method", ["reconstruct", "--map", "town01", "--sightings", "{SIGHTINGS}",
+                            "--method", "astar", "-o", "{NEW_FILE}"],
+     "valid: hmm, shortest-path"),
+    ("reconstruct-unknown-map", ["reconstruct", "--map", "town99", "--sightings",
+                                 "{SIGHTINGS}", "-o", "{NEW_FILE}"],
+     "--map 'town99' is neither a file nor a built-in town"),
+    ("reconstruct-not-opendrive", ["reconstruct", "--map", "{GARBAGE_XODR}", "--sightings",
+                                   "{SIGHTINGS}", "-o", "{NEW_FILE}"], "is not OpenDRIVE"),
+    ("reconstruct-nan-cell", ["reconstruct", "--map", "town01", "--sightings", "{NAN_CSV}",
+                              "-o", "{NEW_FILE}"], "line 3, column 'x'"),
+    ("reconstruct-missing-sightings", ["reconstruct", "--map", "town01", "--sightings",
+                                       "{MISSING}.csv", "-o", "{NEW_FILE}"], "cannot open"),
+    ("reconstruct-max-off-road", ["reconstruct", "--map", "town01", "--sightings",
+                                  "{SIGHTINGS}", "--max-off-road", "-1", "-o", "{NEW_FILE}"],
+     "argument --max-off-road"),
+    # --- map
+    ("map-route-to-inf", ["map", "route", "town01", "--from=150,60", "--to=inf,0"],
+     "argument --to"),
+    ("map-route-three-numbers", ["map", "route", "town01", "--from=1,2,3", "--to=100,60"],
+     "argument --from: expected X,Y"),
+    ("map-route-to-far", ["map", "route", "town01", "--from=150,60", "--to=-500,-500"],
+     "--to (-500, -500) is"),
+    ("map-route-lane-change-cost", ["map", "route", "town01", "--from=150,60", "--to=100,60",
+                                    "--lane-change-cost", "-1"],
+     "argument --lane-change-cost"),
+    ("map-plot-one-end", ["map", "plot", "town01", "-o", "{NEW_PNG}", "--route-from=150,60"],
+     "give both --route-from and --route-to"),
+    ("map-plot-far", ["map", "plot", "town01", "-o", "{NEW_PNG}", "--route-from=150,60",
+                      "--route-to=1e5,0"], "--route-to (100000, 0) is"),
+    ("map-plot-suffix", ["map", "plot", "town01", "-o", "{NEW_FILE}.txt"], "name a .png"),
+    ("map-info-unknown", ["map", "info", "town99"], "neither a file nor a built-in town"),
+    # --- render and the training sets
+    ("render-every-zero", ["render", "{REC}", "-o", "{NEW_DIR}", "--every", "0"],
+     "argument --every"),
+    ("render-size", ["render", "{REC}", "-o", "{NEW_DIR}", "--size", "4x4"], "too small"),
+    ("render-observer-unknown", ["render", "{REC}", "-o", "{NEW_DIR}", "--observer", "999"],
+     "--observer 999: not an observer"),
+    ("render-observer-negative", ["render", "{REC}", "-o", "{NEW_DIR}", "--observer", "-1"],
+     "argument --observer"),
+    ("detection-val-fraction", ["detection-dataset", "{REC}", "-o", "{NEW_DIR}",
+                                "--val-fraction", "1.5"], "argument --val-fraction"),
+    ("detection-max-occlusion-nan", ["detection-dataset", "{REC}", "-o", "{NEW_DIR}",
+                                     "--max-occlusion", "nan"], "argument --max-occlusion"),
+    ("detection-size", ["detection-dataset", "{REC}", "-o", "{NEW_DIR}", "--size", "big"],
+     "bad image size 'big'"),
+    ("detection-missing-recording", ["detection-dataset", "{MISSING}", "-o", "{NEW_DIR}"],
+     "is not a directory"),
+    ("reid-ids-zero", ["reid-dataset", "--ids", "0", "-o", "{NEW_DIR}"], "argument --ids"),
+    ("reid-test-ids", ["reid-dataset", "--ids", "3", "--test-ids", "3", "-o", "{NEW_DIR}"],
+     "--test-ids 3 must be fewer than --ids 3"),
+    ("reid-workers-zero", ["reid-dataset", "--workers", "0", "-o", "{NEW_DIR}"],
+     "argument --workers"),
+    ("reid-unknown-town", ["reid-dataset", "--ids", "3", "--town", "town99", "-o",
+                           "{OUT_DIR}", "--overwrite"], "valid names: town01, town10"),
+    # --- experiments, demo, score, bench-reconstruct, the top level
+    ("experiments-seeds-negative", ["experiments", "--seeds", "-1", "-o", "{NEW_DIR}"],
+     "argument --seeds"),
+    ("experiments-unknown-town", ["experiments", "--towns", "town99", "-o", "{NEW_DIR}"],
+     "--towns 'town99'"),
+    ("demo-duration-zero", ["demo", "--duration", "0", "-o", "{NEW_DIR}"],
+     "argument --duration"),
+    ("demo-observers-negative", ["demo", "--observers", "-2", "-o", "{NEW_DIR}"],
+     "argument --observers"),
+    ("demo-unknown-town", ["demo", "--town", "town99", "-o", "{OUT_DIR}", "--overwrite"],
+     "valid names: town01, town10"),
+    ("score-resample-zero", ["score", "--truth", "{TRUTH}", "--estimate", "{TRUTH}",
+                             "--resample-m", "0"], "--resample-m"),
+    ("score-missing-file", ["score", "--truth", "{MISSING}.csv", "--estimate", "{TRUTH}"],
+     "cannot open"),
+    ("bench-reconstruct-trips-zero", ["bench-reconstruct", "--map", "town01", "--trips", "0"],
+     "argument --trips"),
+    ("bench-reconstruct-method", ["bench-reconstruct", "--map", "town01", "--trips", "1",
+                                  "--methods", "astar"], "valid: hmm, shortest-path"),
+    ("no-command", [], "the following arguments are required: COMMAND"),
+    ("unknown-command", ["frobnicate"], "invalid choice: 'frobnicate'"),
+]
+
+
+def _tree(root: Path) -> dict[str, str]:
+    """Every path under root → sha256 of its bytes ("dir" for folders)."""
+    out = {}
+    for p in sorted(root.rglob("*")):
+        rel = p.relative_to(root).as_posix()
+        out[rel] = "dir" if p.is_dir() else hashlib.sha256(p.read_bytes()).hexdigest()
+    return out
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory) -> dict[str, str]:
+    """A small complete recording and sightings CSVs made from it (read-only inputs)."""
+    root = tmp_path_factory.mktemp("inputs")
+    rec = root / "rec"
+    assert main(["simulate", "--town", "town01", "--duration", "20", "--agents", "4",
+                 "--seed", "1", "-q", "-o", str(rec)]) == 0
+    sightings = root / "sightings.csv"
+    rows = [
+        "t,observer_id,observer_x,observer_y,observer_yaw,x,y,orientation,vehicle_class",
+        "0.0,1,150.0,55.0,0.0,160.0,55.5,back,car",
+        "1.0,1,155.0,55.0,0.0,165.0,55.5,back,car",
+    ]
+    sightings.write_text("\n".join(rows) + "\n")
+    far = root / "far.csv"
+    far.write_text("\n".join([rows[0], "0.0,1,1e6,1e6,0.0,1e6,1e6,back,car"]) + "\n")
+    nan = root / "nan.csv"
+    nan.write_text("\n".join([rows[0], rows[1], "1.0,1,155.0,55.0,0.0,nan,55.5,back,car"])
+                   + "\n")
+    truth = root / "truth.csv"
+    truth.write_text("x,y\n0,0\n10,0\n")
+    garbage = root / "garbage.xodr"
+    garbage.write_text("not xml at all")
+    return {"REC": str(rec), "SIGHTINGS": str(sightings), "FAR_CSV": str(far),
+            "NAN_CSV": str(nan), "TRUTH": str(truth), "GARBAGE_XODR": str(garbage)}
+
+
+def _run(argv: list[str], capsys) -> tuple[int, str]:
+    capsys.readouterr()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("always")
+            rc = main(argv)
+    except SystemExit as exc:  # argparse's usage errors
+        rc = exc.code
+    return rc, capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv,fragment", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
+def test_bad_input_exits_2_with_one_line_and_touches_nothing(argv, fragment, inputs, tmp_path,
+                                                             capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    work = tmp_path / "work"
+    (work / "out_dir" / "sub").mkdir(parents=True)
+    (work / "out_dir" / "meta.json").write_text('{"complete": true, "old": 1}\n')
+    (work / "out_dir" / "sub" / "000001.jpg").write_bytes(bytes(range(256)))
+    (work / "out_file.csv").write_text("x,y\n1,2\n")
+    (work / "out.png").write_bytes(b"\x89PNG old picture")
+    places = {**inputs,
+              "OUT_DIR": str(work / "out_dir"), "OUT_FILE": str(work / "out_file.csv"),
+              "OUT_PNG": str(work / "out.png"), "NEW_DIR": str(work / "new_dir"),
+              "NEW_FILE": str(work / "new_file.csv"), "NEW_PNG": str(work / "new.png"),
+              "MISSING": str(tmp_path / "missing")}
+    argv = [a.format(**places) for a in argv]
+    before = _tree(work)
+
+    rc, err = _run(argv, capsys)
+
+    lines = err.splitlines()
+    assert rc == 2, err
+    assert len(lines) == 1, err
+    assert fragment in lines[0], lines[0]
+    assert "Traceback" not in err
+    assert _tree(work) == before  # byte for byte, and nothing added beside it
+
+
+def test_the_table_covers_every_command_that_takes_arguments():
+    from dashtraj.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    covered = {c[1][0] for c in CASES if c[1]}
+    assert set(sub.choices) - covered == set()
+
+
+def test_reconstruct_creates_missing_parent_folders(inputs, tmp_path, capsys):
+    out = tmp_path / "missing" / "dir" / "x.csv"
+    rc, err = _run(["reconstruct", "--map", "town01", "--sightings", inputs["SIGHTINGS"],
+                    "-o", str(out)], capsys)
+    assert rc == 0, err
+    assert out.read_text().startswith("x,y,t\n")
+    assert [p.name for p in out.parent.iterdir()] == ["x.csv"]  # no temporary left
+
+
+def test_reconstruct_drops_off_road_sightings_and_says_which(inputs, tmp_path, capsys):
+    src = Path(inputs["SIGHTINGS"]).read_text().splitlines()
+    mixed = tmp_path / "mixed.csv"
+    mixed.write_text("\n".join([src[0], src[1], "", "0.5,1,150,55,0,1e6,1e6,back,car",
+                                src[2]]) + "\n")
+    out = tmp_path / "t.csv"
+    rc, err = _run(["reconstruct", "--map", "town01", "--sightings", str(mixed), "-o", str(out),
+                    "--json"], capsys)
+    assert rc == 0, err
+    assert err.splitlines() == [err.strip()]
+    assert err.startswith("warning: ")
+    assert "dropped 1 of 3 sightings" in err and "line 4 (1e+06, 1e+06)" in err
+    with_far = out.read_text()
+    clean = tmp_path / "clean.csv"
+    assert main(["reconstruct", "--map", "town01", "--sightings", inputs["SIGHTINGS"], "-o",
+                 str(clean)]) == 0
+    assert with_far == clean.read_text()  # the far sighting did not bend the route
+
+
+def test_overwrite_replaces_an_output_whole(inputs, tmp_path, capsys):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "stale.jpg").write_bytes(b"old frame")
+    (out / "meta.json").write_text("{}")
+    rc, err = _run(["simulate", "--town", "town01", "--duration", "1", "--agents", "2", "-q",
+                    "-o", str(out), "--overwrite"], capsys)
+    assert rc == 0, err
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["map.xodr", "meta.json", "states.parquet", "target_route.csv",
+                     "truth.parquet", "vehicles.csv"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+
+
+def test_interrupted_simulate_keeps_partial_in_its_own_folder(tmp_path, capsys, monkeypatch):
+    from dashtraj.world import traffic
+    from dashtraj.world.recording import IncompleteRecordingWarning, Recording
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "meta.json").write_text('{"complete": true}\n')
+    before = _tree(out)
+    real_step = traffic.TrafficSim.step
+    calls = [0]
+
+    def step(self):  # Ctrl-C after 15 simulated seconds (300 steps of 0.05 s)
+        calls[0] += 1
+        if calls[0] > 300:
+            raise KeyboardInterrupt
+        return real_step(self)
+
+    monkeypatch.setattr(traffic.TrafficSim, "step", step)
+    rc, err = _run(["simulate", "--town", "town01", "--duration", "60", "--agents", "4",
+                    "--no-until-target-arrives", "-q", "-o", str(out), "--overwrite"], capsys)
+    assert rc == 130
+    partial = tmp_path / "run.partial-1"
+    assert f"kept the partial output in {partial}" in err
+    assert _tree(out) == before  # the older recording is untouched
+    with pytest.warns(IncompleteRecordingWarning):
+        rec = Recording.open(partial)
+    assert rec.meta["complete"] is False
+    assert rec.meta["simulated_to_t"] == pytest.approx(15.0)
+    assert rec.states.num_rows > 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "run.partial-1"]
+
+
+def test_target_route_ends_at_arrival_when_the_run_goes_on(tmp_path, capsys):
+    from dashtraj.world.recording import Recording
+
+    out = tmp_path / "run"
+    rc, err = _run(["simulate", "--town", "town01", "--duration", "200", "--agents", "2",
+                    "--seed", "3", "--no-until-target-arrives", "-q", "-o", str(out)], capsys)
+    assert rc == 0, err
+    rec = Recording.open(out)
+    arrived = rec.meta["target_arrived_t"]
+    assert arrived is not None and arrived < 190
+    assert rec.meta["simulated_to_t"] == pytest.approx(200.0)
+    assert rec.target_route.t[-1] == pytest.approx(arrived)
+    with open(out / "target_route.csv", newline="") as fh:
+        assert len(list(csv.reader(fh))) - 1 == len(rec.target_route)
+
+
+def test_simulate_stops_at_arrival_by_default(tmp_path, capsys):
+    from dashtraj.world.recording import Recording
+
+    out = tmp_path / "run"
+    rc, err = _run(["simulate", "--town", "town01", "--duration", "200", "--agents", "2",
+                    "--seed", "3", "-q", "-o", str(out)], capsys)
+    assert rc == 0, err
+    rec = Recording.open(out)
+    assert rec.meta["simulated_to_t"] == pytest.approx(rec.meta["target_arrived_t"])
+
+
+def test_warnings_print_in_one_clean_style(tmp_path, capsys):
+    bad = tmp_path / "s.csv"
+    bad.write_text("x,y,colour\n0,0,red\n10,0,red\n")
+    rc, err = _run(["score", "--truth", str(bad), "--estimate", str(bad)], capsys)
+    assert rc == 0
+    assert err == "warning: s.csv: ignoring unknown column(s) 'colour'\n" * 2  # both files
