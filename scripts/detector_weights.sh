@@ -13,7 +13,7 @@ SEED=${SEED:-0}
 TOWN01_REAL=${TOWN01_REAL:-../shared/maps/carla/Town01.xodr}
 TOWN10_REAL=${TOWN10_REAL:-../shared/maps/carla/Town10HD.xodr}
 mkdir -p "$WORK/recs" "$WORK/heldout"
-SIM=(--duration 45 --observers 6 --agents 40 --vehicle-mix balanced
+SIM=(--duration 45 --no-until-target-arrives --observers 6 --agents 40 --vehicle-mix balanced
      --vehicle-classes car,truck,bus,motorcycle,bicycle -q)
 # training towns: the built-in town01 and town10 and CARLA's real Town01; seeds 100-109
 train=()

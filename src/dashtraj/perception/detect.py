@@ -336,9 +336,12 @@ class YoloDetector:
         if len(out_shape) != 3:
             raise DetectorError(f"{self.path}: output has shape {out_shape}; expected "
                                 "(B, 4 + nc, N) (ultralytics v8/11 layout)")
+        self.conf, self.iou, self.max_det = conf, iou, max_det
         if isinstance(out_shape[1], int):
             self._check_nc(out_shape[1])
-        self.conf, self.iou, self.max_det = conf, iou, max_det
+        else:  # a symbolic class dimension: run one blank frame to learn it
+            blank = np.full((self.fixed_batch or 1, *self.input_hw, 3), PAD_VALUE, np.uint8)
+            self.run_raw(blank)
 
     def _check_nc(self, channels: int) -> None:
         if channels - 4 != len(self.names):

@@ -200,11 +200,41 @@ def build_detector(nc: int = 15, width: int = 64, pretrained: bool = True) -> De
     return m
 
 
+def store_weights_fp16(m, min_elements: int = 1024) -> int:
+    """Store an ONNX model's large float32 initializers as float16, each followed by a Cast
+    back to float32 (onnxruntime folds the casts when it loads the model, so inference
+    stays float32; the weights are rounded to 11 significant bits). Halves the file.
+    Returns the number of initializers converted."""
+    import numpy as np
+    from onnx import TensorProto, helper, numpy_helper
+
+    g = m.graph
+    casts, n = [], 0
+    for init in list(g.initializer):
+        if init.data_type != TensorProto.FLOAT:
+            continue
+        arr = numpy_helper.to_array(init)
+        if arr.size < min_elements:
+            continue
+        name = init.name
+        half = numpy_helper.from_array(arr.astype(np.float16), name + "__fp16")
+        g.initializer.remove(init)
+        g.initializer.append(half)
+        casts.append(helper.make_node("Cast", [name + "__fp16"], [name], to=TensorProto.FLOAT,
+                                      name=name + "__cast"))
+        n += 1
+    nodes = casts + list(g.node)
+    del g.node[:]
+    g.node.extend(nodes)
+    return n
+
+
 def export_onnx(model: Detector, path, imgsz: tuple[int, int], names: list[str],
-                meta: dict | None = None, opset: int = 17) -> None:
+                meta: dict | None = None, opset: int = 17, fp16_weights: bool = True) -> None:
     """Write the model as ONNX (ultralytics layout, dynamic batch) with metadata
     ``names`` (the ultralytics dict text ``{0: 'car_front', ...}``), ``imgsz`` ([H, W]),
-    ``stride`` and the entries of ``meta``.
+    ``stride`` and the entries of ``meta``. ``fp16_weights``: `store_weights_fp16`
+    (the file is half as large; inference stays float32).
 
     Args:
         imgsz: (H, W) input size, pixels.
@@ -215,14 +245,28 @@ def export_onnx(model: Detector, path, imgsz: tuple[int, int], names: list[str],
     wrap = ExportWrapper(model).eval()
     h, w = imgsz
     dummy = torch.zeros(1, 3, h, w)
-    torch.onnx.export(wrap, (dummy,), str(path), input_names=["images"],
-                      output_names=["output0"], opset_version=opset,
-                      dynamic_axes={"images": {0: "batch"}, "output0": {0: "batch"}},
-                      dynamo=False)
+    import warnings
+
+    with warnings.catch_warnings():
+        # the TorchScript exporter (the dynamo one needs onnxscript) warns that it is legacy
+        warnings.simplefilter("ignore", DeprecationWarning)
+        torch.onnx.export(wrap, (dummy,), str(path), input_names=["images"],
+                          output_names=["output0"], opset_version=opset,
+                          dynamic_axes={"images": {0: "batch"}, "output0": {0: "batch"}},
+                          dynamo=False)
     m = onnx.load(str(path))
+    with torch.no_grad():
+        n_out = wrap(dummy).shape
+    dims = m.graph.output[0].type.tensor_type.shape.dim
+    for d, v in zip(dims[1:], n_out[1:], strict=True):  # static (4 + nc, N) as ultralytics
+        d.ClearField("dim_param")
+        d.dim_value = int(v)
     info = {"names": repr(dict(enumerate(names))), "imgsz": repr([h, w]),
             "stride": "32", "task": "detect", "description": "dashtraj vehicle detector"}
     info.update({k: str(v) for k, v in (meta or {}).items()})
+    if fp16_weights:
+        store_weights_fp16(m)
+        info["weights"] = "float16 storage, float32 inference"
     del m.metadata_props[:]
     for k, v in info.items():
         p = m.metadata_props.add()

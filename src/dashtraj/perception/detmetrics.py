@@ -100,7 +100,9 @@ def evaluate_detections(preds, gts, num_classes: int, names=None,
 
     Args:
         preds: per image an (K, 6) array [x0, y0, x1, y1, score, class] (pixels).
-        gts: per image an (M, 5) array [x0, y0, x1, y1, class] (same pixels).
+        gts: per image an (M, 5) array [x0, y0, x1, y1, class] (same pixels), or (M, 6)
+            with a last column ``ignore`` (1: an ignore region, as COCO's crowd boxes
+            but matched by plain IoU).
         num_classes: class count; names: their names (default "0", "1", ...).
         min_height_px: the size range of the main figures (0 = all boxes).
         small_px: also report ``*_24px`` figures for boxes at least this tall
@@ -133,12 +135,15 @@ def _evaluate(preds, gts, nc, names, min_h, conf, max_det) -> dict:
     tp50 = fp50 = 0
     for det, gt in zip(preds, gts, strict=True):
         det = np.asarray(det, np.float64).reshape(-1, 6)
-        gt = np.asarray(gt, np.float64).reshape(-1, 5)
+        gt = np.asarray(gt, np.float64)
+        gt = gt.reshape(-1, gt.shape[-1] if gt.ndim == 2 else 5)
+        if gt.shape[1] == 5:
+            gt = np.concatenate([gt, np.zeros((len(gt), 1))], 1)
         det = det[np.argsort(-det[:, 4], kind="stable")][:max_det]
         for c in range(nc):
             dc = det[det[:, 5] == c]
             gc = gt[gt[:, 4] == c]
-            g_ign = (gc[:, 3] - gc[:, 1]) < min_h
+            g_ign = ((gc[:, 3] - gc[:, 1]) < min_h) | (gc[:, 5] > 0)
             n_pos[c] += int((~g_ign).sum())
             d_small = (dc[:, 3] - dc[:, 1]) < min_h
             m, ig = _match_image(dc, gc, g_ign, d_small, thr)
