@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 export MPLBACKEND := Agg
 
-.PHONY: setup demo test lint bench clean
+.PHONY: setup demo test lint bench clean weights
 
 $(STAMP): pyproject.toml scripts/install_render_deps.sh
 	bash scripts/install_render_deps.sh || echo "warning: could not install the EGL/Mesa packages; rendering tests will skip"
@@ -28,6 +28,12 @@ lint: $(STAMP)
 bench: $(STAMP)
 	$(PY) -m pip install -q -e '.[bench]' || echo "some bench peers could not be installed; their ratios are skipped"
 	for b in bench/bench_*.py; do $(PY) $$b || exit 1; done
+
+# Reproduce the shipped detector (src/dashtraj/data/detector/): recordings, YOLO set, cpu-recipe
+# training (resumes), ONNX export, held-out eval; hours on 2 CPU cores. WORK=runs/detector.
+weights: $(STAMP)
+	$(PY) -m pip install -q -e '.[train]'
+	DASHTRAJ=$(VENV)/bin/dashtraj bash scripts/detector_weights.sh $(or $(WORK),runs/detector)
 
 clean:
 	rm -rf $(VENV) build *.egg-info src/*.egg-info runs
