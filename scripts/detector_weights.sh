@@ -22,25 +22,28 @@ for town in town01 town10 "$TOWN01_REAL"; do
   for seed in $(seq 100 109); do
     rec="$WORK/recs/${tag}_s${seed}"
     [ -f "$rec/meta.json" ] && grep -q '"complete": true' "$rec/meta.json" \
-      || "$DT" simulate --town "$town" --seed "$seed" "${SIM[@]}" -o "$rec"
+      || "$DT" simulate --town "$town" --seed "$seed" "${SIM[@]}" -o "$rec" --overwrite
     train+=("$rec")
   done
 done
-# held out: seeds 900-901 of the training towns and the real Town10HD (never trained on)
+# held out (never trained on): seed 900 of each training town, and CARLA's real Town10HD
+# (a town never used in training) at seeds 900 and 901
 held=()
-for town in town01 town10 "$TOWN01_REAL" "$TOWN10_REAL"; do
+for spec in "town01 900" "town10 900" "$TOWN01_REAL 900" "$TOWN10_REAL 900" "$TOWN10_REAL 901"; do
+  read -r town seed <<< "$spec"
   tag=$(basename "$town" .xodr)
-  for seed in 900 901; do
-    rec="$WORK/heldout/${tag}_s${seed}"
-    [ -f "$rec/meta.json" ] && grep -q '"complete": true' "$rec/meta.json" \
-      || "$DT" simulate --town "$town" --seed "$seed" "${SIM[@]}" -o "$rec"
-    held+=("$rec")
-  done
+  rec="$WORK/heldout/${tag}_s${seed}"
+  [ -f "$rec/meta.json" ] && grep -q '"complete": true' "$rec/meta.json" \
+    || "$DT" simulate --town "$town" --seed "$seed" "${SIM[@]}" -o "$rec" --overwrite
+  held+=("$rec")
 done
 [ -f "$WORK/dataset/dataset.json" ] \
   || "$DT" detection-dataset "${train[@]}" -o "$WORK/dataset" --every 2.0 --size 640x360 \
        --seed 0 -q
 "$DT" detector train "$WORK/dataset" -o "$WORK/train" --recipe "$RECIPE" --seed "$SEED"
 "$DT" detector export "$WORK/train/best.pt" -o "$WORK/detector.onnx" --overwrite
-"$DT" detector eval "${held[@]}" --model "$WORK/detector.onnx" --json --plot \
-  -o "$WORK/eval" --overwrite
+"$DT" detector eval "${held[@]}" --model "$WORK/detector.onnx" --every 4 --plot \
+  -o "$WORK/eval" --overwrite -q
+# copy the model into the package with its card (MODEL.md, MODEL.json)
+"${PYTHON:-.venv/bin/python}" scripts/detector_card.py --run "$WORK/train" \
+  --dataset "$WORK/dataset" --onnx "$WORK/detector.onnx" --eval "$WORK/eval/eval.json"
