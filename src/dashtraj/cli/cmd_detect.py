@@ -57,7 +57,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     t.add_argument("data", metavar="DATA", help="YOLO set folder (data.yaml, images/, labels/)")
     t.add_argument("-o", "--output", required=True, metavar="DIR", help="run folder")
-    t.add_argument("--recipe", default="cpu", help="cpu or paper (default cpu)")
+    t.add_argument("--recipe", choices=("cpu", "paper"), default="cpu",
+                   help="cpu (the shipped weights) or paper (GPU) (default cpu)")
     t.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     t.add_argument("--epochs", type=positive_int, default=None,
                    help="override the recipe's epoch count")
@@ -78,11 +79,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run_train(args: argparse.Namespace) -> int:
     """Train or resume; prints a summary."""
+    from dashtraj.errors import DashtrajError
+
+    if not (Path(args.data) / "images" / "train").is_dir():
+        raise DashtrajError(f"{args.data}: no images/train/ (expected a YOLO set made by "
+                            "'dashtraj detection-dataset')")
     try:
         from dashtraj.perception.detector_train import get_recipe, train
     except ImportError as exc:
-        from dashtraj.errors import DashtrajError
-
         raise DashtrajError(f"detector train needs the training extra ({exc.name} is "
                             "missing): pip install -e '.[train]'") from None
     recipe = get_recipe(args.recipe)
@@ -107,13 +111,16 @@ def run_export(args: argparse.Namespace) -> int:
     """Export a checkpoint to ONNX; prints the size and sha256."""
     import hashlib
 
-    from dashtraj.outputs import atomic_output
+    from dashtraj.errors import DashtrajError
+    from dashtraj.outputs import atomic_output, check_output
 
+    if not Path(args.checkpoint).is_file():
+        raise DashtrajError(f"{args.checkpoint}: no such checkpoint (DIR/best.pt or "
+                            "DIR/last.pt of 'dashtraj detector train')")
+    check_output(args.output, overwrite=args.overwrite, kind="file")
     try:
         from dashtraj.perception.detector_train import export_checkpoint
     except ImportError as exc:
-        from dashtraj.errors import DashtrajError
-
         raise DashtrajError(f"detector export needs the training extra ({exc.name} is "
                             "missing): pip install -e '.[train]'") from None
     with atomic_output(args.output, overwrite=args.overwrite, kind="file") as tmp:
@@ -147,9 +154,9 @@ def run_detect(args: argparse.Namespace) -> int:
     from dashtraj.perception.detect import DetectorError, YoloDetector
 
     check_output(args.output, overwrite=args.overwrite, kind="dir")
-    images = _list_images(Path(args.source))
     det = YoloDetector(args.model, names=args.names, conf=args.conf, iou=args.iou,
                        batch=args.batch)
+    images = _list_images(Path(args.source))
     summary = {"images": 0, "detections": 0, "per_class": {}}
     with atomic_output(args.output, overwrite=args.overwrite, kind="dir") as tmp:
         (tmp / "labels").mkdir()
