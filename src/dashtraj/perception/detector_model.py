@@ -145,8 +145,8 @@ class Detector(nn.Module):
             nn.init.constant_(m[-1].bias, 1.0)  # softplus(1) ≈ 1.3 strides each side
         self._grid: dict[tuple[int, int], tuple[torch.Tensor, torch.Tensor]] = {}
 
-    def _anchors(self, shapes):
-        key = tuple(shapes)
+    def _anchors(self, shapes, device):
+        key = (tuple(shapes), str(device))
         if key not in self._grid:
             pts, st = [], []
             for (h, w), s in zip(shapes, self.strides, strict=True):
@@ -154,7 +154,7 @@ class Detector(nn.Module):
                                         torch.arange(w, dtype=torch.float32), indexing="ij")
                 pts.append(torch.stack([xs, ys], -1).reshape(-1, 2).add(0.5).mul(s))
                 st.append(torch.full((h * w,), float(s)))
-            self._grid = {key: (torch.cat(pts), torch.cat(st))}
+            self._grid = {key: (torch.cat(pts).to(device), torch.cat(st).to(device))}
         return self._grid[key]
 
     def forward(self, x):
@@ -167,7 +167,7 @@ class Detector(nn.Module):
         n5 = self.bu5(p5 + self.down4(n4))
         feats = (p3, n4, n5)
         shapes = [tuple(f.shape[-2:]) for f in feats]
-        anchors, strides = self._anchors(shapes)
+        anchors, strides = self._anchors(shapes, x.device)
         b = x.shape[0]
         dist = torch.cat([F.softplus(h(f)).reshape(b, 4, -1)
                           for h, f in zip(self.box, feats, strict=True)], 2).transpose(1, 2)
