@@ -9,7 +9,7 @@ Architecture (``build_detector``):
   classifier are dropped. The input is RGB in [0, 1]; the network normalises it to
   [-1, 1] itself (the Lite models' (x − 127) / 128).
 - neck: a PAN with ``width`` channels: top-down 1×1 laterals + nearest upsampling,
-  bottom-up stride-2 depthwise-separable convs.
+  bottom-up stride-2 depthwise-separable convs; conv + BN + SiLU throughout.
 - head, per level: a box branch and a class branch, two depthwise-separable 3×3 convs
   each; the box branch predicts the distances (left, top, right, bottom) from the cell
   centre to the box sides in stride units through a softplus; the class branch one
@@ -34,7 +34,7 @@ from torch.nn import functional as F
 # SE, fixed stem/head); block indices run 0..15 as in the checkpoint.
 _LITE0 = ((1, 3, 1, 16, 1), (6, 3, 2, 24, 2), (6, 5, 2, 40, 2), (6, 3, 2, 80, 3),
           (6, 5, 1, 112, 3), (6, 5, 2, 192, 4), (6, 3, 1, 320, 1))
-_BN = {"eps": 1e-3, "momentum": 0.01}
+_BN = {"eps": 1e-3, "momentum": 0.03}  # 0.03: running stats settle within a short run
 FEATURE_BLOCKS = (4, 10, 15)
 """Indices of the blocks whose outputs are C3, C4, C5."""
 
@@ -108,12 +108,14 @@ class EfficientNetLite0(nn.Module):
 
 
 def _cbr(cin, cout, k=1, s=1, groups=1):
+    """Conv + BN + SiLU (SiLU, not ReLU: a ReLU class tower can die early in training,
+    every unit at zero, and the class scores then stay at the bias for good)."""
     return nn.Sequential(nn.Conv2d(cin, cout, k, s, k // 2, groups=groups, bias=False),
-                         nn.BatchNorm2d(cout, **_BN), nn.ReLU(inplace=True))
+                         nn.BatchNorm2d(cout, **_BN), nn.SiLU(inplace=True))
 
 
 def _ds(cin, cout, s=1):
-    """Depthwise-separable 3×3 conv (+BN+ReLU each)."""
+    """Depthwise-separable 3×3 conv (+BN+SiLU each)."""
     return nn.Sequential(_cbr(cin, cin, 3, s, groups=cin), _cbr(cin, cout))
 
 
