@@ -42,7 +42,7 @@ done
        --seed 0 -q
 "$DT" detector train "$WORK/dataset" -o "$WORK/train" --recipe "$RECIPE" --seed "$SEED"
 "$DT" detector export "$WORK/train/best.pt" -o "$WORK/detector.onnx" --overwrite
-"$DT" detector eval "${held[@]}" --model "$WORK/detector.onnx" --every 4 --plot \
+"$DT" detector eval "${held[@]}" --model "$WORK/detector.onnx" --every 8 --plot \
   -o "$WORK/eval" --overwrite -q
 # copy the model into the package with its card (MODEL.md, MODEL.json)
 "${PYTHON:-.venv/bin/python}" scripts/detector_card.py --run "$WORK/train" \
