@@ -96,7 +96,8 @@ def main(argv=None) -> int:
                      "steps_done": int(meta.get("step", 0)),
                      "steps_planned": recipe["train_images"] // recipe["recipe"]["batch"]
                      * recipe["recipe"]["epochs"],
-                     "wall_s": (history[-1]["wall_s"] if history else None),
+                     "wall_s": float(meta.get("wall_s", history[-1]["wall_s"] if history
+                                              else 0)),
                      "last_logged_step": steps[-1] if steps else None,
                      "val_history": history,
                      "command": f"dashtraj detector train {recipe['data']} -o {args.run} "

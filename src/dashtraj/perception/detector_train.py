@@ -602,6 +602,7 @@ def export_checkpoint(ckpt_path, onnx_path, meta: dict | None = None) -> dict:
     rec = ck["recipe"]
     imgsz = tuple(rec["imgsz"])
     info = {"recipe": rec["name"], "seed": ck["seed"], "epoch": ck["state"]["epoch"],
-            "step": ck["state"]["step"], **(meta or {})}
+            "step": ck["state"]["step"], "wall_s": round(ck["state"]["wall_s"]),
+            **(meta or {})}
     export_onnx(model, onnx_path, imgsz, names, info)
     return {"imgsz": list(imgsz), "names": names, **info}
