@@ -82,6 +82,10 @@ def main(argv=None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     if args.onnx.resolve() != (args.out / "detector.onnx").resolve():
         shutil.copyfile(args.onnx, args.out / "detector.onnx")
+    for src, name in ((args.eval.parent / "ap_per_class.png", "ap_per_class.png"),
+                      (args.run / "curves.png", "curves.png")):
+        if src.is_file():
+            shutil.copyfile(src, args.out / name)
     train_recs = [r for r in ds["recordings"] if r not in ds["val"]]
     card = {
         "file": "detector.onnx", "bytes": len(data), "sha256": sha,
@@ -187,7 +191,11 @@ augmentation draws exactly.
 {format_table(ev)}
 
 Unlabelled vehicles (under 20 px at 1280x720 or more than 70 % occluded) are ignore
-regions. Validation history (EMA weights, 640x360 val images): {json.dumps(history)}
+regions. Validation history (EMA weights, 640x360 val images; its "24px" is 24 px at 640x360):
+{json.dumps(history)}
+
+Figures beside this card: `ap_per_class.png` (held-out AP50 per class, as the paper's Fig. 5)
+and `curves.png` (training loss per step, validation mAP per epoch).
 """
     (args.out / "MODEL.md").write_text(md, encoding="utf-8")
     print(f"{args.out}: detector.onnx ({len(data) / 1e6:.2f} MB, sha256 {sha[:12]}...), "
