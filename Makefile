@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 export MPLBACKEND := Agg
 
-.PHONY: setup demo test lint bench clean reid-data reid-train
+.PHONY: setup demo test lint bench clean weights reid-data reid-train
 
 $(STAMP): pyproject.toml scripts/install_render_deps.sh
 	bash scripts/install_render_deps.sh || echo "warning: could not install the EGL/Mesa packages; rendering tests will skip"
@@ -39,6 +39,12 @@ reid-train: $(STAMP)
 	$(PY) -m pip install -q -e '.[train]'
 	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN) --recipe cpu --seed 0 \
 		$$(test -f $(REID_RUN)/last.pt && echo --resume)
+
+# Reproduce the shipped detector (src/dashtraj/data/detector/): recordings, YOLO set, cpu-recipe
+# training (resumes), ONNX export, held-out eval; hours on 2 CPU cores. WORK=runs/detector.
+weights: $(STAMP)
+	$(PY) -m pip install -q -e '.[train]'
+	DASHTRAJ=$(VENV)/bin/dashtraj bash scripts/detector_weights.sh $(or $(WORK),runs/detector)
 
 clean:
 	rm -rf $(VENV) build *.egg-info src/*.egg-info runs

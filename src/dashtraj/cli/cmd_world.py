@@ -34,6 +34,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--identities", type=_id_range, metavar="LO-HI",
                    help="draw vehicle identities with LO <= identity_id < HI only (e.g. "
                    "650-700, the ReID set's test identities)")
+    p.add_argument("--vehicle-classes", type=_classes, default=None, metavar="C,C,...",
+                   help="vehicle classes to draw (default car,truck,bus,motorcycle; also "
+                   "bicycle)")
+    p.add_argument("--vehicle-mix", choices=("catalog", "balanced"), default="catalog",
+                   help="catalog: identities uniformly from the catalog (mostly cars); "
+                   "balanced: an equal share of vehicles per class (default catalog)")
     p.add_argument("--duration", type=duration, default=180.0, metavar="S",
                    help="the longest simulated time, seconds (default 180)")
     p.add_argument("--until-target-arrives", action=argparse.BooleanOptionalAction,
@@ -98,6 +104,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     s.set_defaults(func=run_sightings)
 
 
+def _classes(text: str) -> tuple[str, ...]:
+    from dashtraj.world.catalog import VEHICLE_CLASSES
+
+    out = tuple(c.strip() for c in text.split(",") if c.strip())
+    bad = [c for c in out if c not in VEHICLE_CLASSES]
+    if not out or bad:
+        raise argparse.ArgumentTypeError(f"unknown vehicle class(es) {bad or text!r}; valid: "
+                                         f"{', '.join(VEHICLE_CLASSES)}")
+    return out
+
+
 def _id_range(text: str) -> tuple[int, int]:
     try:
         lo, hi = (int(v) for v in text.split("-"))
@@ -124,7 +141,9 @@ def run_simulate(args: argparse.Namespace) -> int:
     config = RunConfig(map=args.town, seed=args.seed, duration_s=args.duration,
                        n_observers=args.observers, n_agents=args.agents,
                        n_twins=args.twins, until_target_arrives=args.until_target_arrives,
-                       identity_range=args.identities,
+                       identity_range=args.identities, vehicle_mix=args.vehicle_mix,
+                       **({"vehicle_classes": args.vehicle_classes}
+                          if args.vehicle_classes else {}),
                        traffic=replace(TrafficConfig(), step_s=args.step,
                                        observer_placement=args.observer_placement,
                                        parked_fraction=args.parked_fraction))

@@ -1,1 +1,2 @@
-"""perception: detect, track, localize and map-match what each observer's dashcam sees."""
+"""perception: detect (ONNX run time), track, localize and map-match what each observer's dashcam
+sees."""

@@ -13,8 +13,8 @@ Two detectors exist, chosen by name with `build_detector`:
 - ``oracle``: the renderer's exact visible boxes and labels (every vehicle with at
   least `OracleDetector.min_height_px` rows and `min_visible_fraction` of its
   silhouette visible; score 1). It also knows each box's vehicle id (`truth_ids`).
-- a path to an ``.onnx`` model: ``dashtraj.perception.detect`` (the ONNX run time
-  detector), when that module is installed.
+- a path to an ``.onnx`` model: ``dashtraj.perception.detect.YoloDetector`` (the ONNX run
+  time detector).
 """
 
 from __future__ import annotations
@@ -147,30 +147,22 @@ def iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 class _ModelDetector:
-    """Adapter of ``dashtraj.perception.detect`` (ONNX run time) to `Detector`."""
+    """Adapter of the ONNX run time (`dashtraj.perception.detect.YoloDetector`) to `Detector`;
+    each detection also gets the vehicle id of the truth box it matches (for evaluation)."""
 
     def __init__(self, path: Path):
-        try:
-            from dashtraj.perception import detect as det_mod
-        except ImportError as exc:
-            raise DetectorError(
-                f"--detector {path}: the ONNX detector (dashtraj.perception.detect) is not "
-                "installed in this dashtraj; use --detector oracle") from exc
+        from dashtraj.perception.detect import YoloDetector
+
         self.name = path.name
-        self._mod = det_mod
-        loader = getattr(det_mod, "load_detector", None) or getattr(det_mod, "Detector", None)
-        if loader is None:
-            raise DetectorError(f"--detector {path}: dashtraj.perception.detect has neither "
-                                "load_detector nor Detector")
-        self._model = loader(path)
+        self._model = YoloDetector(path)
 
     def detect(self, frame) -> Detections:
-        out = self._model.detect(frame.frame_data.rgb)
-        boxes, scores, cls = (np.asarray(v) for v in out[:3])
-        truth = truth_of(frame)
-        d = Detections(boxes.astype(np.float64).reshape(-1, 4), scores.astype(np.float64),
-                       cls.astype(np.int64), np.full(len(scores), -1, np.int64))
-        return Detections(d.boxes, d.scores, d.class_ids, match_truth(d, truth))
+        out = self._model.detect([frame.frame_data.rgb])[0]
+        d = Detections(np.asarray(out.boxes, np.float64).reshape(-1, 4),
+                       np.asarray(out.scores, np.float64),
+                       np.asarray(out.class_ids, np.int64),
+                       np.full(len(out.scores), -1, np.int64))
+        return Detections(d.boxes, d.scores, d.class_ids, match_truth(d, truth_of(frame)))
 
 
 DETECTORS: tuple[str, ...] = ("oracle",)
@@ -181,8 +173,7 @@ def build_detector(name: str) -> Detector:
     """``"oracle"`` → `OracleDetector`; a path to an ``.onnx`` file → the ONNX detector.
 
     Raises:
-        DetectorError: neither a known name nor an existing .onnx file, or the ONNX
-            detector module is not installed.
+        DetectorError: neither a known name nor an existing .onnx file.
     """
     if name == "oracle":
         return OracleDetector()

@@ -115,6 +115,11 @@ class RunConfig:
         max_range_m: truth is kept for vehicles this close to a camera, metres.
         chunk_s: simulated seconds per parquet row group.
         vehicle_classes: classes drawn for every vehicle.
+        vehicle_mix: "catalog" draws identities uniformly from the catalog (cars
+            dominate: most identities are recolourable cars); "balanced" gives every class
+            of ``vehicle_classes`` an equal share of the vehicles (within ±1), then
+            draws identities uniformly inside each class and shuffles the roles, so a
+            detection set sees every class (``dashtraj simulate --vehicle-mix balanced``).
         identity_range: draw identities with identity_id in [lo, hi) only, or None for
             the whole catalog (e.g. the ReID set's test identities, so that
             `dashtraj reid-dataset --from-recordings` finds them).
@@ -136,6 +141,7 @@ class RunConfig:
     max_range_m: float = 60.0
     chunk_s: float = 10.0
     vehicle_classes: tuple[str, ...] = ("car", "truck", "bus", "motorcycle")
+    vehicle_mix: str = "catalog"
     identity_range: tuple[int, int] | None = None
     target_route: tuple[tuple[float, float], tuple[float, float]] | None = None
     camera: CameraSpec = field(default_factory=CameraSpec)
@@ -195,18 +201,69 @@ def resolve_map(source: str) -> Path:
                              f"{exc}") from exc
 
 
-def _identities(rng: np.random.Generator, n: int, classes, id_range=None):
+VEHICLE_MIXES = ("catalog", "balanced")
+"""How `simulate` draws the vehicles' classes (see `RunConfig.vehicle_mix`)."""
+
+
+def balanced_class_counts(rng: np.random.Generator, n: int, classes,
+                          available: dict[str, int] | None = None) -> dict[str, int]:
+    """Vehicles per class for the "balanced" mix: as equal as the catalog allows.
+
+    Every class gets n // k (k = classes left), the n % k left over go to distinct
+    classes drawn with ``rng``; a class with fewer distinct identities than its share
+    (``available[c]``, e.g. the two bus liveries) keeps all it has and the rest is
+    shared out again among the other classes. Raises ValueError when the classes
+    together have fewer than n identities.
+    """
+    classes = list(classes)
+    avail = {c: (available or {}).get(c, n) for c in classes}
+    if sum(avail.values()) < n:
+        raise ValueError(f"asked for {n} distinct identities; only {sum(avail.values())} "
+                         f"match classes {', '.join(classes)}")
+    counts = dict.fromkeys(classes, 0)
+    left = n
+    open_ = [c for c in classes if avail[c] > 0]
+    while left > 0:
+        k = len(open_)
+        share = dict.fromkeys(open_, left // k)
+        for i in rng.permutation(k)[: left % k]:
+            share[open_[int(i)]] += 1
+        for c in open_:
+            take = min(share[c], avail[c] - counts[c])
+            counts[c] += take
+            left -= take
+        open_ = [c for c in open_ if counts[c] < avail[c]]
+    return counts
+
+
+def _identities(rng: np.random.Generator, n: int, classes, id_range=None, mix="catalog"):
     """n distinct catalog identities as rows for vehicles.csv (without id/role)."""
     from dashtraj.world.catalog import CATALOG_VERSION, sample_identities
 
+    if mix not in VEHICLE_MIXES:
+        raise RecordingError(f"unknown vehicle mix {mix!r}; valid: {', '.join(VEHICLE_MIXES)}")
+    if mix == "balanced":
+        from dashtraj.world.catalog import identities
+
+        pool = [i for i in identities()
+                if id_range is None or id_range[0] <= i.identity_id < id_range[1]]
+        available = {c: sum(i.model.vehicle_class == c for i in pool) for c in classes}
+        picks = []
+        try:
+            for cls, k in balanced_class_counts(rng, n, classes, available).items():
+                picks += sample_identities(rng, k, classes=[cls], id_range=id_range)
+        except ValueError as exc:
+            raise RecordingError(f"vehicle mix 'balanced': {exc}") from exc
+        picks = [picks[int(i)] for i in rng.permutation(len(picks))]
+    else:
+        try:
+            picks = sample_identities(rng, n, classes=classes, id_range=id_range)
+        except ValueError as exc:  # too few identities in the range / classes asked for
+            where = f"identities {id_range[0]}-{id_range[1]}" if id_range else "the catalog"
+            raise RecordingError(f"{where} of classes {', '.join(classes)}: {exc} (one per "
+                                 f"vehicle: target, observers and agents)") from None
     out = []
-    try:
-        idents = sample_identities(rng, n, classes=classes, id_range=id_range)
-    except ValueError as exc:  # too few identities in the range / classes asked for
-        where = f"identities {id_range[0]}-{id_range[1]}" if id_range else "the catalog"
-        raise RecordingError(f"{where} of classes {', '.join(classes)}: {exc} (one per "
-                             f"vehicle: target, observers and agents)") from None
-    for ident in idents:
+    for ident in picks:
         m = ident.model
         out.append({"identity_id": ident.identity_id, "blueprint_id": m.blueprint_id,
                     "vehicle_class": m.vehicle_class, "body_type": m.body_type,
@@ -292,7 +349,7 @@ def simulate(config: RunConfig, out_dir: str | Path,
     rng_ids, rng_traffic = (np.random.default_rng(s) for s in seeds)
     n_own = 1 + config.n_observers + config.n_agents
     rows, catalog_version = _identities(rng_ids, n_own, config.vehicle_classes,
-                                        config.identity_range)
+                                        config.identity_range, config.vehicle_mix)
     rows += [dict(rows[0]) for _ in range(config.n_twins)]  # the target's identity again
     n = len(rows)
     roles = (["target"] + ["observer"] * config.n_observers

@@ -1,0 +1,49 @@
+#!/usr/bin/env bash
+# Reproduce the shipped detector (src/dashtraj/data/detector/): simulate the training
+# recordings, render the YOLO set, train the cpu recipe, export ONNX, evaluate on the
+# held-out recordings. Every stage skips work whose output already exists, so a rerun
+# resumes (training resumes from DIR/last.pt).
+#   usage: scripts/detector_weights.sh [WORK_DIR]   (default runs/detector)
+#   env:   DASHTRAJ=path/to/dashtraj  RECIPE=cpu|paper  SEED=0
+set -euo pipefail
+WORK=${1:-runs/detector}
+DT=${DASHTRAJ:-.venv/bin/dashtraj}
+RECIPE=${RECIPE:-cpu}
+SEED=${SEED:-0}
+TOWN01_REAL=${TOWN01_REAL:-../shared/maps/carla/Town01.xodr}
+TOWN10_REAL=${TOWN10_REAL:-../shared/maps/carla/Town10HD.xodr}
+mkdir -p "$WORK/recs" "$WORK/heldout"
+SIM=(--duration 45 --no-until-target-arrives --observers 6 --agents 40 --vehicle-mix balanced
+     --vehicle-classes car,truck,bus,motorcycle,bicycle -q)
+# training towns: the built-in town01 and town10 and CARLA's real Town01; seeds 100-109
+train=()
+for town in town01 town10 "$TOWN01_REAL"; do
+  tag=$(basename "$town" .xodr)
+  for seed in $(seq 100 109); do
+    rec="$WORK/recs/${tag}_s${seed}"
+    [ -f "$rec/meta.json" ] && grep -q '"complete": true' "$rec/meta.json" \
+      || "$DT" simulate --town "$town" --seed "$seed" "${SIM[@]}" -o "$rec" --overwrite
+    train+=("$rec")
+  done
+done
+# held out (never trained on): seed 900 of each training town, and CARLA's real Town10HD
+# (a town never used in training) at seeds 900 and 901
+held=()
+for spec in "town01 900" "town10 900" "$TOWN01_REAL 900" "$TOWN10_REAL 900" "$TOWN10_REAL 901"; do
+  read -r town seed <<< "$spec"
+  tag=$(basename "$town" .xodr)
+  rec="$WORK/heldout/${tag}_s${seed}"
+  [ -f "$rec/meta.json" ] && grep -q '"complete": true' "$rec/meta.json" \
+    || "$DT" simulate --town "$town" --seed "$seed" "${SIM[@]}" -o "$rec" --overwrite
+  held+=("$rec")
+done
+[ -f "$WORK/dataset/dataset.json" ] \
+  || "$DT" detection-dataset "${train[@]}" -o "$WORK/dataset" --every 2.0 --size 640x360 \
+       --seed 0 -q
+"$DT" detector train "$WORK/dataset" -o "$WORK/train" --recipe "$RECIPE" --seed "$SEED"
+"$DT" detector export "$WORK/train/best.pt" -o "$WORK/detector.onnx" --overwrite
+"$DT" detector eval "${held[@]}" --model "$WORK/detector.onnx" --every 8 --plot \
+  -o "$WORK/eval" --overwrite -q
+# copy the model into the package with its card (MODEL.md, MODEL.json)
+"${PYTHON:-.venv/bin/python}" scripts/detector_card.py --run "$WORK/train" \
+  --dataset "$WORK/dataset" --onnx "$WORK/detector.onnx" --eval "$WORK/eval/eval.json"

@@ -1,0 +1,320 @@
+"""`dashtraj detect` (run a YOLO ONNX detector on images) and `dashtraj detector`
+(train | export | eval the vehicle detector)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from dashtraj.cli._args import fraction, int_at_least
+from dashtraj.outputs import add_output_args
+
+positive_int = int_at_least(1)
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the `detect` and `detector` commands."""
+    d = subparsers.add_parser(
+        "detect",
+        help="detect vehicles in an image or a folder of images (ONNX, no torch)",
+        description=(
+            "Run a YOLO ONNX detector (ultralytics v8/11 output layout; default: the shipped "
+            "15-class vehicle detector) on IMAGE or every image in DIR. Writes OUT/labels/"
+            "<stem>.txt (YOLO lines: class cx cy w h score, normalised) and OUT/detections."
+            "json; --preview adds OUT/preview/<stem>.jpg with the boxes drawn."
+        ),
+    )
+    d.add_argument("source", metavar="IMAGE_OR_DIR", help="an image or a folder of images")
+    d.add_argument("--model", default=None, metavar="M.onnx",
+                   help="ONNX model (default: the shipped detector)")
+    d.add_argument("--names", default=None, metavar="data.yaml",
+                   help="class names (default: the model's metadata)")
+    d.add_argument("--conf", type=fraction, default=0.25, help="score threshold (0.25)")
+    d.add_argument("--iou", type=fraction, default=0.6, help="NMS IoU threshold (0.6)")
+    d.add_argument("--batch", type=positive_int, default=8, help="images per run (8)")
+    d.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
+    d.add_argument("--preview", action="store_true", help="also draw the boxes")
+    d.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_output_args(d)
+    d.set_defaults(func=run_detect)
+
+    p = subparsers.add_parser("detector", help="train, export or evaluate the vehicle detector",
+                              description="Train (needs the .[train] extra), export or "
+                              "evaluate the 15-class vehicle detector.")
+    sub = p.add_subparsers(dest="detector_command", metavar="ACTION", required=True)
+    t = sub.add_parser(
+        "train", help="train on a YOLO set (needs pip install -e '.[train]')",
+        description=(
+            "Train the EfficientNet-Lite0 detector on a set made by 'dashtraj "
+            "detection-dataset'. Writes DIR/last.pt (every 50 steps; a rerun resumes from "
+            "it), DIR/best.pt (best validation mAP50-95), DIR/log.jsonl, DIR/steps.jsonl, "
+            "DIR/curves.png, DIR/recipe.json. Recipes: cpu (the shipped weights, 2 CPU "
+            "cores) and paper (the paper's schedule, for a GPU)."
+        ),
+    )
+    t.add_argument("data", metavar="DATA", help="YOLO set folder (data.yaml, images/, labels/)")
+    t.add_argument("-o", "--output", required=True, metavar="DIR", help="run folder")
+    t.add_argument("--recipe", choices=("cpu", "paper"), default="cpu",
+                   help="cpu (the shipped weights) or paper (GPU) (default cpu)")
+    t.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    t.add_argument("--epochs", type=positive_int, default=None,
+                   help="override the recipe's epoch count")
+    t.add_argument("--max-images", type=positive_int, default=None,
+                   help="use only the first N images of each split (smoke tests)")
+    t.add_argument("--json", action="store_true", help="print the summary as JSON")
+    t.set_defaults(func=run_train)
+
+    e = sub.add_parser("export", help="export a checkpoint to ONNX",
+                       description="Write a training checkpoint's EMA weights as ONNX "
+                       "(ultralytics layout, class names in the metadata).")
+    e.add_argument("checkpoint", metavar="CKPT.pt")
+    e.add_argument("-o", "--output", required=True, metavar="M.onnx")
+    add_output_args(e)
+    e.set_defaults(func=run_export)
+    register_eval(sub)
+
+
+def run_train(args: argparse.Namespace) -> int:
+    """Train or resume; prints a summary."""
+    from dashtraj.errors import DashtrajError
+
+    if not (Path(args.data) / "images" / "train").is_dir():
+        raise DashtrajError(f"{args.data}: no images/train/ (expected a YOLO set made by "
+                            "'dashtraj detection-dataset')")
+    try:
+        from dashtraj.perception.detector_train import get_recipe, train
+    except ImportError as exc:
+        raise DashtrajError(f"detector train needs the training extra ({exc.name} is "
+                            "missing): pip install -e '.[train]'") from None
+    recipe = get_recipe(args.recipe)
+
+    def log(msg: str) -> None:
+        print(msg, file=sys.stderr, flush=True)
+        with open(Path(args.output) / "train.log", "a", encoding="utf-8") as fh:
+            fh.write(msg + "\n")
+
+    Path(args.output).mkdir(parents=True, exist_ok=True)
+    s = train(args.data, args.output, recipe, seed=args.seed, epochs=args.epochs,
+              max_images=args.max_images, log=log)
+    if args.json:
+        print(json.dumps(s))
+    else:
+        print(f"{args.output}: {s['epochs']} epochs, {s['steps']} steps, best val mAP50-95 "
+              f"{s['best_map50_95']:.3f}, {s['wall_s'] / 60:.1f} min")
+    return 0
+
+
+def run_export(args: argparse.Namespace) -> int:
+    """Export a checkpoint to ONNX; prints the size and sha256."""
+    import hashlib
+
+    from dashtraj.errors import DashtrajError
+    from dashtraj.outputs import atomic_output, check_output
+
+    if not Path(args.checkpoint).is_file():
+        raise DashtrajError(f"{args.checkpoint}: no such checkpoint (DIR/best.pt or "
+                            "DIR/last.pt of 'dashtraj detector train')")
+    check_output(args.output, overwrite=args.overwrite, kind="file")
+    try:
+        from dashtraj.perception.detector_train import export_checkpoint
+    except ImportError as exc:
+        raise DashtrajError(f"detector export needs the training extra ({exc.name} is "
+                            "missing): pip install -e '.[train]'") from None
+    with atomic_output(args.output, overwrite=args.overwrite, kind="file") as tmp:
+        info = export_checkpoint(args.checkpoint, tmp)
+    data = Path(args.output).read_bytes()
+    print(f"{args.output}: {len(data) / 1e6:.2f} MB, sha256 {hashlib.sha256(data).hexdigest()}, "
+          f"input {info['imgsz'][0]}x{info['imgsz'][1]}, {len(info['names'])} classes, "
+          f"epoch {info['epoch']}")
+    return 0
+
+
+def _list_images(source: Path) -> list[Path]:
+    from dashtraj.perception.detect import DetectorError
+
+    if source.is_file():
+        return [source]
+    if source.is_dir():
+        imgs = sorted(p for p in source.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        if not imgs:
+            raise DetectorError(f"{source}: no images ({', '.join(IMAGE_SUFFIXES)})")
+        return imgs
+    raise DetectorError(f"{source}: no such image or folder")
+
+
+def run_detect(args: argparse.Namespace) -> int:
+    """Detect in images; writes YOLO txt (+ previews); prints a summary."""
+    import numpy as np
+    from PIL import Image, UnidentifiedImageError
+
+    from dashtraj.outputs import atomic_output, check_output
+    from dashtraj.perception.detect import DetectorError, YoloDetector
+
+    check_output(args.output, overwrite=args.overwrite, kind="dir")
+    det = YoloDetector(args.model, names=args.names, conf=args.conf, iou=args.iou,
+                       batch=args.batch)
+    images = _list_images(Path(args.source))
+    summary = {"images": 0, "detections": 0, "per_class": {}}
+    with atomic_output(args.output, overwrite=args.overwrite, kind="dir") as tmp:
+        (tmp / "labels").mkdir()
+        if args.preview:
+            (tmp / "preview").mkdir()
+        records = []
+        for i in range(0, len(images), args.batch):
+            paths = images[i:i + args.batch]
+            frames = []
+            for p in paths:
+                try:
+                    with Image.open(p) as im:
+                        frames.append(np.asarray(im.convert("RGB")))
+                except (OSError, UnidentifiedImageError) as exc:
+                    raise DetectorError(f"{p}: not a readable image ({exc})") from None
+            for p, rgb, d in zip(paths, frames, det.detect(frames), strict=True):
+                h, w = rgb.shape[:2]
+                (tmp / "labels" / f"{p.stem}.txt").write_text(
+                    "".join(f"{ln}\n" for ln in d.yolo_lines(w, h)), encoding="utf-8")
+                records.append({"image": str(p), "width": w, "height": h, "detections": [
+                    {"box": [round(float(v), 2) for v in b], "score": round(float(s), 4),
+                     "class_id": int(c), "label": det.names[int(c)]}
+                    for b, s, c in zip(d.boxes, d.scores, d.class_ids, strict=True)]})
+                summary["images"] += 1
+                summary["detections"] += len(d)
+                for lab in d.labels:
+                    summary["per_class"][lab] = summary["per_class"].get(lab, 0) + 1
+                if args.preview:
+                    draw_detections(rgb, d).save(tmp / "preview" / f"{p.stem}.jpg", quality=90)
+        (tmp / "detections.json").write_text(
+            json.dumps({"model": str(det.path), "names": list(det.names), "conf": args.conf,
+                        "iou": args.iou, "images": records}, indent=1) + "\n",
+            encoding="utf-8")
+    summary["output"] = args.output
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        per = ", ".join(f"{k} {v}" for k, v in sorted(summary["per_class"].items()))
+        print(f"{args.output}: {summary['detections']} detections in {summary['images']} "
+              f"images" + (f" ({per})" if per else "")
+              + ("; previews in preview/" if args.preview else ""))
+    return 0
+
+
+def draw_detections(rgb, det):
+    """A PIL image of the frame with each detection's box, label and score."""
+    from PIL import Image, ImageDraw
+
+    im = Image.fromarray(rgb)
+    dr = ImageDraw.Draw(im)
+    palette = [(230, 25, 75), (60, 180, 75), (255, 225, 25), (0, 130, 200), (245, 130, 48)]
+    for (x0, y0, x1, y1), s, c in zip(det.boxes, det.scores, det.class_ids, strict=True):
+        col = palette[int(c) // 3 % len(palette)]
+        dr.rectangle([x0, y0, x1, y1], outline=col, width=2)
+        dr.text((x0 + 2, max(0, y0 - 11)), f"{det.names[int(c)]} {s:.2f}", fill=col)
+    return im
+
+
+def register_eval(sub) -> None:
+    """The `detector eval` action."""
+    v = sub.add_parser(
+        "eval", help="score a detector on recordings' rendered frames",
+        description=(
+            "Render the recordings' observer frames (use held-out recordings: seeds and "
+            "towns never used in training), run the detector and score it against the "
+            "renderer's exact visible boxes: mAP50, mAP50-95 (COCO 101-point), AP per class, "
+            "precision/recall at --conf, for all boxes and for boxes >= --small-px tall. "
+            "Vehicles the detection set leaves unlabelled are ignore regions."
+        ),
+    )
+    v.add_argument("recordings", nargs="+", metavar="RUN", help="recording directories")
+    v.add_argument("--model", default=None, metavar="M.onnx",
+                   help="ONNX model (default: the shipped detector)")
+    v.add_argument("--names", default=None, metavar="data.yaml",
+                   help="class names (default: the model's metadata)")
+    v.add_argument("--every", type=float, default=2.0, metavar="S",
+                   help="sampling period, seconds (default 2)")
+    v.add_argument("--size", default=None, metavar="WxH",
+                   help="frame size (default: the recordings' camera, 1280x720)")
+    v.add_argument("--conf", type=fraction, default=0.25,
+                   help="threshold of the precision/recall figures (0.25)")
+    v.add_argument("--small-px", type=float, default=24.0, metavar="PX",
+                   help="the size subset: boxes at least this tall (24)")
+    v.add_argument("-o", "--output", default=None, metavar="DIR",
+                   help="write DIR/eval.json (and DIR/ap_per_class.png with --plot)")
+    v.add_argument("--plot", action="store_true",
+                   help="bar chart of AP50 per class (needs -o)")
+    v.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    v.add_argument("--json", action="store_true", help="print the results as JSON")
+    add_output_args(v)
+    v.set_defaults(func=run_eval)
+
+
+def run_eval(args: argparse.Namespace) -> int:
+    """Evaluate; prints a table (or JSON)."""
+    from dashtraj.cli._args import ArgumentError
+    from dashtraj.datasets.frames import parse_size
+    from dashtraj.outputs import atomic_output, check_output
+    from dashtraj.perception.detect import YoloDetector
+    from dashtraj.perception.detector_eval import EvalConfig, evaluate_recordings, plot_per_class
+    from dashtraj.world.recording import Recording
+
+    if args.plot and not args.output:
+        raise ArgumentError("--plot needs -o DIR")
+    if args.output:
+        check_output(args.output, overwrite=args.overwrite, kind="dir")
+    recs = [Recording.open(p) for p in args.recordings]
+    size = parse_size(args.size) if args.size else None
+    w = size[0] if size else recs[0].config.camera.width_px
+    cfg = EvalConfig(every_s=args.every, size=size, min_box_height_px=10.0 * w / 640,
+                     small_px=args.small_px * w / 1280, conf=args.conf)
+    det = YoloDetector(args.model, names=args.names, conf=0.001, iou=0.6)
+    bar = None
+    if not args.quiet and sys.stderr.isatty():
+        from tqdm import tqdm
+
+        bar = tqdm(unit="frame", file=sys.stderr)
+    try:
+        res = evaluate_recordings(recs, det, cfg, progress=bar.update if bar else None)
+    finally:
+        if bar is not None:
+            bar.close()
+    if args.output:
+        with atomic_output(args.output, overwrite=args.overwrite, kind="dir") as tmp:
+            (tmp / "eval.json").write_text(json.dumps(res, indent=1) + "\n", encoding="utf-8")
+            if args.plot:
+                plot_per_class(res, tmp / "ap_per_class.png")
+    if args.json:
+        print(json.dumps(res))
+    else:
+        print(format_table(res))
+    return 0
+
+
+def format_table(res: dict) -> str:
+    """A Markdown table: AP50 / AP50-95 / GT per class, all boxes and the size subset."""
+    small = res.get("small_px", 24)
+    lines = [f"{res['frames']} frames of {len(res['recordings'])} recordings; model "
+             f"{Path(res['model']).name}", "",
+             f"| class | AP50 | AP50-95 | GT | AP50 >= {small:g}px | AP50-95 >= {small:g}px "
+             "| GT >= px |", "|---|---|---|---|---|---|---|"]
+    for n in res["class_counts"]:
+        a = res["per_class"].get(n)
+        b = res.get("per_class_24px", {}).get(n)
+        if a is None and b is None:
+            continue
+
+        def f(d, k):
+            return f"{d[k]:.3f}" if d is not None else "-"
+
+        lines.append(f"| {n} | {f(a, 'ap50')} | {f(a, 'ap50_95')} | {a['gt'] if a else 0} | "
+                     f"{f(b, 'ap50')} | {f(b, 'ap50_95')} | {b['gt'] if b else 0} |")
+    lines.append(f"| **all** | **{res['map50']:.3f}** | **{res['map50_95']:.3f}** | {res['gt']} "
+                 f"| **{res.get('map50_24px', float('nan')):.3f}** | "
+                 f"**{res.get('map50_95_24px', float('nan')):.3f}** | {res.get('gt_24px', 0)} |")
+    lines.append("")
+    lines.append(f"precision {res['precision']:.3f}, recall {res['recall']:.3f} (all boxes); "
+                 f"precision {res.get('precision_24px', float('nan')):.3f}, recall "
+                 f"{res.get('recall_24px', float('nan')):.3f} (>= {small:g} px); at score >= "
+                 f"{res['config']['conf']:g}, IoU 0.5")
+    return "\n".join(lines)

@@ -1,0 +1,382 @@
+"""Vehicle detection at run time: any YOLO ONNX export in the ultralytics v8/11 layout,
+run with onnxruntime (no torch).
+
+Pipeline (`YoloDetector.detect`): letterbox every frame to the model's input size
+(aspect kept, grey 114 padding split evenly), batch, run, decode the output
+``(B, 4 + nc, N)`` (rows cx, cy, w, h in input pixels, then nc class scores), keep each
+cell's best class above ``conf``, class-aware NMS at IoU ``iou``, and map the boxes back
+to the frame's pixels (x0, y0, x1, y1; clipped to the frame).
+
+Class names come from the model's metadata (``names``, as ultralytics writes it:
+``"{0: 'car', 1: 'bus'}"``) or from a ``data.yaml``; a model whose output has a
+different number of classes than the names is refused (`DetectorError`).
+
+Example:
+    >>> det = YoloDetector()                      # the shipped 15-class model
+    >>> out = det.detect([frame_rgb])[0]          # doctest: +SKIP
+    >>> out.boxes, out.scores, out.labels         # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import ast
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dashtraj.errors import DashtrajError
+
+PAD_VALUE = 114
+"""Grey of the letterbox padding (ultralytics')."""
+
+
+class DetectorError(DashtrajError):
+    """A model or names file that cannot be used; the message names the file."""
+
+
+def default_model_path() -> Path:
+    """The shipped detector: ``dashtraj/data/detector/detector.onnx``."""
+    return Path(__file__).resolve().parent.parent / "data" / "detector" / "detector.onnx"
+
+
+# ----------------------------------------------------------------------------- letterbox
+@dataclass(frozen=True)
+class Letterbox:
+    """How a frame was placed in the network input.
+
+    scale: input pixels per frame pixel. pad_x, pad_y: left and top padding, input
+    pixels. frame_w, frame_h: the frame's size, pixels.
+    """
+
+    scale: float
+    pad_x: int
+    pad_y: int
+    frame_w: int
+    frame_h: int
+
+    def boxes_to_image(self, det: np.ndarray) -> np.ndarray:
+        """Rows [x0, y0, x1, y1, ...] in input pixels -> frame pixels (clipped); the other
+        columns are kept. Returns a new float array."""
+        out = np.array(det, dtype=np.float64, copy=True).reshape(-1, det.shape[-1]
+                                                                 if det.ndim else 4)
+        if len(out):
+            out[:, [0, 2]] = ((out[:, [0, 2]] - self.pad_x) / self.scale).clip(0, self.frame_w)
+            out[:, [1, 3]] = ((out[:, [1, 3]] - self.pad_y) / self.scale).clip(0, self.frame_h)
+        return out
+
+    def boxes_to_input(self, boxes: np.ndarray) -> np.ndarray:
+        """(K, 4) x0, y0, x1, y1 frame pixels -> input pixels (the inverse, unclipped)."""
+        b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4).copy()
+        b[:, [0, 2]] = b[:, [0, 2]] * self.scale + self.pad_x
+        b[:, [1, 3]] = b[:, [1, 3]] * self.scale + self.pad_y
+        return b
+
+
+def letterbox_geometry(frame_hw: tuple[int, int], input_hw: tuple[int, int]) -> Letterbox:
+    """The `Letterbox` of a frame of (H, W) pixels in an input of (H, W) pixels."""
+    h0, w0 = frame_hw
+    h, w = input_hw
+    r = min(h / h0, w / w0)
+    nw, nh = round(w0 * r), round(h0 * r)
+    return Letterbox(scale=r, pad_x=(w - nw) // 2, pad_y=(h - nh) // 2, frame_w=w0, frame_h=h0)
+
+
+def letterbox(rgb: np.ndarray, input_hw: tuple[int, int]) -> tuple[np.ndarray, Letterbox]:
+    """Resize (bilinear, aspect kept) and pad an (H, W, 3) uint8 frame to ``input_hw``.
+
+    Returns the (H_in, W_in, 3) uint8 image and its `Letterbox`.
+    """
+    from PIL import Image
+
+    lb = letterbox_geometry(rgb.shape[:2], input_hw)
+    h, w = input_hw
+    nw, nh = round(lb.frame_w * lb.scale), round(lb.frame_h * lb.scale)
+    img = rgb if (nw, nh) == (lb.frame_w, lb.frame_h) else np.asarray(
+        Image.fromarray(rgb).resize((nw, nh), Image.BILINEAR))
+    out = np.full((h, w, 3), PAD_VALUE, np.uint8)
+    out[lb.pad_y:lb.pad_y + nh, lb.pad_x:lb.pad_x + nw] = img
+    return out, lb
+
+
+# ----------------------------------------------------------------------------- NMS
+def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(Ka, Kb) IoU of boxes (x0, y0, x1, y1)."""
+    a = np.asarray(a, np.float64).reshape(-1, 4)
+    b = np.asarray(b, np.float64).reshape(-1, 4)
+    iw = (np.minimum(a[:, None, 2], b[None, :, 2])
+          - np.maximum(a[:, None, 0], b[None, :, 0])).clip(0)
+    ih = (np.minimum(a[:, None, 3], b[None, :, 3])
+          - np.maximum(a[:, None, 1], b[None, :, 1])).clip(0)
+    inter = iw * ih
+    aa = ((a[:, 2] - a[:, 0]).clip(0) * (a[:, 3] - a[:, 1]).clip(0))[:, None]
+    ab = ((b[:, 2] - b[:, 0]).clip(0) * (b[:, 3] - b[:, 1]).clip(0))[None, :]
+    union = aa + ab - inter
+    return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
+
+
+def nms(boxes: np.ndarray, scores: np.ndarray, iou: float,
+        classes: np.ndarray | None = None) -> np.ndarray:
+    """Greedy NMS: indices of the kept boxes, best score first.
+
+    A box is dropped when it overlaps a kept, higher-scoring box *of the same class*
+    (``classes`` given) or of any class (None) by IoU > ``iou``. Ties in score keep the
+    lower index first (stable order).
+    """
+    boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+    order = np.argsort(-np.asarray(scores, np.float64), kind="stable")
+    keep = []
+    while len(order):
+        i = order[0]
+        keep.append(i)
+        rest = order[1:]
+        if not len(rest):
+            break
+        ov = box_iou(boxes[i:i + 1], boxes[rest])[0]
+        drop = ov > iou
+        if classes is not None:
+            drop &= classes[rest] == classes[i]
+        order = rest[~drop]
+    return np.array(keep, dtype=np.int64)
+
+
+def postprocess(raw: np.ndarray, conf: float = 0.25, iou: float = 0.6, max_det: int = 300,
+                max_candidates: int = 10000) -> list[np.ndarray]:
+    """Decode an ultralytics-layout output.
+
+    Args:
+        raw: (B, 4 + nc, N): cx, cy, w, h (input pixels) and nc class scores in [0, 1].
+        conf: smallest kept score. iou: class-aware NMS threshold.
+        max_det: most boxes per image. max_candidates: most boxes into NMS (best first).
+
+    Returns:
+        per image a (K, 6) float array [x0, y0, x1, y1, score, class], input pixels,
+        best score first.
+    """
+    raw = np.asarray(raw)
+    if raw.ndim != 3 or raw.shape[1] < 5:
+        raise DetectorError(f"model output has shape {raw.shape}; expected (B, 4 + nc, N)")
+    out = []
+    for r in raw:
+        cls_scores = r[4:]
+        cls = cls_scores.argmax(0)
+        score = cls_scores[cls, np.arange(r.shape[1])]
+        sel = np.flatnonzero(score > conf)
+        if len(sel) > max_candidates:
+            sel = sel[np.argsort(-score[sel], kind="stable")[:max_candidates]]
+        cx, cy, w, h = r[0, sel], r[1, sel], r[2, sel], r[3, sel]
+        boxes = np.stack([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2], 1)
+        keep = nms(boxes, score[sel], iou, cls[sel])[:max_det]
+        out.append(np.concatenate([boxes[keep], score[sel][keep, None],
+                                   cls[sel][keep, None].astype(np.float64)], 1)
+                   .astype(np.float64).reshape(-1, 6))
+    return out
+
+
+# ----------------------------------------------------------------------------- names
+def read_names_yaml(path) -> list[str]:
+    """Class names of a YOLO ``data.yaml`` (``names:`` as a mapping ``0: car`` on the
+    following lines, a ``- car`` list, or an inline ``[car, bus]`` list).
+
+    Raises DetectorError naming the file when there is no usable ``names``.
+    """
+    path = Path(path)
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except OSError as exc:
+        raise DetectorError(f"{path}: cannot read ({exc.strerror})") from exc
+    for i, line in enumerate(lines):
+        if not line.startswith("names:"):
+            continue
+        rest = line[len("names:"):].strip()
+        if rest:
+            try:
+                val = ast.literal_eval(rest) if rest[0] in "[{" else None
+            except (ValueError, SyntaxError):
+                val = None
+            if val is None:
+                # inline list of bare words: [car, bus]
+                if rest.startswith("[") and rest.endswith("]"):
+                    return [s.strip().strip("'\"") for s in rest[1:-1].split(",") if s.strip()]
+                raise DetectorError(f"{path}:{i + 1}: cannot read 'names'")
+            return list(val.values()) if isinstance(val, dict) else [str(v) for v in val]
+        names: dict[int, str] = {}
+        seq: list[str] = []
+        for j, sub in enumerate(lines[i + 1:], i + 2):
+            if not sub.strip() or sub.lstrip().startswith("#"):
+                continue
+            if not sub[0].isspace() and not sub.startswith("-"):
+                break
+            s = sub.strip()
+            if s.startswith("- "):
+                seq.append(s[2:].strip().strip("'\""))
+            elif ":" in s:
+                k, v = s.split(":", 1)
+                try:
+                    names[int(k)] = v.strip().strip("'\"")
+                except ValueError:
+                    raise DetectorError(f"{path}:{j}: expected 'INDEX: name'") from None
+        if names:
+            if sorted(names) != list(range(len(names))):
+                raise DetectorError(f"{path}: class indices are not 0..{len(names) - 1}")
+            return [names[k] for k in range(len(names))]
+        if seq:
+            return seq
+        raise DetectorError(f"{path}:{i + 1}: 'names' is empty")
+    raise DetectorError(f"{path}: no 'names:' entry")
+
+
+def names_from_metadata(meta: dict[str, str]) -> list[str] | None:
+    """Class names from ONNX metadata (ultralytics' ``names`` dict text), or None."""
+    text = meta.get("names")
+    if not text:
+        return None
+    try:
+        val = ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return None
+    if isinstance(val, dict):
+        return [str(val[k]) for k in sorted(val)]
+    if isinstance(val, list | tuple):
+        return [str(v) for v in val]
+    return None
+
+
+# ----------------------------------------------------------------------------- detector
+@dataclass(frozen=True)
+class Detections:
+    """The detections of one frame, best score first.
+
+    boxes: (K, 4) float x0, y0, x1, y1, frame pixels. scores: (K,) in [0, 1].
+    class_ids: (K,) int. names: the model's class names (index = class id).
+    """
+
+    boxes: np.ndarray
+    scores: np.ndarray
+    class_ids: np.ndarray
+    names: tuple[str, ...]
+
+    @property
+    def labels(self) -> list[str]:
+        """Class name of each detection."""
+        return [self.names[int(c)] for c in self.class_ids]
+
+    def __len__(self) -> int:
+        return len(self.scores)
+
+    def yolo_lines(self, width: int, height: int, with_score: bool = True) -> list[str]:
+        """``class cx cy w h [score]`` lines, normalised by the frame's size."""
+        out = []
+        for (x0, y0, x1, y1), s, c in zip(self.boxes, self.scores, self.class_ids,
+                                          strict=True):
+            line = (f"{int(c)} {(x0 + x1) / 2 / width:.6f} {(y0 + y1) / 2 / height:.6f} "
+                    f"{(x1 - x0) / width:.6f} {(y1 - y0) / height:.6f}")
+            out.append(line + (f" {s:.4f}" if with_score else ""))
+        return out
+
+
+class YoloDetector:
+    """An ultralytics-layout YOLO ONNX model run with onnxruntime.
+
+    Args:
+        model: path of the .onnx file (default: the shipped detector).
+        names: class names, or a ``data.yaml`` path, or None to read them from the
+            model's metadata.
+        conf: smallest kept score. iou: class-aware NMS IoU threshold.
+        threads: onnxruntime intra-op threads. batch: frames per run (a model with a
+            fixed batch of 1 runs one frame at a time).
+
+    Raises:
+        DetectorError: unreadable model, no names, or a class count that does not
+        match the model's output.
+    """
+
+    def __init__(self, model=None, names=None, conf: float = 0.25, iou: float = 0.6,
+                 threads: int = 2, batch: int = 8, max_det: int = 300):
+        import onnxruntime as ort
+
+        self.path = Path(model) if model is not None else default_model_path()
+        if not self.path.is_file():
+            raise DetectorError(f"{self.path}: no such model file")
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = threads
+        opts.inter_op_num_threads = 1
+        opts.log_severity_level = 3
+        try:
+            self.session = ort.InferenceSession(str(self.path), opts,
+                                                providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own untyped errors
+            raise DetectorError(f"{self.path}: not a usable ONNX model ({exc})") from exc
+        meta = self.session.get_modelmeta().custom_metadata_map
+        self.metadata = dict(meta)
+        inp = self.session.get_inputs()[0]
+        self.input_name = inp.name
+        shape = list(inp.shape)
+        if len(shape) != 4:
+            raise DetectorError(f"{self.path}: input {inp.name} has shape {shape}; expected "
+                                "(B, 3, H, W)")
+        h, w = shape[2], shape[3]
+        if not (isinstance(h, int) and isinstance(w, int)):
+            try:
+                h, w = ast.literal_eval(meta.get("imgsz", "[640, 640]"))
+            except (ValueError, SyntaxError):
+                h, w = 640, 640
+        self.input_hw = (int(h), int(w))
+        self.fixed_batch = shape[0] if isinstance(shape[0], int) else None
+        self.batch = self.fixed_batch or max(1, batch)
+        if isinstance(names, str | Path):
+            names = read_names_yaml(names)
+        if names is None:
+            names = names_from_metadata(meta)
+        if names is None:
+            raise DetectorError(f"{self.path}: no class names in the model's metadata; "
+                                "pass a data.yaml (--names)")
+        self.names = tuple(names)
+        out_shape = self.session.get_outputs()[0].shape
+        if len(out_shape) != 3:
+            raise DetectorError(f"{self.path}: output has shape {out_shape}; expected "
+                                "(B, 4 + nc, N) (ultralytics v8/11 layout)")
+        self.conf, self.iou, self.max_det = conf, iou, max_det
+        if isinstance(out_shape[1], int):
+            self._check_nc(out_shape[1])
+        else:  # a symbolic class dimension: run one blank frame to learn it
+            blank = np.full((self.fixed_batch or 1, *self.input_hw, 3), PAD_VALUE, np.uint8)
+            self.run_raw(blank)
+
+    def _check_nc(self, channels: int) -> None:
+        if channels - 4 != len(self.names):
+            raise DetectorError(
+                f"{self.path}: the model predicts {channels - 4} classes but {len(self.names)} "
+                f"names were given ({', '.join(self.names[:4])}...); use the data.yaml the "
+                "model was trained with")
+
+    @property
+    def num_classes(self) -> int:
+        return len(self.names)
+
+    def run_raw(self, batch: np.ndarray) -> np.ndarray:
+        """(B, H, W, 3) uint8 letterboxed images -> raw (B, 4 + nc, N) output."""
+        x = np.ascontiguousarray(batch.transpose(0, 3, 1, 2), dtype=np.float32) / 255.0
+        outs = []
+        step = self.fixed_batch or len(x)
+        for i in range(0, len(x), step):
+            outs.append(self.session.run(None, {self.input_name: x[i:i + step]})[0])
+        raw = np.concatenate(outs, 0)
+        self._check_nc(raw.shape[1])
+        return raw
+
+    def detect(self, frames) -> list[Detections]:
+        """Detections of each (H, W, 3) uint8 RGB frame (frames may differ in size)."""
+        frames = list(frames)
+        results: list[Detections] = []
+        for i in range(0, len(frames), self.batch):
+            chunk = frames[i:i + self.batch]
+            boxed = [letterbox(np.asarray(f), self.input_hw) for f in chunk]
+            raw = self.run_raw(np.stack([b[0] for b in boxed]))
+            dets = postprocess(raw, self.conf, self.iou, self.max_det)
+            for d, (_, lb) in zip(dets, boxed, strict=True):
+                img = lb.boxes_to_image(d)
+                results.append(Detections(boxes=img[:, :4], scores=img[:, 4],
+                                          class_ids=img[:, 5].astype(np.int64),
+                                          names=self.names))
+        return results

