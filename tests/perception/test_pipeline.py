@@ -129,3 +129,27 @@ def test_sightings_command_takes_the_camera_pipeline(small_run, gl_available, tm
                  "-o", str(tmp_path / "y.csv")]) == 2
     assert "cannot be combined" in capsys.readouterr().err
     assert not (tmp_path / "y.csv").exists()
+
+
+def test_perceive_runs_an_onnx_detector(small_run, gl_available, tmp_path, capsys):
+    """``--detector M.onnx`` goes through `YoloDetector` (the shipped model): every detection is
+    stored with a class among the 15, a score in (0, 1], a box inside the image, and the truth
+    vehicle id of the box it overlaps (or none)."""
+    from dashtraj.perception.detect import default_model_path
+    from dashtraj.perception.detections import DETECTION_CLASSES
+
+    db_path = tmp_path / "m.db"
+    assert main(["perceive", str(small_run.path), "--detector", str(default_model_path()),
+                 "--observers", "1", "--every", "1.0", "-q", "-o", str(db_path)]) == 0
+    assert "detector.onnx" in capsys.readouterr().out
+    with SightingsDB.open(db_path) as db:
+        (obs,) = db.observers()
+        assert obs["observer_id"] == 1 and obs["complete"] and obs["frames"] == 26
+        dets = db.detections()
+        assert dets, "the shipped detector found nothing in 26 frames of town01"
+        vids = {v["vehicle_id"] for v in small_run.vehicles}
+        for d in dets:
+            assert 0 <= d.class_id < len(DETECTION_CLASSES)
+            assert 0.0 < d.score <= 1.0
+            assert 0 <= d.x0 < d.x1 <= 320 and 0 <= d.y0 < d.y1 <= 180
+            assert d.truth_vehicle_id is None or d.truth_vehicle_id in vids
