@@ -15,9 +15,13 @@ from dashtraj.perception.detect import (
     box_iou,
     default_model_path,
 )
+from dashtraj.render.look import preset
 from dashtraj.world.camera import DETECTION_CLASSES
 
 MODEL_CARD = default_model_path().parent / "MODEL.json"
+LOOK = "flat"
+"""Render look of the shipped model's training set (rendered before shaded looks existed); a
+model retrained on today's renders tests with the default look (set LOOK = "clear")."""
 
 
 def _sha256(path):
@@ -34,6 +38,14 @@ KNOWN_BELOW_BAR = {
         "car_side": ("shipped detector.onnx (3 epochs of the cpu recipe, held-out mAP50 0.319 "
                      "for boxes >= 24 px, bar 0.95) sees the crossing car as car_back (0.28); "
                      "see MODEL.md"),
+        # trained on the renderer before its realistic materials (new car meshes: glass,
+        # tyres, lamps); on today's renderer, even in the flat look, it falls below the bars
+        "car_front": ("shipped detector.onnx was trained on the previous renderer's frames: on "
+                      "today's renderer it sees the oncoming car as truck_front (0.45); "
+                      "retrain on today's renders (see MODEL.md)"),
+        "recall": ("shipped detector.onnx was trained on the previous renderer's frames (recall "
+                   "0.902 there): on today's renderer recall is 0.863 in the flat look, 0.804 "
+                   "in the default look, of 51 boxes >= 24 px (bar 0.9); retrain (see MODEL.md)"),
     },
 }
 _SHIPPED = (_sha256(default_model_path()) or "")[:12]
@@ -92,6 +104,7 @@ def test_orientation_of_single_cars(gl_ctx, detector, expected):
 
     r = Renderer(RoadMap.from_string(STRAIGHT_XODR, name="straight"), 1280, 720, 90.0,
                  ctx=gl_ctx)
+    r.set_look(preset(LOOK))
     try:
         x, y, yaw = SCENES[expected]
         frame = r.render(CAM, [(1, _car(), x, y, 0.0, yaw)])
@@ -121,6 +134,7 @@ def test_recall_on_a_held_out_recording(gl_ctx, detector, tmp_path):
     rec = Recording.open(tmp_path / "rec")
     spec = rec.config.camera
     renderer = open_renderer(rec.map_path, 1280, 720, spec.fov_deg, ctx=gl_ctx)
+    renderer.set_look(preset(LOOK))
     found = found_cls = total = 0
     try:
         frames = list(recording_frames(rec, 2.0, (1280, 720), renderer=renderer))
