@@ -1,4 +1,5 @@
-"""Fixtures every test folder shares: the real CARLA maps (skipped when absent)."""
+"""Fixtures shared by every test folder: the real CARLA maps (when ../shared has them) and a
+headless GL check."""
 
 from __future__ import annotations
 
@@ -21,3 +22,16 @@ def town10() -> RoadMap:
 @pytest.fixture(scope="session", params=["Town01", "Town10HD"])
 def carla_map(request) -> RoadMap:
     return load_carla_map(request.param)[0]
+
+
+@pytest.fixture(scope="session")
+def gl_available():
+    """Skip when no headless GL context can be created (no Mesa/EGL/moderngl)."""
+    from dashtraj.render.gl import RenderUnavailableError, create_context
+
+    try:
+        ctx = create_context(threads=0)
+    except RenderUnavailableError as e:
+        pytest.skip(f"no headless OpenGL context: {e}")
+    ctx.release()
+    return True

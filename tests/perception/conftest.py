@@ -1,4 +1,4 @@
-"""Fixtures of the perception tests: a GL check, a small recording and its database."""
+"""Fixtures of the perception tests: a small recording and its database."""
 
 from __future__ import annotations
 
@@ -8,19 +8,6 @@ import pytest
 
 from dashtraj.world.camera import CameraSpec
 from dashtraj.world.recording import Recording, RunConfig, simulate
-
-
-@pytest.fixture(scope="session")
-def gl_available():
-    """Skip when no headless GL context can be created (no Mesa/EGL/moderngl)."""
-    from dashtraj.render.gl import RenderUnavailableError, create_context
-
-    try:
-        ctx = create_context(threads=0)
-    except RenderUnavailableError as e:
-        pytest.skip(f"no headless OpenGL context: {e}")
-    ctx.release()
-    return True
 
 
 @pytest.fixture(scope="session")
