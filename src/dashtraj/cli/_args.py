@@ -231,3 +231,15 @@ def image_size(text: str) -> str:
         raise argparse.ArgumentTypeError(
             f"expected each side of WxH in 8..{MAX_IMAGE_SIDE_PX} pixels, got {text!r}")
     return text
+
+
+def add_frame_source_args(parser: argparse.ArgumentParser, every_s: float) -> None:
+    """The inputs every evaluation on rendered frames takes: recordings, the detector, the
+    frame period (seconds) and the image size."""
+    parser.add_argument("recordings", nargs="+", metavar="RUN", help="recording directories")
+    parser.add_argument("--detector", default="oracle", metavar="oracle|M.onnx",
+                        help="detector (default oracle: the renderer's exact visible boxes)")
+    parser.add_argument("--every", type=positive_float, default=every_s, metavar="S",
+                        help=f"frame period, seconds (default {every_s:g})")
+    parser.add_argument("--size", type=image_size, metavar="WxH",
+                        help="image size (default: the recording's camera)")

@@ -8,7 +8,13 @@ import json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from dashtraj.cli._args import image_size, picture_path, positive_float, positive_int, seed
+    from dashtraj.cli._args import (
+        add_frame_source_args,
+        picture_path,
+        positive_float,
+        positive_int,
+        seed,
+    )
     from dashtraj.outputs import add_output_args
 
     p = subparsers.add_parser(
@@ -23,16 +29,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "in the bands < 20 m and 20–60 m of true distance; a scatter plot of estimated vs "
             "true distance with --plot."),
     )
-    e.add_argument("recordings", nargs="+", metavar="RUN", help="recording directories")
-    e.add_argument("--detector", default="oracle", metavar="oracle|M.onnx")
+    add_frame_source_args(e, every_s=0.5)
     e.add_argument("--localizers", nargs="+", default=["paper", "ground", "fused"],
                    metavar="NAME")
     e.add_argument("--mu-h", type=positive_float, metavar="PX",
                    help="Eq. 3's constant (default ours)")
-    e.add_argument("--every", type=positive_float, default=0.5, metavar="S",
-                   help="frame period, seconds (default 0.5)")
-    e.add_argument("--size", type=image_size, metavar="WxH",
-                   help="image size (default: the recording's camera)")
     e.add_argument("--plot", type=picture_path, metavar="PNG", help="write the scatter plot here")
     e.add_argument("--json", action="store_true", help="print the result as JSON")
     add_output_args(e)

@@ -7,7 +7,7 @@ import json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from dashtraj.cli._args import image_size, positive_float
+    from dashtraj.cli._args import add_frame_source_args
 
     p = subparsers.add_parser(
         "tracker", help="evaluate the trackers (HOTA, IDF1, MOTA) against the renderer's truth")
@@ -22,17 +22,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "(TrackEval's definitions). BoxMOT's ByteTrack, OC-SORT and BoT-SORT (ECC) run "
             "as peers when the boxmot package can be imported (pip install '.[bench]')."),
     )
-    e.add_argument("recordings", nargs="+", metavar="RUN", help="recording directories")
-    e.add_argument("--detector", default="oracle", metavar="oracle|M.onnx")
+    add_frame_source_args(e, every_s=0.1)
     e.add_argument("--trackers", nargs="+", default=["sort", "ego"], metavar="NAME",
                    help="our trackers (default: sort ego)")
     e.add_argument("--peers", nargs="*", default=None, metavar="NAME",
                    help="BoxMOT peers (default: bytetrack ocsort botsort when boxmot imports; "
                         "give none to skip)")
-    e.add_argument("--every", type=positive_float, default=0.1, metavar="S",
-                   help="frame period, seconds (default 0.1)")
-    e.add_argument("--size", type=image_size, metavar="WxH",
-                   help="image size (default: the recording's camera)")
     e.add_argument("--json", action="store_true", help="print the result as JSON")
     e.set_defaults(func=run_eval)
 
