@@ -8,7 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-from dashtraj.cli._args import fraction, int_at_least
+from dashtraj.cli._args import fraction, int_at_least, positive_float, seed
 from dashtraj.outputs import add_output_args
 
 positive_int = int_at_least(1)
@@ -59,7 +59,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     t.add_argument("-o", "--output", required=True, metavar="DIR", help="run folder")
     t.add_argument("--recipe", choices=("cpu", "paper"), default="cpu",
                    help="cpu (the shipped weights) or paper (GPU) (default cpu)")
-    t.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    t.add_argument("--seed", type=seed, default=0, help="seed (default 0)")
     t.add_argument("--epochs", type=positive_int, default=None,
                    help="override the recipe's epoch count")
     t.add_argument("--max-images", type=positive_int, default=None,
@@ -232,13 +232,13 @@ def register_eval(sub) -> None:
                    help="ONNX model (default: the shipped detector)")
     v.add_argument("--names", default=None, metavar="data.yaml",
                    help="class names (default: the model's metadata)")
-    v.add_argument("--every", type=float, default=2.0, metavar="S",
+    v.add_argument("--every", type=positive_float, default=2.0, metavar="S",
                    help="sampling period, seconds (default 2)")
     v.add_argument("--size", default=None, metavar="WxH",
                    help="frame size (default: the recordings' camera, 1280x720)")
     v.add_argument("--conf", type=fraction, default=0.25,
                    help="threshold of the precision/recall figures (0.25)")
-    v.add_argument("--small-px", type=float, default=24.0, metavar="PX",
+    v.add_argument("--small-px", type=positive_float, default=24.0, metavar="PX",
                    help="the size subset: boxes at least this tall (24)")
     v.add_argument("-o", "--output", default=None, metavar="DIR",
                    help="write DIR/eval.json (and DIR/ap_per_class.png with --plot)")

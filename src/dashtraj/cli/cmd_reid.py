@@ -9,6 +9,8 @@ import sys
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from dashtraj.cli._args import positive_float, positive_int, seed
+
     """Add the `reid` command and its sub-commands."""
     p = subparsers.add_parser(
         "reid",
@@ -32,16 +34,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     t.add_argument("--recipe", default="cpu", help="cpu or paper (default cpu)")
     t.add_argument("--model", default=None,
                    help="backbone name (default: the recipe's; see dashtraj.reid.models)")
-    t.add_argument("--seed", type=int, default=0, help="seed (default 0)")
-    t.add_argument("--epochs", type=int, default=None, help="override the recipe's epochs")
-    t.add_argument("--batch-size", type=int, default=None, help="override the batch size")
-    t.add_argument("--lr", type=float, default=None, help="override the learning rate")
+    t.add_argument("--seed", type=seed, default=0, help="seed (default 0)")
+    t.add_argument("--epochs", type=positive_int, default=None, help="override the recipe's epochs")
+    t.add_argument("--batch-size", type=positive_int, default=None, help="override the batch size")
+    t.add_argument("--lr", type=positive_float, default=None, help="override the learning rate")
     t.add_argument("--triplet", action="store_true", help="add the batch-hard triplet loss")
     t.add_argument("--resume", action="store_true", help="continue the run in DIR")
     t.add_argument("--overwrite", action="store_true", help="start afresh in a non-empty DIR")
-    t.add_argument("--max-hours", type=float, default=None,
+    t.add_argument("--max-hours", type=positive_float, default=None,
                    help="stop (resumable) after this many hours of this call")
-    t.add_argument("--threads", type=int, default=None, help="torch threads (default: all)")
+    t.add_argument("--threads", type=positive_int, default=None,
+                   help="torch threads (default: all)")
     t.add_argument("--json", action="store_true", help="print the summary as JSON")
     t.set_defaults(func=run_train)
 
@@ -57,7 +60,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     e.add_argument("--query", default="image_query", choices=("image_query",
                                                               "image_query_moving"),
                    help="query folder (default image_query)")
-    e.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
+    e.add_argument("--threads", type=positive_int, default=2,
+                   help="onnxruntime threads (default 2)")
     e.add_argument("--json", action="store_true", help="print the figures as JSON")
     e.set_defaults(func=run_eval)
 
@@ -70,7 +74,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "measured this query set); reid.json gets their counts and cameras.")
     m.add_argument("data", metavar="DATA", help="a reid-dataset output folder (with reid.json)")
     m.add_argument("recordings", nargs="+", metavar="RUN", help="recording directories")
-    m.add_argument("--every", type=float, default=None, metavar="S",
+    m.add_argument("--every", type=positive_float, default=None, metavar="S",
                    help="sampling period, seconds (default: the set's, 0.5)")
     m.add_argument("--overwrite", action="store_true", help="replace an existing query set")
     m.add_argument("--json", action="store_true", help="print the counts as JSON")
