@@ -679,6 +679,33 @@ def build_scene_meshes(road_map, seed: int = 0) -> SceneMeshes:
                        props)
 
 
+def _outer_borders(m):
+    """The outer border of each side of every non-junction road section at least 10 m long.
+
+    Yields ``(side, key, outer, st)``: side -1 (right of +s, negative lanes) or +1, the
+    outermost lane's key (road, section, lane), its outer border polyline ((N, 2) CARLA world,
+    metres; N >= 2) and the arc length along it at each point (metres).
+    """
+    for rid in sorted(m.roads):
+        road = m.roads[rid]
+        if road.junction >= 0 or road.length < 10.0:
+            continue
+        for k, sec in enumerate(road.sections):
+            for side in (-1, 1):
+                ids = [i for i in sec.lanes if i * side > 0]
+                if not ids:
+                    continue
+                key = (rid, k, max(ids, key=abs))
+                if key not in m.lanes:
+                    continue
+                left, right = m.lane_border_polylines(key)
+                outer = right if side < 0 else left
+                if len(outer) < 2:
+                    continue
+                seg = np.linalg.norm(np.diff(outer, axis=0), axis=1)
+                yield side, key, outer, np.concatenate([[0.0], np.cumsum(seg)])
+
+
 def _buildings(
     m,
     lane_pts: np.ndarray,
@@ -702,69 +729,52 @@ def _buildings(
     jitter = jitter if jitter is not None else np.random.default_rng(1)
     placed = [] if placed is None else placed  # centre x, y, radius
     boxes = []
-    for rid in sorted(m.roads):
-        road = m.roads[rid]
-        if road.junction >= 0 or road.length < 10.0:
-            continue
-        for k, sec in enumerate(road.sections):
-            for side in (-1, 1):
-                ids = [i for i in sec.lanes if i * side > 0]
-                if not ids:
-                    continue
-                key = (rid, k, max(ids, key=abs))
-                if key not in m.lanes:
-                    continue
-                left, right = m.lane_border_polylines(key)
-                outer = right if side < 0 else left
-                if len(outer) < 2:
-                    continue
-                seg = np.linalg.norm(np.diff(outer, axis=0), axis=1)
-                st = np.concatenate([[0.0], np.cumsum(seg)])
-                for d in np.arange(spacing_m / 2, st[-1] - 4.0, spacing_m):
-                    i = min(np.searchsorted(st, d), len(outer) - 1)
-                    j = max(i - 1, 0) if i == len(outer) - 1 else i + 1
-                    tvec = outer[max(i, j)] - outer[min(i, j)]
-                    tvec = tvec / max(np.linalg.norm(tvec), 1e-9)
-                    nvec = np.array([-tvec[1], tvec[0]]) * (-1.0 if side > 0 else 1.0)
-                    # nvec points away from the road: right of +s for negative lanes
-                    depth = rng.uniform(8.0, 18.0)
-                    width = rng.uniform(8.0, 16.0)
-                    height = rng.choice([rng.uniform(5.0, 12.0), rng.uniform(12.0, 35.0)])
-                    gap = rng.uniform(2.0, 6.0) + clearance_m
-                    c = outer[i] + nvec * (gap + depth / 2)
-                    rad = 0.5 * math.hypot(depth, width)
-                    if any(
-                        math.hypot(c[0] - px, c[1] - py) < (rad + pr) * 0.75
-                        for px, py, pr in placed
-                    ):
-                        continue
-                    u = np.linspace(-0.5, 0.5, max(2, int(width) + 1))
-                    v = np.linspace(-0.5, 0.5, max(2, int(depth) + 1))
-                    uu, vv = np.meshgrid(u, v)
-                    grid = c + uu.reshape(-1, 1) * width * tvec + vv.reshape(-1, 1) * depth * nvec
-                    if np.min(tree.query(grid)[0]) < clearance_m:
-                        continue
-                    placed.append((c[0], c[1], rad))
-                    corners = np.array(
+    for side, _key, outer, st in _outer_borders(m):
+        for d in np.arange(spacing_m / 2, st[-1] - 4.0, spacing_m):
+            i = min(np.searchsorted(st, d), len(outer) - 1)
+            j = max(i - 1, 0) if i == len(outer) - 1 else i + 1
+            tvec = outer[max(i, j)] - outer[min(i, j)]
+            tvec = tvec / max(np.linalg.norm(tvec), 1e-9)
+            nvec = np.array([-tvec[1], tvec[0]]) * (-1.0 if side > 0 else 1.0)
+            # nvec points away from the road: right of +s for negative lanes
+            depth = rng.uniform(8.0, 18.0)
+            width = rng.uniform(8.0, 16.0)
+            height = rng.choice([rng.uniform(5.0, 12.0), rng.uniform(12.0, 35.0)])
+            gap = rng.uniform(2.0, 6.0) + clearance_m
+            c = outer[i] + nvec * (gap + depth / 2)
+            rad = 0.5 * math.hypot(depth, width)
+            if any(
+                math.hypot(c[0] - px, c[1] - py) < (rad + pr) * 0.75
+                for px, py, pr in placed
+            ):
+                continue
+            u = np.linspace(-0.5, 0.5, max(2, int(width) + 1))
+            v = np.linspace(-0.5, 0.5, max(2, int(depth) + 1))
+            uu, vv = np.meshgrid(u, v)
+            grid = c + uu.reshape(-1, 1) * width * tvec + vv.reshape(-1, 1) * depth * nvec
+            if np.min(tree.query(grid)[0]) < clearance_m:
+                continue
+            placed.append((c[0], c[1], rad))
+            corners = np.array(
+                [
+                    c + a * width / 2 * tvec + b * depth / 2 * nvec
+                    for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))
+                ]
+            )
+            col = FACADES[rng.integers(len(FACADES))]
+            col = np.clip(col * jitter.uniform(0.9, 1.1, 3), 0.0, 1.0)
+            boxes.append(
+                hexahedron(
+                    np.vstack(
                         [
-                            c + a * width / 2 * tvec + b * depth / 2 * nvec
-                            for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))
+                            np.column_stack([corners, np.full(4, GROUND_Z_M)]),
+                            np.column_stack([corners, np.full(4, height)]),
                         ]
-                    )
-                    col = FACADES[rng.integers(len(FACADES))]
-                    col = np.clip(col * jitter.uniform(0.9, 1.1, 3), 0.0, 1.0)
-                    boxes.append(
-                        hexahedron(
-                            np.vstack(
-                                [
-                                    np.column_stack([corners, np.full(4, GROUND_Z_M)]),
-                                    np.column_stack([corners, np.full(4, height)]),
-                                ]
-                            ),
-                            col,
-                            material=MAT_FACADE,
-                        )
-                    )
+                    ),
+                    col,
+                    material=MAT_FACADE,
+                )
+            )
     return Mesh.concat(boxes)
 
 
@@ -802,65 +812,48 @@ def _props(m, lane_pts: np.ndarray, buildings: list, rng: np.random.Generator,
     tree = cKDTree(lane_pts)
     parts: list[Mesh] = []
     spots: list[tuple[float, float, float]] = []
-    for rid in sorted(m.roads):
-        road = m.roads[rid]
-        if road.junction >= 0 or road.length < 10.0:
-            continue
-        for k, sec in enumerate(road.sections):
-            for side in (-1, 1):
-                ids = [i for i in sec.lanes if i * side > 0]
-                if not ids:
-                    continue
-                key = (rid, k, max(ids, key=abs))
-                if key not in m.lanes:
-                    continue
-                left, right = m.lane_border_polylines(key)
-                outer = right if side < 0 else left
-                z = m.lane_polyline(key, driving_order=False)[:, 2]
-                if len(outer) < 2:
-                    continue
-                seg = np.linalg.norm(np.diff(outer, axis=0), axis=1)
-                st = np.concatenate([[0.0], np.cumsum(seg)])
-                for d in np.arange(spacing_m / 2, st[-1] - 2.0, spacing_m):
-                    d = d + rng.uniform(-2.0, 2.0)
-                    kind = rng.choice(3, p=[0.3, 0.5, 0.2])  # lamp, tree, nothing
-                    off = rng.uniform(1.2, 2.6)
-                    radius = rng.uniform(1.0, 2.0)
-                    height = rng.uniform(4.0, 8.0)
-                    if kind == 2 or not 0.0 <= d <= st[-1]:
-                        continue
-                    i = int(min(max(np.searchsorted(st, d), 1), len(outer) - 1))
-                    tvec = outer[i] - outer[i - 1]
-                    tvec = tvec / max(np.linalg.norm(tvec), 1e-9)
-                    nvec = np.array([-tvec[1], tvec[0]]) * (-1.0 if side > 0 else 1.0)
-                    base = outer[i - 1] + tvec * (d - st[i - 1])
-                    foot = radius if kind == 1 else 0.3
-                    c = base + nvec * (off + (foot if kind == 1 else 0.0))
-                    if tree.query(c)[0] < foot + 0.4:
-                        continue
-                    if any(math.hypot(c[0] - bx, c[1] - by) < br + foot
-                           for bx, by, br in buildings):
-                        continue
-                    if any(math.hypot(c[0] - sx, c[1] - sy) < sr + foot for sx, sy, sr in spots):
-                        continue
-                    spots.append((c[0], c[1], foot))
-                    gz = float(np.interp(d, st, z)) if len(z) == len(st) else float(z[0])
-                    gz = gz - 0.05  # sunk a little into the ground
-                    if kind == 0:
-                        h = rng.uniform(5.0, 7.0)
-                        parts.append(box((c[0] - 0.08, c[1] - 0.08, gz),
-                                         (c[0] + 0.08, c[1] + 0.08, gz + h), POLE,
-                                         material=MAT_METAL))
-                        hx, hy = c[0] - nvec[0] * 0.7, c[1] - nvec[1] * 0.7
-                        lo = (min(c[0], hx) - 0.12, min(c[1], hy) - 0.12, gz + h - 0.15)
-                        hi = (max(c[0], hx) + 0.12, max(c[1], hy) + 0.12, gz + h)
-                        parts.append(box(lo, hi, POLE, material=MAT_METAL))
-                    else:
-                        trunk = height * 0.4
-                        parts.append(box((c[0] - 0.12, c[1] - 0.12, gz), (c[0] + 0.12, c[1] + 0.12,
-                                                                          gz + trunk + 0.5),
-                                         BARK, material=MAT_BARK))
-                        col = FOLIAGE[int(rng.integers(len(FOLIAGE)))]
-                        parts.append(_blob((c[0], c[1], gz + trunk + (height - trunk) / 2),
-                                           radius, height - trunk, col))
+    for side, key, outer, st in _outer_borders(m):
+        z = m.lane_polyline(key, driving_order=False)[:, 2]
+        for d in np.arange(spacing_m / 2, st[-1] - 2.0, spacing_m):
+            d = d + rng.uniform(-2.0, 2.0)
+            kind = rng.choice(3, p=[0.3, 0.5, 0.2])  # lamp, tree, nothing
+            off = rng.uniform(1.2, 2.6)
+            radius = rng.uniform(1.0, 2.0)
+            height = rng.uniform(4.0, 8.0)
+            if kind == 2 or not 0.0 <= d <= st[-1]:
+                continue
+            i = int(min(max(np.searchsorted(st, d), 1), len(outer) - 1))
+            tvec = outer[i] - outer[i - 1]
+            tvec = tvec / max(np.linalg.norm(tvec), 1e-9)
+            nvec = np.array([-tvec[1], tvec[0]]) * (-1.0 if side > 0 else 1.0)
+            base = outer[i - 1] + tvec * (d - st[i - 1])
+            foot = radius if kind == 1 else 0.3
+            c = base + nvec * (off + (foot if kind == 1 else 0.0))
+            if tree.query(c)[0] < foot + 0.4:
+                continue
+            if any(math.hypot(c[0] - bx, c[1] - by) < br + foot
+                   for bx, by, br in buildings):
+                continue
+            if any(math.hypot(c[0] - sx, c[1] - sy) < sr + foot for sx, sy, sr in spots):
+                continue
+            spots.append((c[0], c[1], foot))
+            gz = float(np.interp(d, st, z)) if len(z) == len(st) else float(z[0])
+            gz = gz - 0.05  # sunk a little into the ground
+            if kind == 0:
+                h = rng.uniform(5.0, 7.0)
+                parts.append(box((c[0] - 0.08, c[1] - 0.08, gz),
+                                 (c[0] + 0.08, c[1] + 0.08, gz + h), POLE,
+                                 material=MAT_METAL))
+                hx, hy = c[0] - nvec[0] * 0.7, c[1] - nvec[1] * 0.7
+                lo = (min(c[0], hx) - 0.12, min(c[1], hy) - 0.12, gz + h - 0.15)
+                hi = (max(c[0], hx) + 0.12, max(c[1], hy) + 0.12, gz + h)
+                parts.append(box(lo, hi, POLE, material=MAT_METAL))
+            else:
+                trunk = height * 0.4
+                parts.append(box((c[0] - 0.12, c[1] - 0.12, gz), (c[0] + 0.12, c[1] + 0.12,
+                                                                  gz + trunk + 0.5),
+                                 BARK, material=MAT_BARK))
+                col = FOLIAGE[int(rng.integers(len(FOLIAGE)))]
+                parts.append(_blob((c[0], c[1], gz + trunk + (height - trunk) / 2),
+                                   radius, height - trunk, col))
     return Mesh.concat(parts)
