@@ -1,5 +1,5 @@
-"""Fixtures shared by every test folder: the real CARLA maps (when ../shared has them) and a
-headless GL check."""
+"""Fixtures shared by every test folder: the real CARLA maps (when ../shared has them), a
+headless GL check and one GL context for the session."""
 
 from __future__ import annotations
 
@@ -25,13 +25,24 @@ def carla_map(request) -> RoadMap:
 
 
 @pytest.fixture(scope="session")
-def gl_available():
+def gl_available(gl_ctx):
     """Skip when no headless GL context can be created (no Mesa/EGL/moderngl)."""
-    from dashtraj.render.gl import RenderUnavailableError, create_context
-
-    try:
-        ctx = create_context(threads=0)
-    except RenderUnavailableError as e:
-        pytest.skip(f"no headless OpenGL context: {e}")
-    ctx.release()
     return True
+
+
+@pytest.fixture(scope="session")
+def gl_ctx():
+    """One headless context for the session; skips every test if EGL is unavailable."""
+    try:
+        from dashtraj.render.gl import RenderUnavailableError, create_context
+    except ImportError as e:  # pragma: no cover
+        pytest.skip(f"dashtraj.render not importable: {e}")
+    try:
+        ctx = create_context()
+    except RenderUnavailableError as e:
+        pytest.skip(
+            f"no headless EGL/OpenGL context (install scripts/install_render_deps.sh "
+            f"and moderngl): {e}"
+        )
+    yield ctx
+    ctx.release()

@@ -58,20 +58,6 @@ def _skip_if_known_below_bar(case: str) -> None:
 
 
 @pytest.fixture(scope="module")
-def gl_ctx():
-    try:
-        from dashtraj.render.gl import RenderUnavailableError, create_context
-    except ImportError as e:  # pragma: no cover
-        pytest.skip(f"dashtraj.render not importable: {e}")
-    try:
-        ctx = create_context()
-    except RenderUnavailableError as e:
-        pytest.skip(f"no headless EGL/OpenGL context (scripts/install_render_deps.sh): {e}")
-    yield ctx
-    ctx.release()
-
-
-@pytest.fixture(scope="module")
 def detector():
     return YoloDetector(conf=0.25)
 
