@@ -115,3 +115,184 @@ def plot_per_class(result: dict, path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+# --------------------------------------------------------------- another source's frames
+# ours -> theirs by the base class of our 15 names ("car_front" -> "car"): the mapping of
+# the CARLA Object Detection Dataset (../shared/carla_frames) and of most road sets.
+DEFAULT_CLASS_MAP = {"car": "vehicle", "truck": "vehicle", "bus": "vehicle",
+                     "motorcycle": "motobike", "bicycle": "bike"}
+
+
+def parse_class_map(text: str) -> dict[str, str]:
+    """``car=vehicle,truck=vehicle,...`` -> {ours: theirs}; ValueError names the bad item."""
+    out = {}
+    for item in text.split(","):
+        if not item.strip():
+            continue
+        a, sep, b = item.partition("=")
+        if not sep or not a.strip() or not b.strip():
+            raise ValueError(f"{item!r} is not OURS=THEIRS")
+        out[a.strip()] = b.strip()
+    if not out:
+        raise ValueError("empty class map")
+    return out
+
+
+def read_external_names(folder) -> list[str] | None:
+    """Class names of a YOLO folder: data.yaml ``names`` or classes.txt/obj.names (one
+    per line); None when it has neither."""
+    from pathlib import Path
+
+    from dashtraj.perception.detect import read_names_yaml
+
+    folder = Path(folder)
+    for y in ("data.yaml", "dataset.yaml"):
+        if (folder / y).is_file():
+            return read_names_yaml(folder / y)
+    for t in ("classes.txt", "obj.names"):
+        if (folder / t).is_file():
+            return [ln.strip() for ln in (folder / t).read_text(encoding="utf-8").splitlines()
+                    if ln.strip()]
+    return None
+
+
+def read_external_set(folder, num_classes: int) -> list[tuple[object, np.ndarray]]:
+    """(image path, (M, 5) float [class, cx, cy, w, h] normalised) of every image in
+    ``folder/images`` (or ``folder`` itself), labels from ``folder/labels/NAME.txt``
+    beside them; an image without a label file has no objects.
+
+    Raises:
+        DashtrajError: no images, or a label line that is not ``class cx cy w h`` with a
+        class id below ``num_classes`` and finite coordinates (names file:line).
+    """
+    from pathlib import Path
+
+    from dashtraj.errors import DashtrajError
+
+    folder = Path(folder)
+    img_dir = folder / "images" if (folder / "images").is_dir() else folder
+    lab_dir = folder / "labels" if (folder / "labels").is_dir() else img_dir
+    suffixes = (".jpg", ".jpeg", ".png", ".bmp")
+    imgs = sorted(p for p in img_dir.rglob("*") if p.suffix.lower() in suffixes)
+    if not imgs:
+        raise DashtrajError(f"{folder}: no images ({', '.join(suffixes)}) in {img_dir}")
+    out = []
+    for p in imgs:
+        lab = lab_dir / p.relative_to(img_dir).with_suffix(".txt")
+        rows = []
+        if lab.is_file():
+            for i, line in enumerate(lab.read_text(encoding="utf-8").splitlines(), 1):
+                vals = line.split()
+                if not vals:
+                    continue
+                try:
+                    row = [float(v) for v in vals]
+                except ValueError:
+                    row = []
+                if (len(row) != 5 or not np.all(np.isfinite(row)) or row[0] != int(row[0])
+                        or not 0 <= row[0] < num_classes or min(row[3], row[4]) < 0):
+                    raise DashtrajError(f"{lab}:{i}: expected 'class cx cy w h' with a class "
+                                        f"id 0..{num_classes - 1}, got {line.strip()!r}")
+                rows.append(row)
+        out.append((p, np.array(rows, np.float64).reshape(-1, 5)))
+    return out
+
+
+def evaluate_external(folder, detector, their_names, class_map=None, small_px: float = 24.0,
+                      conf: float = 0.25, iou: float = 0.6, max_images: int | None = None,
+                      progress=None) -> dict:
+    """Score our detector on another source's frames with YOLO labels.
+
+    Each of our detections takes the class ``class_map[base]`` (``base``: our name
+    without its ``_front``/``_back``/``_side`` orientation); detections whose base is
+    unmapped are dropped, and after the mapping a class-aware NMS (IoU ``iou``) keeps
+    one box per object. Their classes that no class of ours maps to (traffic lights,
+    signs) are not scored. Figures: AP50 / AP50-95 per mapped class (all boxes and
+    boxes at least ``small_px`` tall, in the frames' own pixels), and the headline
+    ``vehicle`` (their first mapped class of car/truck/bus), plus class-agnostic
+    ``any`` (every detection against every scored ground truth).
+
+    Returns:
+        a dict: ``images``, ``model``, ``names`` (theirs), ``class_map``, ``per_class``
+        and ``per_class_24px`` ({their name: {ap50, ap50_95, gt}}), ``map50`` (mean over
+        the scored classes), ``vehicle_ap50``, ``vehicle_ap50_24px``, ``any_ap50``,
+        ``any_ap50_24px``, precision/recall at ``conf``.
+    """
+    from PIL import Image
+
+    from dashtraj.errors import DashtrajError
+    from dashtraj.perception.detect import nms
+    from dashtraj.perception.detmetrics import evaluate_detections
+
+    def load_rgb(path):
+        try:
+            with Image.open(path) as im:
+                return np.asarray(im.convert("RGB"))
+        except OSError as exc:
+            raise DashtrajError(f"{path}: not a readable image ({exc})") from None
+
+    class_map = dict(DEFAULT_CLASS_MAP if class_map is None else class_map)
+    their_names = list(their_names)
+    ours = list(detector.names)
+    bases = sorted({n.rsplit("_", 1)[0] if n.rsplit("_", 1)[-1] in ("front", "back", "side")
+                    else n for n in ours})
+    for o, t in class_map.items():
+        if o not in bases:
+            raise DashtrajError(f"class map: {o!r} is not a class of the model "
+                                f"({', '.join(bases)})")
+        if t not in their_names:
+            raise DashtrajError(f"class map: {t!r} is not a class of the set "
+                                f"({', '.join(their_names)})")
+    scored = [t for t in their_names if t in class_map.values()]
+    our_to_scored = np.full(len(ours), -1, np.int64)
+    for i, n in enumerate(ours):
+        base = n.rsplit("_", 1)[0] if n.rsplit("_", 1)[-1] in ("front", "back", "side") else n
+        if base in class_map:
+            our_to_scored[i] = scored.index(class_map[base])
+    their_to_scored = np.array([scored.index(t) if t in scored else -1 for t in their_names])
+    items = read_external_set(folder, len(their_names))[:max_images]
+    preds, preds_any, gts, gts_any = [], [], [], []
+    for start in range(0, len(items), 8):
+        chunk = items[start:start + 8]
+        rgbs = [load_rgb(p) for p, _ in chunk]
+        for d, rgb, (_, lab) in zip(detector.detect(rgbs), rgbs, chunk, strict=True):
+            h, w = rgb.shape[:2]
+            c = our_to_scored[d.class_ids] if len(d) else np.zeros(0, np.int64)
+            m = c >= 0
+            b, s, c = d.boxes[m], d.scores[m], c[m]
+            k = nms(b, s, iou, classes=c)  # one box per object after the mapping
+            b, s, c = b[k], s[k], c[k]
+            preds.append(np.concatenate([b, s[:, None], c[:, None].astype(np.float64)], 1))
+            ka = nms(b, s, iou)
+            preds_any.append(np.concatenate([b[ka], s[ka, None], np.zeros((len(ka), 1))], 1))
+            tc = their_to_scored[lab[:, 0].astype(np.int64)] if len(lab) else np.zeros(0, int)
+            lab = lab[tc >= 0]
+            tc = tc[tc >= 0]
+            xyxy = np.stack([(lab[:, 1] - lab[:, 3] / 2) * w, (lab[:, 2] - lab[:, 4] / 2) * h,
+                             (lab[:, 1] + lab[:, 3] / 2) * w, (lab[:, 2] + lab[:, 4] / 2) * h],
+                            1) if len(lab) else np.zeros((0, 4))
+            gts.append(np.concatenate([xyxy, tc[:, None].astype(np.float64)], 1))
+            gts_any.append(np.concatenate([xyxy, np.zeros((len(xyxy), 1))], 1))
+            if progress is not None:
+                progress()
+    res = evaluate_detections(preds, gts, len(scored), names=scored, small_px=small_px,
+                              conf=conf)
+    agn = evaluate_detections(preds_any, gts_any, 1, names=["any"], small_px=small_px,
+                              conf=conf)
+    vehicle = next((class_map[b] for b in ("car", "truck", "bus") if b in class_map), scored[0])
+
+    def ap(d, key):
+        v = d.get(key, {}).get(vehicle)
+        return v["ap50"] if v else float("nan")
+
+    res.update({
+        "images": len(items), "model": str(detector.path), "folder": str(folder),
+        "names": their_names, "class_map": class_map, "scored_classes": scored,
+        "vehicle_class": vehicle,
+        "vehicle_ap50": ap(res, "per_class"), "vehicle_ap50_24px": ap(res, "per_class_24px"),
+        "any_ap50": agn["map50"], "any_ap50_24px": agn.get("map50_24px", float("nan")),
+        "any_precision": agn["precision"], "any_recall": agn["recall"],
+        "conf": conf, "nms_iou": iou,
+    })
+    return res

@@ -417,7 +417,7 @@ def _rng_for(seed: int, epoch: int) -> np.random.Generator:
 
 
 def train(data_dir, out_dir, recipe: Recipe, seed: int = 0, epochs: int | None = None,
-          max_images: int | None = None, log=print) -> dict:
+          max_images: int | None = None, stop_after: int | None = None, log=print) -> dict:
     """Train (or resume: ``out_dir/last.pt``) and write last.pt, best.pt, log.jsonl,
     recipe.json, curves.png in ``out_dir``.
 
@@ -425,6 +425,9 @@ def train(data_dir, out_dir, recipe: Recipe, seed: int = 0, epochs: int | None =
         data_dir: a YOLO set made by ``dashtraj detection-dataset``.
         recipe: a `Recipe`; ``epochs`` overrides its epoch count.
         max_images: use only the first N training (and validation) images (smoke tests).
+        stop_after: stop once this many epochs are done, keeping the learning-rate
+            schedule of the full ``epochs`` (a fixed-budget cut of a longer run, resumable
+            to the end; two runs cut at the same epoch had the same steps and schedule).
 
     Returns:
         a summary dict (epochs, steps, best map50 and map50_95, wall time, paths).
@@ -489,7 +492,8 @@ def train(data_dir, out_dir, recipe: Recipe, seed: int = 0, epochs: int | None =
         tmp.replace(path)
 
     t_start = time.time() - state["wall_s"]
-    while state["epoch"] < recipe.epochs:
+    end = recipe.epochs if stop_after is None else min(recipe.epochs, stop_after)
+    while state["epoch"] < end:
         ep = state["epoch"]
         rng = _rng_for(seed, ep)
         order = rng.permutation(len(train_items))
