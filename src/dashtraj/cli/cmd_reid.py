@@ -40,6 +40,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     t.add_argument("--lr", type=positive_float, default=None, help="override the learning rate")
     t.add_argument("--triplet", action="store_true", help="add the batch-hard triplet loss")
     t.add_argument("--resume", action="store_true", help="continue the run in DIR")
+    t.add_argument("--init", default=None, metavar="CKPT.pt",
+                   help="start from another run's weights (a second stage with its own "
+                   "schedule, e.g. --epochs 3 --lr 1e-3)")
     t.add_argument("--overwrite", action="store_true", help="start afresh in a non-empty DIR")
     t.add_argument("--max-hours", type=positive_float, default=None,
                    help="stop (resumable) after this many hours of this call")
@@ -115,7 +118,7 @@ def run_train(args: argparse.Namespace) -> int:
     cmd = "dashtraj " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     s = train(args.data, args.output, recipe, seed=args.seed, resume=args.resume,
               overwrite=args.overwrite, max_hours=args.max_hours, threads=args.threads,
-              command=cmd, log=lambda m: print(m, flush=True))
+              command=cmd, init=args.init, log=lambda m: print(m, flush=True))
     best = s["best"]
     if args.json:
         print(json.dumps({k: s[k] for k in ("epochs_done", "finished", "train_wall_s", "best",
