@@ -587,9 +587,10 @@ class SightingsDB:
         models = {m.model_sha256: m for m in self.embedding_models()}
         if model_sha256 not in models:
             have = ", ".join(f"{m.model} ({m.model_sha256[:12]}...)" for m in models.values())
+            have = f"models: {have}" if have else "it has no embeddings yet"
             raise StoreError(f"{self.path} has no embeddings of model sha256 "
-                             f"{model_sha256[:12]}... ({'models: ' + have if have else 'none'}"
-                             "); run: dashtraj reid embed DB --model M.onnx")
+                             f"{model_sha256[:12]}... ({have}); run: dashtraj reid embed DB "
+                             "--model M.onnx")
         m = models[model_sha256]
         sql = ("SELECT e.observer_id, e.frame, e.idx, d.track_id, d.t, d.x0, d.y0, d.x1, d.y1, "
                "d.vehicle_class, d.distance_m, d.truth_vehicle_id, e.vector FROM embeddings e "
