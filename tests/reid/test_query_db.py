@@ -157,11 +157,18 @@ def test_gallery_search_equals_brute_force_on_the_database_vectors(embedded):
         np.testing.assert_allclose([t.distance for t in a.tracks],
                                    [t.distance for t in b.tracks], atol=1e-5)
         assert ex not in {(t.observer_id, t.track_id) for t in a.tracks}
-        # distances recomputed by hand: mean of 1 - q.g over each track's crops
-        qv = query_vector(e.vectors[rows])
-        t0 = a.tracks[0]
-        m = (e.observer_id == t0.observer_id) & (e.track_id == t0.track_id)
-        assert t0.distance == pytest.approx(float(np.mean(1 - e.vectors[m] @ qv)), abs=1e-5)
+        # an independent brute force: every track's crops, 1 - q.g, aggregated, sorted
+        qv = query_vector(e.vectors[rows]).astype(np.float64)
+        for agg, fn in (("mean", np.mean), ("min", np.min),
+                        ("kmin-mean", lambda d: np.sort(d)[:(len(d) + 1) // 2].mean())):
+            ref = sorted((float(fn(1 - e.vectors[m].astype(np.float64) @ qv)), o, t)
+                         for o, t in {(int(o), int(t)) for o, t in zip(
+                             e.observer_id, e.track_id, strict=True) if t >= 0} - {ex}
+                         for m in [(e.observer_id == o) & (e.track_id == t)])
+            got = rank_tracks(qv, e, k=5, exclude=ex, aggregate=agg).tracks
+            assert [(t.observer_id, t.track_id) for t in got] == [r[1:] for r in ref[:5]], agg
+            np.testing.assert_allclose([t.distance for t in got], [r[0] for r in ref[:5]],
+                                       atol=1e-5)
 
 
 def _partner_ranks(e, aggregate):

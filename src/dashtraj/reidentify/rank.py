@@ -4,7 +4,11 @@ The gallery is every embedded crop whose detection belongs to a confirmed track
 (`dashtraj.store.EmbeddingSet`), minus the query's own track when the query is a
 track. Distances are cosine distances ``d = 1 − q·g`` in [0, 2] between L2-normalised
 vectors, from an exact inner-product search of `dashtraj.reid.gallery` (faiss flat;
-``backend="numpy"`` is the brute force that gives the same ranking).
+``backend="numpy"`` is the brute force that gives the same ranking). The search looks
+at the nearest crops first and widens (x4) until the top k tracks are provably
+exact: every aggregator below is at least the track's closest-crop distance, so a
+track without a crop among those searched cannot beat a k-th candidate that is closer
+than the farthest crop searched.
 
 The query vector (`query_vector`):
 
@@ -132,64 +136,117 @@ def _majority(values) -> object:
     return vals[int(np.argmax(counts))]
 
 
-def rank_tracks(query, gallery: EmbeddingSet, k: int = 10, aggregate: str = DEFAULT_AGGREGATE,
-                exclude: tuple[int, int] | None = None, backend: str = "faiss",
-                threads: int | None = None) -> TrackRanking:
-    """The ``k`` tracks of ``gallery`` closest to ``query`` (module docstring).
+class TrackGallery:
+    """The embedded crops of confirmed tracks, indexed once for many queries.
 
     Args:
-        query: (D,) unit vector (`query_vector`).
-        gallery: the database's embeddings of one model.
-        k: tracks to return (>= 1; fewer when the gallery has fewer).
-        aggregate: a name in `dashtraj.reidentify.decision.AGGREGATORS`.
-        exclude: (observer_id, track_id) left out of the gallery (the query's track).
-        backend: "faiss" or "numpy" (`dashtraj.reid.gallery.Gallery`).
+        embeddings: the database's embeddings of one model (`SightingsDB.embeddings`);
+            rows of unconfirmed detections (track id -1) are left out.
+        backend: "faiss" or "numpy" (`dashtraj.reid.gallery.Gallery`, flat: exact).
         threads: faiss threads (None: faiss's default).
 
     Raises:
-        RankError: k < 1; the query's size is not the gallery's; no tracked crop left.
-        ReidDecisionError: an unknown aggregator (the message lists the valid ones).
+        RankError: no embedded crop of a confirmed track.
     """
-    fn = aggregator(aggregate)
-    if int(k) < 1:
-        raise RankError(f"k must be >= 1, got {k}")
-    q = np.asarray(query, dtype=np.float32).reshape(-1)
-    if q.shape[0] != gallery.dim:
-        raise RankError(f"the query vector is {q.shape[0]}-d, the database's embeddings of "
-                        f"{gallery.model} are {gallery.dim}-d")
-    keep = gallery.track_id >= 0
-    if exclude is not None:
-        keep &= ~((gallery.observer_id == exclude[0]) & (gallery.track_id == exclude[1]))
-    rows = np.flatnonzero(keep)
-    if len(rows) == 0:
-        raise RankError("the database has no embedded crops of a confirmed track to search"
-                        + (" besides the query's track" if exclude is not None else ""))
-    g = Gallery(gallery.dim, metric="ip", index="flat", backend=backend, threads=threads)
-    g.add(l2_normalize(gallery.vectors[rows]), ids=rows)
-    scores, ids = g.search(q[None, :], k=len(rows))  # exact: every gallery crop
-    dist = np.empty(len(gallery), np.float64)
-    dist[ids[0]] = np.clip(1.0 - scores[0].astype(np.float64), 0.0, 2.0)
-    pairs = np.stack([gallery.observer_id[rows], gallery.track_id[rows]], axis=1)
-    uniq, inv = np.unique(pairs, axis=0, return_inverse=True)
-    inv = inv.reshape(-1)
-    order = np.argsort(inv, kind="stable")
-    bounds = np.searchsorted(inv[order], np.arange(len(uniq) + 1))
-    cand = []
-    for j in range(len(uniq)):
-        members = rows[order[bounds[j]:bounds[j + 1]]]
-        d = dist[members]
-        cand.append((float(fn(d)), int(uniq[j, 0]), int(uniq[j, 1]), members, d))
-    cand.sort(key=lambda c: (c[0], c[1], c[2]))
-    out = []
-    for r, (agg, obs, trk, members, d) in enumerate(cand[:int(k)], start=1):
-        b = int(members[int(np.argmin(d))])
-        truth = int(_majority(gallery.truth_vehicle_id[members]))
-        out.append(RankedTrack(
-            rank=r, observer_id=obs, track_id=trk, distance=agg, crops=len(members),
-            best_frame=int(gallery.frame[b]), best_idx=int(gallery.idx[b]),
-            best_t=float(gallery.t[b]), best_distance=float(dist[b]),
-            vehicle_class=str(_majority([gallery.vehicle_class[i] for i in members])),
-            first_t=float(gallery.t[members].min()), last_t=float(gallery.t[members].max()),
-            truth_vehicle_id=None if truth < 0 else truth))
-    return TrackRanking(tracks=tuple(out), aggregate=aggregate, tracks_searched=len(uniq),
-                        crops_searched=len(rows))
+
+    def __init__(self, embeddings: EmbeddingSet, backend: str = "faiss",
+                 threads: int | None = None):
+        e = embeddings
+        rows = np.flatnonzero(e.track_id >= 0)
+        if len(rows) == 0:
+            raise RankError("the database has no embedded crops of a confirmed track to search")
+        self.embeddings = e
+        self.rows = rows
+        v = e.vectors if len(rows) == len(e) else e.vectors[rows]
+        norms = np.linalg.norm(v, axis=1, keepdims=True)
+        if not np.allclose(norms, 1.0, atol=1e-5):  # the embedder's are unit already
+            v = v / np.maximum(norms, 1e-12)
+        self.vectors = np.ascontiguousarray(v, dtype=np.float32)
+        self.index = Gallery(e.dim, metric="ip", index="flat", backend=backend, threads=threads)
+        self.index.add(self.vectors, ids=np.arange(len(rows)))  # ids: positions in rows
+        pairs = np.stack([e.observer_id[rows], e.track_id[rows]], axis=1)
+        self.tracks, inv = np.unique(pairs, axis=0, return_inverse=True)
+        self._inv = inv.reshape(-1)
+        self._order = np.argsort(self._inv, kind="stable")
+        self._bounds = np.searchsorted(self._inv[self._order], np.arange(len(self.tracks) + 1))
+
+    def _track(self, key: tuple[int, int]) -> int | None:
+        hit = np.flatnonzero((self.tracks[:, 0] == key[0]) & (self.tracks[:, 1] == key[1]))
+        return int(hit[0]) if len(hit) else None
+
+    def rank(self, query, k: int = 10, aggregate: str = DEFAULT_AGGREGATE,
+             exclude: tuple[int, int] | None = None) -> TrackRanking:
+        """The ``k`` tracks closest to ``query`` (module docstring).
+
+        Args:
+            query: (D,) unit vector (`query_vector`).
+            k: tracks to return (>= 1; fewer when the gallery has fewer).
+            aggregate: a name in `dashtraj.reidentify.decision.AGGREGATORS`.
+            exclude: (observer_id, track_id) left out (the query's own track).
+
+        Raises:
+            RankError: k < 1; the query's size is not the gallery's; no track left.
+            ReidDecisionError: an unknown aggregator (the message lists the valid ones).
+        """
+        fn = aggregator(aggregate)
+        e = self.embeddings
+        if int(k) < 1:
+            raise RankError(f"k must be >= 1, got {k}")
+        q = np.asarray(query, dtype=np.float32).reshape(-1)
+        if q.shape[0] != e.dim:
+            raise RankError(f"the query vector is {q.shape[0]}-d, the database's embeddings "
+                            f"of {e.model} are {e.dim}-d")
+        skip = self._track(exclude) if exclude is not None else None
+        n_tracks = len(self.tracks) - (skip is not None)
+        if n_tracks == 0:
+            raise RankError("the database has no embedded crops of a confirmed track to "
+                            "search besides the query's track")
+        n_crops = len(self.rows) - (0 if skip is None else
+                                    int(self._bounds[skip + 1] - self._bounds[skip]))
+        k_eff = min(int(k), n_tracks)
+        q64 = q.astype(np.float64)
+        # Search the kk nearest crops; their tracks are the candidates, aggregated exactly
+        # over all their crops. Every aggregator is >= the track's closest crop, so a track
+        # with no crop among the kk has a distance >= the kk-th crop's: when the k-th
+        # candidate is closer than that, the top k are exact; otherwise kk grows (x4).
+        kk = min(len(self.rows), max(256, 32 * int(k)))
+        scored: dict[int, tuple[float, np.ndarray, np.ndarray]] = {}
+        while True:
+            scores, pos = self.index.search(q[None, :], kk)
+            found = pos[0][pos[0] >= 0]
+            for j in np.unique(self._inv[found]).tolist():
+                if j not in scored and j != skip:
+                    members = self._order[self._bounds[j]:self._bounds[j + 1]]
+                    d = np.clip(1.0 - self.vectors[members].astype(np.float64) @ q64, 0.0, 2.0)
+                    scored[j] = (float(fn(d)), members, d)
+            if kk >= len(self.rows):
+                break
+            if len(scored) >= k_eff:
+                kth = sorted(v[0] for v in scored.values())[k_eff - 1]
+                if kth < 1.0 - float(scores[0, -1]) - 1e-6:
+                    break
+            kk = min(len(self.rows), 4 * kk)
+        cand = sorted(((agg, int(self.tracks[j, 0]), int(self.tracks[j, 1]), self.rows[m], d)
+                       for j, (agg, m, d) in scored.items()), key=lambda c: c[:3])
+        out = []
+        for r, (agg, obs, trk, members, d) in enumerate(cand[:k_eff], start=1):
+            b = int(members[int(np.argmin(d))])
+            truth = int(_majority(e.truth_vehicle_id[members]))
+            out.append(RankedTrack(
+                rank=r, observer_id=obs, track_id=trk, distance=agg, crops=len(members),
+                best_frame=int(e.frame[b]), best_idx=int(e.idx[b]), best_t=float(e.t[b]),
+                best_distance=float(d.min()),
+                vehicle_class=str(_majority([e.vehicle_class[i] for i in members])),
+                first_t=float(e.t[members].min()), last_t=float(e.t[members].max()),
+                truth_vehicle_id=None if truth < 0 else truth))
+        return TrackRanking(tracks=tuple(out), aggregate=aggregate, tracks_searched=n_tracks,
+                            crops_searched=n_crops)
+
+
+def rank_tracks(query, gallery: EmbeddingSet, k: int = 10, aggregate: str = DEFAULT_AGGREGATE,
+                exclude: tuple[int, int] | None = None, backend: str = "faiss",
+                threads: int | None = None) -> TrackRanking:
+    """The ``k`` tracks of ``gallery`` closest to ``query``: one query on a `TrackGallery`
+    built for it (build one yourself for many queries); arguments and errors as there."""
+    return TrackGallery(gallery, backend=backend, threads=threads).rank(
+        query, k=k, aggregate=aggregate, exclude=exclude)

@@ -592,8 +592,9 @@ class SightingsDB:
                              f"{model_sha256[:12]}... ({have}); run: dashtraj reid embed DB "
                              "--model M.onnx")
         m = models[model_sha256]
-        sql = ("SELECT e.observer_id, e.frame, e.idx, d.track_id, d.t, d.x0, d.y0, d.x1, d.y1, "
-               "d.vehicle_class, d.distance_m, d.truth_vehicle_id, e.vector FROM embeddings e "
+        sql = ("SELECT e.observer_id, e.frame, e.idx, COALESCE(d.track_id, -1), d.t, d.x0, "
+               "d.y0, d.x1, d.y1, d.vehicle_class, d.distance_m, "
+               "COALESCE(d.truth_vehicle_id, -1), e.vector FROM embeddings e "
                "JOIN detections d ON d.observer_id = e.observer_id AND d.frame = e.frame AND "
                "d.idx = e.idx WHERE e.model_sha256 = ?")
         args: list = [model_sha256]
@@ -604,18 +605,20 @@ class SightingsDB:
             sql += " AND d.track_id = ?"
             args.append(int(track_id))
         rows = self._query(sql + " ORDER BY e.observer_id, e.frame, e.idx", args)
+        n = len(rows)
+        cols = list(zip(*rows, strict=True)) if rows else [()] * 13
 
-        def col(j: int, dtype, none=-1) -> np.ndarray:
-            return np.array([none if r[j] is None else r[j] for r in rows], dtype=dtype)
+        def col(j: int, dtype) -> np.ndarray:  # None becomes NaN in the float columns
+            return np.array(cols[j], dtype=dtype).reshape(n)
 
-        vecs = (np.frombuffer(b"".join(r[12] for r in rows), _VECTOR).reshape(len(rows), m.dim)
-                .astype(np.float32) if rows else np.zeros((0, m.dim), np.float32))
+        vecs = (np.frombuffer(b"".join(cols[12]), _VECTOR).reshape(n, m.dim).astype(np.float32)
+                if rows else np.zeros((0, m.dim), np.float32))
         return EmbeddingSet(
             model=m.model, model_sha256=m.model_sha256, dim=m.dim,
             observer_id=col(0, np.int64), frame=col(1, np.int64), idx=col(2, np.int64),
             track_id=col(3, np.int64), t=col(4, np.float64),
-            box=np.array([r[5:9] for r in rows], np.float64).reshape(len(rows), 4),
-            vehicle_class=tuple(r[9] for r in rows), distance_m=col(10, np.float64, np.nan),
+            box=np.array(cols[5:9], np.float64).reshape(4, n).T.copy(),
+            vehicle_class=tuple(cols[9]), distance_m=col(10, np.float64),
             truth_vehicle_id=col(11, np.int64), vectors=vecs)
 
     def count(self, table: str) -> int:
