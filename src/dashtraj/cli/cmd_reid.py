@@ -1,4 +1,5 @@
-"""`dashtraj reid train|eval|export`: vehicle re-identification."""
+"""`dashtraj reid train|eval|export|moving-queries|embed|query`: vehicle re-identification
+(``embed`` and ``query`` on a sightings database run in `dashtraj.cli.reid_db`)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `reid` command and its sub-commands."""
     p = subparsers.add_parser(
         "reid",
-        help="vehicle re-identification: train, evaluate (VeRi protocol), export to ONNX",
+        help="vehicle re-identification: train, evaluate (VeRi protocol), export to ONNX, "
+             "embed a sightings database's crops and query its tracks",
         description="Vehicle re-identification after the paper (§II.E): backbones by name, "
                     "softmax training, VeRi-776 evaluation, ONNX embedding.",
     )
@@ -92,6 +94,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     x.add_argument("--overwrite", action="store_true", help="replace an existing file")
     x.add_argument("--json", action="store_true", help="print the summary as JSON")
     x.set_defaults(func=run_export)
+
+    from dashtraj.cli.reid_db import register_db_commands
+
+    register_db_commands(sub)
 
 
 def _need_torch():
