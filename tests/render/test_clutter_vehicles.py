@@ -88,7 +88,7 @@ def test_clutter_is_deterministic_per_seed(straight_map):
     assert a.positions.tobytes() != c.positions.tobytes()
 
 
-def test_clutter_is_never_labelled(gl_ctx, straight_map, monkeypatch):
+def test_clutter_is_never_labelled(gl_ctx, straight_map):
     """The same frames with and without clutter: silhouettes and projected boxes are
     equal, no pixel gets an id it did not have, and every vehicle pixel the clutter
     takes away is one where the clutter is nearer than the vehicle."""
@@ -105,10 +105,7 @@ def test_clutter_is_never_labelled(gl_ctx, straight_map, monkeypatch):
         f1 = with_c.render(cam, vs)
     finally:
         with_c.release()
-    bare_map = RoadMap.from_string(STRAIGHT_XODR, name="bare")
-    monkeypatch.setattr(clutter_mod, "clutter_mesh",
-                        lambda *a, **k: clutter_mod.Mesh.concat([]))
-    bare = Renderer(bare_map, 640, 360, 90.0, msaa=0, ctx=gl_ctx)
+    bare = Renderer(straight_map, 640, 360, 90.0, msaa=0, ctx=gl_ctx, clutter=False)
     try:
         f0 = bare.render(cam, vs)
     finally:

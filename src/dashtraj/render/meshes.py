@@ -444,21 +444,25 @@ class SceneMeshes:
 _SCENE_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def scene_meshes(road_map, seed: int = 0) -> SceneMeshes:
-    """Static meshes of a map (built once per map and seed, cached weakly on the map).
+def scene_meshes(road_map, seed: int = 0, clutter: bool = True) -> SceneMeshes:
+    """Static meshes of a map (built once per map, seed and ``clutter``, cached weakly on
+    the map).
 
     Args:
         road_map: a ``dashtraj.roads.RoadMap``.
-        seed: seed of the building placement.
+        seed: seed of the building, prop and clutter placement.
+        clutter: add the street clutter (``dashtraj.render.clutter``) to the props.
     """
     per_map = _SCENE_CACHE.setdefault(road_map, {})
-    if seed not in per_map:
-        per_map[seed] = build_scene_meshes(road_map, seed)
-    return per_map[seed]
+    key = seed if clutter else (seed, "no clutter")
+    if key not in per_map:
+        per_map[key] = build_scene_meshes(road_map, seed, clutter)
+    return per_map[key]
 
 
-def build_scene_meshes(road_map, seed: int = 0) -> SceneMeshes:
-    """Build (uncached) the static scene: ground, lanes, sidewalks, marks, buildings."""
+def build_scene_meshes(road_map, seed: int = 0, clutter: bool = True) -> SceneMeshes:
+    """Build (uncached) the static scene: ground, lanes, sidewalks, marks, buildings,
+    lamps and trees, and (``clutter``) the street clutter."""
     m = road_map
     surf: list[Mesh] = []
     marks: list[Mesh] = []
@@ -508,10 +512,11 @@ def build_scene_meshes(road_map, seed: int = 0) -> SceneMeshes:
                            jitter=np.random.default_rng([seed, 1]))
     spots: list[tuple[float, float, float]] = []
     props = _props(m, pts, placed, np.random.default_rng([seed, 2]), spots=spots)
-    from dashtraj.render.clutter import clutter_mesh
+    if clutter:
+        from dashtraj.render.clutter import clutter_mesh
 
-    props = Mesh.concat([props, clutter_mesh(m, pts, placed, np.random.default_rng([seed, 3]),
-                                             taken=spots)])
+        props = Mesh.concat([props, clutter_mesh(m, pts, placed,
+                                                 np.random.default_rng([seed, 3]), taken=spots)])
     return SceneMeshes(Mesh.concat(surf), buildings, Mesh.concat(marks), (x0, y0, x1, y1),
                        props)
 

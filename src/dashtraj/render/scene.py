@@ -230,6 +230,7 @@ class Renderer:
         look: a ``dashtraj.render.look.LookConfig`` (weather, materials, camera);
             None = ``LookConfig()``, clear daytime. Change it with ``set_look``: it
             changes pixels, never labels, ids or depth.
+        clutter: draw the street clutter (``dashtraj.render.clutter``: never labelled).
 
     Example:
         >>> r = Renderer(m, 640, 360)  # doctest: +SKIP
@@ -255,6 +256,7 @@ class Renderer:
         ctx=None,
         threads: int | None = None,
         look: LookConfig | None = None,
+        clutter: bool = True,
     ):
         import moderngl
 
@@ -325,7 +327,7 @@ class Renderer:
         self._fbo_bits = ctx.framebuffer(color_attachments=[ctx.renderbuffer(size, 1, dtype="u4")])
         self._fbos += [self._fbo_sil, self._fbo_bits]
         self._logic_op = None
-        scene = scene_meshes(road_map, seed)
+        scene = scene_meshes(road_map, seed, clutter)
         self._static = []
         self._casters = []  # indices into _static of the groups that cast shadows
         # drawn after the vehicles, near to far, so hidden fragments fail the depth test early
