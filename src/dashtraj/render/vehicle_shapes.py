@@ -127,6 +127,34 @@ def _disc(cx: float, y: float, cz: float, radius: float, color, material, sides:
     return _mesh(tris, color, centre=(cx, y - side, cz), material=material)
 
 
+def _face_x(x: float, y0: float, y1: float, z0: float, z1: float, color, sign: float,
+            emissive: float = 0.0, material: int | None = None) -> Mesh:
+    """A flat quad across the vehicle at ``x`` facing ``sign`` · x (lamps, plates, grilles:
+    details on an end face need no sides)."""
+    q = np.array([[x, y0, z0], [x, y1, z0], [x, y1, z1], [x, y0, z1]])
+    return _mesh(np.stack([q[[0, 1, 2]], q[[0, 2, 3]]]), color, emissive,
+                 centre=(x - sign, 0.5 * (y0 + y1), 0.5 * (z0 + z1)), material=material)
+
+
+def _face_y(y: float, x0: float, x1: float, z0: float, z1: float, color, sign: float,
+            material: int | None = None) -> Mesh:
+    """A flat quad along the vehicle at ``y`` facing ``sign`` · y (side windows, strips)."""
+    q = np.array([[x0, y, z0], [x1, y, z0], [x1, y, z1], [x0, y, z1]])
+    return _mesh(np.stack([q[[0, 1, 2]], q[[0, 2, 3]]]), color,
+                 centre=(0.5 * (x0 + x1), y - sign, 0.5 * (z0 + z1)), material=material)
+
+
+def _tyre(cx: float, cy: float, r: float, w: float, sides: int = 10) -> Mesh:
+    """``meshes.wheel`` without the cap that faces the vehicle's centre (never seen)."""
+    m = wheel(cx, cy, r, w, sides)
+    if cy == 0.0:
+        return m
+    y_in = cy - np.sign(cy) * w / 2
+    tri_y = m.positions[:, 1].reshape(-1, 3)
+    keep = np.repeat(~(np.abs(tri_y - y_in) < 1e-6).all(axis=1), 3)
+    return Mesh(m.positions[keep], m.normals[keep], m.colors[keep])
+
+
 def _arch(xw: float, y: float, r: float, zb: float, ztop: float, side: float) -> Mesh:
     """A dark wheel well on the body side at y (facing ``side``): half disc of radius
     r + 6 cm above the axle, a rectangle down to the sill."""
@@ -149,9 +177,8 @@ def _wheel_set(xs, W: float, r: float, tyre_w: float, zb: float, ztop: float) ->
     for x in xs:
         for s in (-1.0, 1.0):
             parts.append(_arch(x, s * (W / 2 + 0.003), r, zb, ztop, s))
-            parts.append(wheel(x, s * yo, r, tyre_w))
-            parts.append(_disc(x, s * (W / 2 + 0.013), r, 0.6 * r, RIM, MAT_METAL, side=s))
-            parts.append(_disc(x, s * (W / 2 + 0.015), r, 0.18 * r, TRIM, MAT_METAL, 6, side=s))
+            parts.append(_tyre(x, s * yo, r, tyre_w))
+            parts.append(_disc(x, s * (W / 2 + 0.013), r, 0.6 * r, RIM, MAT_METAL, 8, side=s))
     return parts
 
 
@@ -163,17 +190,16 @@ def _front_back(L: float, w_end: float, zl0: float, zl1: float, zp: float, lamp_
     yo = w_end - lamp_gap - lamp_w / 2
     for front in (True, False):
         sgn = 1.0 if front else -1.0
-        x0, x1 = sorted((sgn * (L / 2 - 0.03), sgn * (L / 2 + 0.012)))
         col = HEADLIGHT if front else TAILLIGHT
         for s in (-1.0, 1.0):
-            parts.append(box((x0, s * yo - lamp_w / 2, zl0), (x1, s * yo + lamp_w / 2, zl1),
-                             col, 1.0))
+            parts.append(_face_x(sgn * (L / 2 + 0.008), s * yo - lamp_w / 2, s * yo + lamp_w / 2,
+                                 zl0, zl1, col, sgn, 1.0))
         pw = min(0.26, 0.3 * w_end)
-        parts.append(box((x0, -pw, zp), (x1 + 0.003 * sgn, pw, zp + 0.12), PLATE,
-                         material=MAT_LIT))
+        parts.append(_face_x(sgn * (L / 2 + 0.011), -pw, pw, zp, zp + 0.12, PLATE, sgn,
+                             material=MAT_LIT))
     if grille is not None:
         gy, gz0, gz1 = grille
-        parts.append(box((L / 2 - 0.03, -gy, gz0), (L / 2 + 0.008, gy, gz1), GRILLE))
+        parts.append(_face_x(L / 2 + 0.006, -gy, gy, gz0, gz1, GRILLE, 1.0))
     return parts
 
 
@@ -258,8 +284,8 @@ def car_mesh(body, L, W, H, wb, r, clear, hood, c0, c1, belt, paint) -> Mesh:
                          paint, material=MAT_PAINT))
     # bumpers: dark strips low on both ends; lamps, plates, grille
     for sgn in (-1.0, 1.0):
-        x0, x1 = sorted((sgn * (L / 2 - 0.05), sgn * (L / 2 + 0.005)))
-        parts.append(box((x0, -(w - 0.14), bots[0]), (x1, w - 0.14, bots[0] + 0.1), TRIM))
+        parts.append(_face_x(sgn * (L / 2 + 0.004), -(w - 0.14), w - 0.14, bots[0],
+                             bots[0] + 0.1, TRIM, sgn))
     zl1 = tops[-1] - 0.05
     zl0 = max(zl1 - 0.16, bots[-1] + 0.2)
     zp = bots[0] + 0.13
@@ -283,14 +309,14 @@ def big_vehicle_mesh(body, L, W, H, wb, r, clear, c1, paint) -> Mesh:
         parts.append(_solid(xs, rings, paint, MAT_PAINT))
         zw0, zw1 = 0.42 * H, 0.86 * H
         for s in (-1.0, 1.0):
-            parts.append(box((-L / 2 + 0.4, s * w - 0.012, zw0), (L / 2 - 1.0, s * w + 0.012, zw1),
-                             GLASS, material=MAT_GLASS))
-            parts.append(box((-L / 2 + 0.2, s * w - 0.01, zb), (L / 2 - 0.2, s * w + 0.01,
-                             zb + 0.25), TRIM))
+            parts.append(_face_y(s * (w + 0.008), -L / 2 + 0.4, L / 2 - 1.0, zw0, zw1, GLASS, s,
+                                 MAT_GLASS))
+            parts.append(_face_y(s * (w + 0.006), -L / 2 + 0.2, L / 2 - 0.2, zb, zb + 0.25, TRIM,
+                                 s))
             # door: glass down to the step, behind the front axle
-            parts.append(box((wb / 2 + r + 0.15, s * w - 0.013, zb + 0.1),
-                             (min(wb / 2 + r + 1.2, L / 2 - 0.3), s * w + 0.013, zw1), GLASS,
-                             material=MAT_GLASS))
+            parts.append(_face_y(s * (w + 0.01), wb / 2 + r + 0.15,
+                                 min(wb / 2 + r + 1.2, L / 2 - 0.3), zb + 0.1, zw1, GLASS, s,
+                                 MAT_GLASS))
         parts.append(box((L / 2 - 0.02, -(w - 0.15), 0.32 * H), (L / 2 + 0.012, w - 0.15,
                          0.93 * H), GLASS, material=MAT_GLASS))
         parts.append(box((-L / 2 - 0.012, -(w - 0.3), 0.58 * H), (-L / 2 + 0.02, w - 0.3,
@@ -309,9 +335,8 @@ def big_vehicle_mesh(body, L, W, H, wb, r, clear, c1, paint) -> Mesh:
         parts.append(box((L / 2 - 0.02, -(w - 0.2), 0.55 * zcab), (L / 2 + 0.01, w - 0.2,
                          0.88 * zcab), GLASS, material=MAT_GLASS))
         for s in (-1.0, 1.0):
-            parts.append(box((L / 2 - cab_l + 0.3, s * w - 0.012, 0.55 * zcab),
-                             (L / 2 - 0.35, s * w + 0.012, 0.86 * zcab), GLASS,
-                             material=MAT_GLASS))
+            parts.append(_face_y(s * (w + 0.008), L / 2 - cab_l + 0.3, L / 2 - 0.35,
+                                 0.55 * zcab, 0.86 * zcab, GLASS, s, MAT_GLASS))
         cargo = 0.55 * paint + 0.45 * np.array([0.9, 0.9, 0.88])
         xc = np.array([-L / 2, -L / 2 + 0.05, L / 2 - cab_l - 0.15, L / 2 - cab_l - 0.1])
         crings = [_bevel_ring(w - d, zb + 0.35, H - d, 0.02, 0.06) for d in (0.03, 0, 0, 0.03)]
@@ -328,7 +353,7 @@ def big_vehicle_mesh(body, L, W, H, wb, r, clear, c1, paint) -> Mesh:
 
 
 # --------------------------------------------------------------------------- two-wheelers
-def _ring_wheel(cx: float, r: float, tw: float, spokes: int = 8, sides: int = 16) -> Mesh:
+def _ring_wheel(cx: float, r: float, tw: float, spokes: int = 6, sides: int = 12) -> Mesh:
     """A see-through bicycle wheel: a tyre ring (outer r, inner 0.86 r) and thin spokes."""
     a = np.arange(sides) * (2 * np.pi / sides) + np.pi / sides  # flat edge at the bottom
     j = (np.arange(sides) + 1) % sides
