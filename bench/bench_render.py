@@ -23,6 +23,10 @@ added (+), and ``randomized`` draws a new look per frame (``dashtraj.render.rand
 Rows are timed in interleaved rounds (so load changes hit all of them alike); the
 figure is the median CPU time per frame, its difference to the default look and its
 ratio to the flat peer.
+
+Geometry (``--no-geometry`` skips it): the same frames without the street clutter and
+without the contact shadows under the vehicles (the cost of the new geometry), on the
+straight street and on Town01 when ``../shared/maps/carla`` is there.
 """
 
 from __future__ import annotations
@@ -68,6 +72,8 @@ def main(argv=None) -> int:
     ap.add_argument("--msaa", type=int, nargs="+", default=[4, 0])
     ap.add_argument("--no-depth", action="store_true", help="render(..., depth=False)")
     ap.add_argument("--no-effects", action="store_true", help="skip the per-effect costs")
+    ap.add_argument("--no-geometry", action="store_true",
+                    help="skip the cost of the clutter and the contact shadows")
     ap.add_argument("--json", type=Path, help="write the results here")
     args = ap.parse_args(argv)
     os.environ["LP_NUM_THREADS"] = str(args.threads)
@@ -122,6 +128,8 @@ def main(argv=None) -> int:
             )
     if not args.no_effects:
         results["effects"] = effect_costs(ctx, m, vehicles)
+    if not args.no_geometry:
+        results["geometry"] = geometry_costs(ctx, m, vehicles)
     if args.json:
         args.json.write_text(json.dumps(results, indent=2))
     return 0
@@ -184,6 +192,59 @@ def effect_costs(ctx, road_map, vehicles, rounds: int = 10, per_round: int = 5) 
         out.append(row)
         print(f"  {name:24s} {med[name]:6.2f} ms = {1e3 / med[name]:6.1f} fps  "
               f"({med[name] - default:+6.2f} ms vs default, {med[name] / flat:4.2f}x flat)")
+    return out
+
+
+def geometry_costs(ctx, road_map, vehicles, rounds: int = 10, per_round: int = 5) -> list[dict]:
+    """Median CPU ms per frame (640x360, no MSAA, labels, default look) with and without
+    the street clutter (``Renderer(clutter=False)``) and the contact shadows under the
+    vehicles, on the bench's straight street and, when the CARLA maps are beside the
+    checkout, on Town01 (more clutter in view: a junction ahead); rows interleaved."""
+    from dashtraj.render.scene import Renderer
+
+    scenes = [("straight", road_map, (-95.0, 1.75, 1.6, 0.0, 0.0, 0.0), vehicles)]
+    town = Path(__file__).resolve().parents[2] / "shared" / "maps" / "carla" / "Town01.xodr"
+    if town.is_file():
+        from dashtraj.roads import RoadMap
+
+        t1 = RoadMap.from_string(town.read_text(), name="Town01")
+        w = t1.generate_waypoints(40.0)[7]
+        loc, yaw = w.transform.location, w.transform.rotation.yaw
+        vs, nxt = [], w
+        for i, (_, ident, *_rest) in enumerate(vehicles[:8]):
+            nx = nxt.next(9.0)
+            if not nx:
+                break
+            nxt = nx[0]
+            lc = nxt.transform.location
+            vs.append((i + 1, ident, lc.x, lc.y, lc.z, nxt.transform.rotation.yaw))
+        scenes.append(("Town01", t1, (loc.x, loc.y, loc.z + 1.6, yaw, 0.0, 0.0), vs))
+    out = []
+    print("geometry costs, 640x360, no MSAA, labels included (CPU ms/frame, one core):")
+    for name, m, pose, vs in scenes:
+        rows = {"default": Renderer(m, 640, 360, 90.0, msaa=0, ctx=ctx),
+                "- clutter": Renderer(m, 640, 360, 90.0, msaa=0, ctx=ctx, clutter=False)}
+        rows["- contact shadows"] = rows["default"]
+        cpu = {k: [] for k in rows}
+        for r in set(rows.values()):
+            r.render(pose, vs)
+        for _ in range(rounds):
+            for k, r in rows.items():
+                r.contact_shadows = k != "- contact shadows"
+                for i in range(per_round):
+                    p = (pose[0] + 0.05 * i, *pose[1:])
+                    c = time.process_time()
+                    r.render(p, vs)
+                    cpu[k].append(time.process_time() - c)
+        for r in set(rows.values()):
+            r.release()
+        med = {k: 1e3 * float(np.median(v)) for k, v in cpu.items()}
+        for k in rows:
+            row = {"scene": name, "row": k, "cpu_ms_median": med[k], "fps_cpu": 1e3 / med[k],
+                   "delta_vs_default_ms": med[k] - med["default"]}
+            out.append(row)
+            print(f"  {name:9s} {k:18s} {med[k]:6.2f} ms = {1e3 / med[k]:6.1f} fps  "
+                  f"({med[k] - med['default']:+6.2f} ms vs default)")
     return out
 
 

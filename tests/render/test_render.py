@@ -136,7 +136,8 @@ def test_classes(renderer, model, cls):
 
 
 def test_front_and_back_look_different(renderer):
-    """Head lamps (white) at the front, tail lamps (red) at the back."""
+    """Head lamps (white) at the front, tail lamps (red) at the back (both ends carry a
+    light number plate, so the back has some white too, fewer than the front)."""
     back = renderer.render(CAM, [(1, identity(SEDAN, (40, 40, 40)), -85.0, 1.75, 0.0, 0.0)])
     front = renderer.render(CAM, [(1, identity(SEDAN, (40, 40, 40)), -85.0, 1.75, 0.0, 180.0)])
 
@@ -150,8 +151,8 @@ def test_front_and_back_look_different(renderer):
     def white(px):
         return (px > 200).all(axis=1)
 
-    assert lamp_pixels(back, red) > 20 and lamp_pixels(back, white) == 0
-    assert lamp_pixels(front, white) > 20 and lamp_pixels(front, red) == 0
+    assert lamp_pixels(back, red) > 20 and lamp_pixels(front, red) == 0
+    assert lamp_pixels(front, white) > lamp_pixels(back, white) + 20
 
 
 def test_renders_are_byte_identical(gl_ctx, straight_map):

@@ -112,6 +112,8 @@ class Materials:
     Attributes:
         asphalt_rgb, sidewalk_rgb, grass_rgb: base colours of the surfaces.
         facade_tint: multiplies every facade's own colour (per channel).
+        foliage_tint, prop_tint: multiply the colours of the roadside foliage (trees,
+            bushes, hedges) and of the other props and clutter (``dashtraj.render.clutter``).
         mark_wear: 0 … 1, share of the lane marks' paint worn away.
         road_wear: 0 … 1, strength of patches and stains on the asphalt.
         texture_scale: world size multiplier of every procedural texture (1 = nominal).
@@ -126,6 +128,8 @@ class Materials:
     sidewalk_rgb: tuple[float, float, float] = (0.62, 0.61, 0.58)
     grass_rgb: tuple[float, float, float] = (0.30, 0.38, 0.20)
     facade_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    foliage_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    prop_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
     mark_wear: float = 0.2
     road_wear: float = 0.3
     texture_scale: float = 1.0

@@ -252,8 +252,9 @@ def vehicle_mesh(model, rgb) -> Mesh:
         rgb: paint colour, 3 ints 0..255.
 
     Returns:
-        a cached :class:`Mesh`; the front carries white head lamps and a dark
-        grille, the back red tail lamps, so the two ends look different.
+        a cached :class:`Mesh` (``dashtraj.render.vehicle_shapes``: rounded lofted
+        bodies, glass all round, wheel arches, rims, lamps, grille and plates; the front
+        carries white head lamps, the back red tail lamps).
     """
     paint = tuple(round(float(c)) for c in rgb)
     return _vehicle_mesh_cached(_params(model), paint)
@@ -263,12 +264,14 @@ def vehicle_mesh(model, rgb) -> Mesh:
 def _vehicle_mesh_cached(p: tuple, paint255: tuple) -> Mesh:
     body, length, width, height, wb, r, clear, hood, c0, c1, belt = p
     paint = np.array(paint255, np.float64) / 255.0
+    from dashtraj.render import vehicle_shapes as vs
+
     if body in ("motorcycle", "bicycle"):
-        mesh = _two_wheeler(body, length, width, height, wb, r, paint)
+        mesh = vs.two_wheeler_mesh(body, length, width, height, wb, r, paint)
     elif body in ("truck", "bus"):
-        mesh = _big_vehicle(body, length, width, height, wb, r, clear, c1, paint)
+        mesh = vs.big_vehicle_mesh(body, length, width, height, wb, r, clear, c1, paint)
     else:
-        mesh = _car(body, length, width, height, wb, r, clear, hood, c0, c1, belt, paint)
+        mesh = vs.car_mesh(body, length, width, height, wb, r, clear, hood, c0, c1, belt, paint)
     return _with_vehicle_materials(mesh, paint)
 
 
@@ -283,179 +286,6 @@ def _with_vehicle_materials(mesh: Mesh, paint: np.ndarray) -> Mesh:
     col[is_paint, 3] = MAT_PAINT
     col[is_glass, 3] = MAT_GLASS
     return Mesh(mesh.positions, mesh.normals, col)
-
-
-def _lamps(length, width, z0, z1, inset, front: bool, size=0.28) -> list[Mesh]:
-    """Two lamps on the front (white) or back (red) face, protruding 3 cm."""
-    x = length / 2 if front else -length / 2
-    xa, xb = (x - 0.02, x + 0.03) if front else (x - 0.03, x + 0.02)
-    col = HEADLIGHT if front else TAILLIGHT
-    yo = width / 2 - inset
-    return [
-        box((xa, s * yo - size / 2, z0), (xb, s * yo + size / 2, z1), col, 1.0) for s in (-1.0, 1.0)
-    ]
-
-
-def _wheels(length, width, wb, r, axles=2, tyre_w=0.24) -> list[Mesh]:
-    xs = [wb / 2, -wb / 2] if axles == 2 else [wb / 2, -wb / 2, -wb / 2 + 2.2 * r]
-    yo = width / 2 - tyre_w / 2 + 0.01
-    return [wheel(x, s * yo, r, tyre_w) for x in xs for s in (-1.0, 1.0)]
-
-
-def _car(body, length, width, height, wb, r, clear, hood, c0, c1, belt, paint) -> Mesh:
-    L, W, H = length, width, height
-    zb = clear
-    zbelt = max(zb + 0.2, belt * H)
-    # greenhouse from cabin_start to cabin_end (fractions of the length from the front)
-    xf = L / 2 - min(max(c0, hood, 0.03), 0.6) * L
-    xr = L / 2 - min(max(c1, c0 + 0.25), 0.99) * L
-    # windscreen rake and side taper of the cabin's roof
-    rake_f = {"van": 0.35, "suv": 0.45}.get(body, 0.6) * (H - zbelt)
-    rake_r = {"sedan": 0.5, "coupe": 0.7}.get(body, 0.12) * (H - zbelt)
-    taper = 0.1 * W
-    roof_t = 0.06
-    parts = [box((-L / 2, -W / 2, zb), (L / 2, W / 2, zbelt), paint)]
-    cab = np.array(
-        [
-            [xr, -W / 2 + 0.03, zbelt],
-            [xf, -W / 2 + 0.03, zbelt],
-            [xf, W / 2 - 0.03, zbelt],
-            [xr, W / 2 - 0.03, zbelt],
-            [xr + rake_r, -W / 2 + taper, H - roof_t],
-            [xf - rake_f, -W / 2 + taper, H - roof_t],
-            [xf - rake_f, W / 2 - taper, H - roof_t],
-            [xr + rake_r, W / 2 - taper, H - roof_t],
-        ]
-    )
-    parts.append(hexahedron(cab, GLASS))
-    roof = cab[4:].copy()
-    parts.append(hexahedron(np.vstack([roof, _lift(roof, roof_t)]), paint))
-    # pillars between windows: B pillar as a thin painted slab across the cabin
-    xm = 0.5 * (cab[0, 0] + cab[1, 0] + 0.5 * (rake_r - rake_f))
-    parts.append(
-        box((xm - 0.07, -W / 2 + 0.02, zbelt), (xm + 0.07, W / 2 - 0.02, H - roof_t), paint)
-    )
-    if body == "pickup" and xr > -L / 2 + 0.5:  # open bed walls behind the cab
-        parts.append(box((-L / 2, -W / 2, zbelt), (xr, -W / 2 + 0.08, zbelt + 0.3), paint))
-        parts.append(box((-L / 2, W / 2 - 0.08, zbelt), (xr, W / 2, zbelt + 0.3), paint))
-    zl0 = zbelt - 0.22
-    parts += _lamps(L, W, zl0, zbelt - 0.06, 0.3, front=True)
-    parts += _lamps(L, W, zl0, zbelt - 0.04, 0.22, front=False, size=0.34)
-    parts.append(
-        box((L / 2 - 0.01, -0.3 * W, zb + 0.1), (L / 2 + 0.02, 0.3 * W, zl0 - 0.02), GRILLE)
-    )
-    parts += _wheels(L, W, wb, r)
-    return Mesh.concat(parts)
-
-
-def _big_vehicle(body, length, width, height, wb, r, clear, c1, paint) -> Mesh:
-    L, W, H = length, width, height
-    zb = max(clear, 0.3)
-    parts: list[Mesh] = []
-    if body == "bus":
-        zwin0, zwin1 = 0.45 * H, 0.85 * H
-        parts.append(box((-L / 2, -W / 2, zb), (L / 2, W / 2, H), paint))
-        # window bands on both sides and the back, windscreen at the front
-        parts.append(
-            box((-L / 2 + 0.4, -W / 2 - 0.02, zwin0), (L / 2 - 0.9, W / 2 + 0.02, zwin1), GLASS)
-        )
-        parts.append(
-            box((L / 2 - 0.02, -W / 2 + 0.1, 0.35 * H), (L / 2 + 0.02, W / 2 - 0.1, 0.9 * H), GLASS)
-        )
-        parts.append(
-            box(
-                (-L / 2 - 0.02, -W / 2 + 0.3, 0.6 * H),
-                (-L / 2 + 0.02, W / 2 - 0.3, 0.85 * H),
-                GLASS,
-            )
-        )
-        zl = zb + 0.25
-        axles = 2
-    else:  # truck: cab at the front, cargo box behind
-        cab_l = c1 * L if 0.1 < c1 < 0.6 else min(2.3, 0.35 * L)
-        zcab = min(H, max(2.4, 0.8 * H))
-        parts.append(box((L / 2 - cab_l, -W / 2, zb), (L / 2, W / 2, zcab), paint))
-        parts.append(
-            box(
-                (L / 2 - 0.02, -W / 2 + 0.1, 0.55 * zcab),
-                (L / 2 + 0.02, W / 2 - 0.1, 0.9 * zcab),
-                GLASS,
-            )
-        )
-        parts.append(
-            box(
-                (L / 2 - cab_l + 0.3, -W / 2 - 0.02, 0.55 * zcab),
-                (L / 2 - 0.2, W / 2 + 0.02, 0.88 * zcab),
-                GLASS,
-            )
-        )
-        cargo = 0.55 * paint + 0.45 * np.array([0.9, 0.9, 0.88])
-        parts.append(box((-L / 2, -W / 2, zb + 0.25), (L / 2 - cab_l - 0.1, W / 2, H), cargo))
-        parts.append(
-            box((-L / 2 + 0.3, -W / 2 + 0.1, zb), (L / 2 - 0.3, W / 2 - 0.1, zb + 0.3), GRILLE)
-        )
-        zl = zb + 0.3
-        axles = 3 if L > 8.0 else 2
-    parts += _lamps(L, W, zl, zl + 0.25, 0.35, front=True, size=0.35)
-    parts += _lamps(L, W, zl, zl + 0.35, 0.25, front=False, size=0.3)
-    parts.append(
-        box((L / 2 - 0.01, -0.3 * W, zl - 0.05), (L / 2 + 0.03, 0.3 * W, zl + 0.3), GRILLE)
-    )
-    parts += _wheels(L, W, wb, r, axles=axles, tyre_w=0.32)
-    return Mesh.concat(parts)
-
-
-def _two_wheeler(body, length, width, height, wb, r, paint) -> Mesh:
-    L, H = length, height
-    tw = 0.12 if body == "motorcycle" else 0.05
-    r = min(r, 0.45 * H)
-    xw = min(wb / 2, L / 2 - r)
-    parts = [wheel(xw, 0.0, r, tw, 12), wheel(-xw, 0.0, r, tw, 12)]
-    zf = r + 0.05
-    if body == "motorcycle":
-        parts.append(box((-xw + 0.1, -0.17, zf), (xw - 0.05, 0.17, zf + 0.4), paint))  # tank/engine
-        parts.append(box((xw - 0.2, -0.05, r), (xw + 0.05, 0.05, zf + 0.55), GRILLE))  # fork
-        parts.append(
-            box((xw + 0.02, -0.09, zf + 0.35), (xw + 0.08, 0.09, zf + 0.5), HEADLIGHT, 1.0)
-        )
-        parts.append(
-            box((-L / 2 + 0.05, -0.08, zf + 0.35), (-L / 2 + 0.12, 0.08, zf + 0.45), TAILLIGHT, 1.0)
-        )
-        seat = zf + 0.4
-    else:
-        parts.append(box((-xw, -0.03, r), (xw, 0.03, r + 0.06), paint))  # chain stay
-        parts.append(box((-0.1, -0.03, r), (xw - 0.05, 0.03, zf + 0.35), paint))  # down tube
-        parts.append(box((xw - 0.08, -0.03, r), (xw - 0.02, 0.03, zf + 0.45), paint))  # fork
-        parts.append(
-            box((xw - 0.12, -0.25, zf + 0.42), (xw - 0.04, 0.25, zf + 0.47), GRILLE)
-        )  # bar
-        parts.append(
-            box((-xw - 0.02, -0.05, r + 0.15), (-xw + 0.04, 0.05, r + 0.25), TAILLIGHT, 1.0)
-        )
-        seat = zf + 0.4
-    # rider: legs, torso leaning forward, head, arms to the bars
-    hip_x = -0.15
-    parts.append(
-        box((hip_x - 0.12, -0.2, seat - 0.35), (hip_x + 0.25, 0.2, seat + 0.05), RIDER_BODY)
-    )
-    top = max(H + 0.45, seat + 0.75)
-    torso = np.array(
-        [
-            [hip_x - 0.15, -0.2, seat],
-            [hip_x + 0.15, -0.2, seat],
-            [hip_x + 0.15, 0.2, seat],
-            [hip_x - 0.15, 0.2, seat],
-            [hip_x + 0.0, -0.2, top - 0.25],
-            [hip_x + 0.3, -0.2, top - 0.25],
-            [hip_x + 0.3, 0.2, top - 0.25],
-            [hip_x + 0.0, 0.2, top - 0.25],
-        ]
-    )
-    parts.append(hexahedron(torso, RIDER_BODY))
-    parts.append(box((hip_x + 0.05, -0.11, top - 0.25), (hip_x + 0.27, 0.11, top), RIDER_HEAD))
-    parts.append(box((hip_x + 0.2, -0.25, top - 0.45), (xw - 0.05, -0.17, top - 0.37), RIDER_BODY))
-    parts.append(box((hip_x + 0.2, 0.17, top - 0.45), (xw - 0.05, 0.25, top - 0.37), RIDER_BODY))
-    return Mesh.concat(parts)
 
 
 # --------------------------------------------------------------------------- road scene
@@ -599,7 +429,9 @@ class SceneMeshes:
         buildings: box buildings.
         marks: lane markings (drawn with a depth offset on top of the asphalt).
         extent: (x_min, y_min, x_max, y_max) of the map, metres.
-        props: roadside clutter (street lamps, trees) beyond the outermost lanes.
+        props: roadside props (street lamps, trees) and clutter (``dashtraj.render.clutter``:
+            traffic lights, palms, conifers, bushes, hedges, rocks, embankments, planters,
+            benches, bins, signs, fences, walls) beyond the outermost lanes; never labelled.
     """
 
     ground: Mesh
@@ -612,21 +444,25 @@ class SceneMeshes:
 _SCENE_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def scene_meshes(road_map, seed: int = 0) -> SceneMeshes:
-    """Static meshes of a map (built once per map and seed, cached weakly on the map).
+def scene_meshes(road_map, seed: int = 0, clutter: bool = True) -> SceneMeshes:
+    """Static meshes of a map (built once per map, seed and ``clutter``, cached weakly on
+    the map).
 
     Args:
         road_map: a ``dashtraj.roads.RoadMap``.
-        seed: seed of the building placement.
+        seed: seed of the building, prop and clutter placement.
+        clutter: add the street clutter (``dashtraj.render.clutter``) to the props.
     """
     per_map = _SCENE_CACHE.setdefault(road_map, {})
-    if seed not in per_map:
-        per_map[seed] = build_scene_meshes(road_map, seed)
-    return per_map[seed]
+    key = seed if clutter else (seed, "no clutter")
+    if key not in per_map:
+        per_map[key] = build_scene_meshes(road_map, seed, clutter)
+    return per_map[key]
 
 
-def build_scene_meshes(road_map, seed: int = 0) -> SceneMeshes:
-    """Build (uncached) the static scene: ground, lanes, sidewalks, marks, buildings."""
+def build_scene_meshes(road_map, seed: int = 0, clutter: bool = True) -> SceneMeshes:
+    """Build (uncached) the static scene: ground, lanes, sidewalks, marks, buildings,
+    lamps and trees, and (``clutter``) the street clutter."""
     m = road_map
     surf: list[Mesh] = []
     marks: list[Mesh] = []
@@ -674,7 +510,13 @@ def build_scene_meshes(road_map, seed: int = 0) -> SceneMeshes:
     placed: list[tuple[float, float, float]] = []
     buildings = _buildings(m, pts, np.random.default_rng(seed), placed=placed,
                            jitter=np.random.default_rng([seed, 1]))
-    props = _props(m, pts, placed, np.random.default_rng([seed, 2]))
+    spots: list[tuple[float, float, float]] = []
+    props = _props(m, pts, placed, np.random.default_rng([seed, 2]), spots=spots)
+    if clutter:
+        from dashtraj.render.clutter import clutter_mesh
+
+        props = Mesh.concat([props, clutter_mesh(m, pts, placed,
+                                                 np.random.default_rng([seed, 3]), taken=spots)])
     return SceneMeshes(Mesh.concat(surf), buildings, Mesh.concat(marks), (x0, y0, x1, y1),
                        props)
 
@@ -799,7 +641,7 @@ def _blob(centre, radius: float, height: float, color, sides: int = 7) -> Mesh:
 
 
 def _props(m, lane_pts: np.ndarray, buildings: list, rng: np.random.Generator,
-           spacing_m: float = 12.0) -> Mesh:
+           spacing_m: float = 12.0, spots: list | None = None) -> Mesh:
     """Street lamps and trees beside the non-junction roads, off every lane.
 
     Candidates every ``spacing_m`` (jittered) along the outer border of each road
@@ -811,7 +653,7 @@ def _props(m, lane_pts: np.ndarray, buildings: list, rng: np.random.Generator,
     """
     tree = cKDTree(lane_pts)
     parts: list[Mesh] = []
-    spots: list[tuple[float, float, float]] = []
+    spots = [] if spots is None else spots  # (x, y, radius) of each prop (extended)
     for side, key, outer, st in _outer_borders(m):
         z = m.lane_polyline(key, driving_order=False)[:, 2]
         for d in np.arange(spacing_m / 2, st[-1] - 2.0, spacing_m):

@@ -8,7 +8,8 @@ with that probability; integer fields are rounded. Colour fields draw one grey l
 g in [lo, hi] and give channel c the value g × hue_c plus a tint uniform in ±``tint``
 (clipped to 0 … 1); ``facade_tint`` draws each channel in [lo, hi]. Everything else
 keeps the default ``LookConfig()``'s value. The look's ``seed`` (sensor noise, rain
-streaks) is drawn from the same generator.
+streaks) is drawn from the same generator, after every field but the two clutter tints
+(added later, drawn last so the other fields of a seed's looks did not change).
 
 The ranges (units as in ``dashtraj.render.look``; "off" = value and probability)::
 
@@ -37,6 +38,8 @@ The ranges (units as in ``dashtraj.render.look``; "off" = value and probability)
     materials.road_wear             0 … 1
     materials.texture_scale         0.6 … 1.8
     materials.texture_offset        each 0 … 1000 m
+    materials.foliage_tint          each channel 0.7 … 1.3 (trees, bushes, hedges)
+    materials.prop_tint             each channel 0.6 … 1.4 (clutter: lights, rocks, walls …)
 
 ``violations(look)`` lists the fields of a look outside these ranges (empty for every
 drawn look; the tests check it on many seeds).
@@ -95,6 +98,12 @@ RANGES: tuple[Range, ...] = (
     Range("materials.texture_scale", 0.6, 1.8),
     Range("materials.texture_offset", 0.0, 1000.0, kind="pair"),
 )
+_LATE = (  # drawn after the look's seed: the earlier fields' stream stays as it was
+    Range("materials.foliage_tint", 0.7, 1.3, kind="channels"),
+    Range("materials.prop_tint", 0.6, 1.4, kind="channels"),
+)
+_EARLY = RANGES
+RANGES = _EARLY + _LATE
 """The randomized fields and their ranges (module docstring)."""
 
 CAMERA_PATHS = tuple(r.path for r in RANGES if r.path.startswith("camera."))
@@ -124,12 +133,17 @@ def random_look(rng: np.random.Generator, base: LookConfig | None = None,
     generator's state."""
     look = base if base is not None else LookConfig()
     groups = {"weather": {}, "camera": {}, "materials": {}}
-    for r in RANGES:
-        value = _draw(r, rng)  # drawn even when not applied: same stream for every subset
-        if paths is None or r.path in paths:
-            g, name = r.path.split(".")
-            groups[g][name] = value
+
+    def draw(ranges):
+        for r in ranges:
+            value = _draw(r, rng)  # drawn even when not applied: same stream for every subset
+            if paths is None or r.path in paths:
+                g, name = r.path.split(".")
+                groups[g][name] = value
+
+    draw(_EARLY)
     seed = int(rng.integers(2**31))
+    draw(_LATE)
     return replace(
         look,
         weather=replace(look.weather, **groups["weather"]),

@@ -230,6 +230,7 @@ class Renderer:
         look: a ``dashtraj.render.look.LookConfig`` (weather, materials, camera);
             None = ``LookConfig()``, clear daytime. Change it with ``set_look``: it
             changes pixels, never labels, ids or depth.
+        clutter: draw the street clutter (``dashtraj.render.clutter``: never labelled).
 
     Example:
         >>> r = Renderer(m, 640, 360)  # doctest: +SKIP
@@ -241,6 +242,8 @@ class Renderer:
     #: silhouette pass: "bits" (all vehicles in one pass, OR-ed bit masks) or "layers"
     #: (the reference: one pass and readback per layer of non-overlapping vehicles)
     silhouette_mode = "bits"
+    #: dark contact shadows on the road under the vehicles (colour only, never labels)
+    contact_shadows = True
 
     def __init__(
         self,
@@ -253,6 +256,7 @@ class Renderer:
         ctx=None,
         threads: int | None = None,
         look: LookConfig | None = None,
+        clutter: bool = True,
     ):
         import moderngl
 
@@ -323,7 +327,7 @@ class Renderer:
         self._fbo_bits = ctx.framebuffer(color_attachments=[ctx.renderbuffer(size, 1, dtype="u4")])
         self._fbos += [self._fbo_sil, self._fbo_bits]
         self._logic_op = None
-        scene = scene_meshes(road_map, seed)
+        scene = scene_meshes(road_map, seed, clutter)
         self._static = []
         self._casters = []  # indices into _static of the groups that cast shadows
         # drawn after the vehicles, near to far, so hidden fragments fail the depth test early
@@ -346,6 +350,9 @@ class Renderer:
                 self._static.append((self._vaos(buf), offset, tiles, group, buf))
         self._vbuf = None
         self._vbuf_bytes = 0
+        self._sbuf = None  # contact shadows under the vehicles (colour passes only, id 0)
+        self._sbuf_bytes = 0
+        self._shadow_rows: dict[tuple, np.ndarray] = {}
         self._vdata: dict[int, tuple[Mesh, np.ndarray]] = {}
         self._moderngl = moderngl
         self.set_look(look if look is not None else LookConfig())
@@ -448,6 +455,7 @@ class Renderer:
             "deposits": lt.deposits, "asphalt_rgb": mat.asphalt_rgb,
             "sidewalk_rgb": mat.sidewalk_rgb, "grass_rgb": mat.grass_rgb,
             "facade_tint": mat.facade_tint, "mark_wear": float(mat.mark_wear),
+            "foliage_tint": mat.foliage_tint, "prop_tint": mat.prop_tint,
             "road_wear": float(mat.road_wear), "shadow_px": float(SHADOW_MAP_PX),
         }
         values = {k: (tuple(float(x) for x in v) if np.ndim(v) else v) for k, v in values.items()}
@@ -586,7 +594,69 @@ class Renderer:
         if nbytes:
             self._vbuf.write(data)
 
-    def _draw_scene(self, which: int, mvp: bytes, vehicle_runs):
+    def _upload_contact_shadows(self, vs, drawn) -> int:
+        """Write the contact shadows of the drawn vehicles (``vehicle_shapes.
+        contact_shadow_mesh``, instance id 0) into their buffer; returns the vertex count."""
+        if not self.contact_shadows or self.look.legacy:
+            return 0
+        from dashtraj.render.vehicle_shapes import contact_shadow_mesh
+
+        rows, poses = [], []
+        for v in (vs[i] for i in np.flatnonzero(drawn)):
+            m = v.model
+            key = (float(m.length_m), float(m.width_m), str(getattr(m, "body_type", "sedan")))
+            r = self._shadow_rows.get(key)
+            if r is None:
+                r = self._shadow_rows[key] = contact_shadow_mesh(*key).interleaved(0.0)
+            rows.append(r)
+            poses.append((v.x, v.y, v.z, math.radians(v.yaw_deg), len(r)))
+        if not rows:
+            return 0
+        data = np.concatenate(rows)
+        cnt = [p[4] for p in poses]
+        c = np.repeat([math.cos(p[3]) for p in poses], cnt)
+        s = np.repeat([math.sin(p[3]) for p in poses], cnt)
+        px, py = data[:, 0].astype(np.float64), data[:, 1].astype(np.float64)
+        data[:, 0] = np.repeat([p[0] for p in poses], cnt) + c * px - s * py
+        data[:, 1] = np.repeat([p[1] for p in poses], cnt) + s * px + c * py
+        data[:, 2] += np.repeat([p[2] for p in poses], cnt)
+        nbytes = data.nbytes
+        if self._sbuf is None or nbytes > self._sbuf_bytes:
+            cap = 1 << (max(nbytes, 1 << 15) - 1).bit_length()
+            if self._sbuf is not None:
+                for key in [k for k in self._cvaos if k[3] == self._sbuf.glo]:
+                    self._cvaos.pop(key).release()
+                self._sbuf.release()
+            self._sbuf = self.ctx.buffer(reserve=cap, dynamic=True)
+            self._sbuf_bytes = cap
+        self._sbuf.write(data)
+        return len(data)
+
+    def _draw_contact_shadows(self, which: int, mvp: bytes, n_vertices: int) -> None:
+        """Draw the contact shadows in a colour pass (after the road, pulled toward the
+        camera by a polygon offset) into the colour attachment only: ids, depth and the
+        depth buffer stay exactly as without them."""
+        if not n_vertices or which not in (0, 2):
+            return
+        import ctypes
+
+        vao = self._colour_vao(which, "asphalt", self._sbuf)
+        vao.program["mvp"].write(mvp)
+        mask = gl_function("glColorMaski", ctypes.c_uint, *[ctypes.c_ubyte] * 4)
+        depth_mask = gl_function("glDepthMask", ctypes.c_ubyte)
+        if which == 2:  # colour only: the id and depth attachments keep the scene's values
+            mask(1, 0, 0, 0, 0)
+            mask(2, 0, 0, 0, 0)
+        depth_mask(0)
+        self.ctx.polygon_offset = (0.0, -4.0)
+        vao.render(self._moderngl.TRIANGLES, first=0, vertices=n_vertices)
+        self.ctx.polygon_offset = (0.0, 0.0)
+        depth_mask(1)
+        if which == 2:
+            mask(1, 1, 1, 1, 1)
+            mask(2, 1, 1, 1, 1)
+
+    def _draw_scene(self, which: int, mvp: bytes, vehicle_runs, shadow_vertices: int = 0):
         mgl = self._moderngl
         colour = which in (0, 2)
 
@@ -613,6 +683,7 @@ class Renderer:
                 vao.render(mgl.TRIANGLES, first=first, vertices=count)
             if offset:
                 self.ctx.polygon_offset = (0.0, 0.0)
+        self._draw_contact_shadows(which, mvp, shadow_vertices)
 
     def _mesh_rows(self, v: VehicleInstance) -> tuple[Mesh, np.ndarray]:
         """Cached (mesh, (N, 11) float32 model-frame rows) of a vehicle's mesh."""
@@ -687,6 +758,7 @@ class Renderer:
             proj = None
             drawn = _vehicles_in_frustum(world, starts, mvp64) if n else np.zeros(0, bool)
         vruns = _runs([ranges[i] for i in np.flatnonzero(drawn)])
+        n_shadow = self._upload_contact_shadows(vs, drawn) if n else 0
         self._runs = [_visible_runs(e[2], mvp64) for e in self._static]
         mvp = mvp64.T.astype("f4").tobytes()  # column-major for GLSL
         self._frame_uniforms(pose, world, starts)
@@ -702,7 +774,7 @@ class Renderer:
             # pass 1: colour (MSAA) -> resolve; pass 2: ids + depth, one sample per pixel
             self._fbo_ms.use()
             self._fbo_ms.clear(*SKY_RGB, 1.0, depth=1.0)
-            self._draw_scene(0, mvp, vruns)
+            self._draw_scene(0, mvp, vruns, n_shadow)
             self._draw_sky(pose)
             region = None  # without depth, ids are only needed where vehicles can be
             if not depth:
@@ -742,7 +814,7 @@ class Renderer:
             fbo = self._fbo_all
             fbo.use()
             self._clear_buffers(True)
-            self._draw_scene(2, mvp, vruns)
+            self._draw_scene(2, mvp, vruns, n_shadow)
             self._draw_sky(pose)
             fbo.read_into(rgb, components=3, attachment=0, alignment=1)
             rgb = self._post(rgb, pose)
@@ -900,6 +972,8 @@ class Renderer:
             for vao in self._vveh.values():
                 vao.release()
             self._vbuf.release()
+        if self._sbuf is not None:
+            self._sbuf.release()
         for p in self._progs:
             p.release()  # the shared colour variants live as long as the context
         self._sky_buf.release()

@@ -111,6 +111,8 @@ uniform vec3 asphalt_rgb;
 uniform vec3 sidewalk_rgb;
 uniform vec3 grass_rgb;
 uniform vec3 facade_tint;
+uniform vec3 foliage_tint;
+uniform vec3 prop_tint;
 uniform float mark_wear;
 uniform float road_wear;
 uniform sampler2D shadow_map;
@@ -145,6 +147,7 @@ vec3 shade() {
     float refl = 0.0;
     float wrap = 0.0;
     float emit = 0.0;
+    float sunk = 1.0;
     vec2 uv = (p.xy + tex_off) / tex_scale;
 #if defined(G_ASPHALT) || defined(G_MARK)
     float puddle = 0.0;
@@ -174,6 +177,12 @@ vec3 shade() {
     spec = 0.15 + 0.9 * wet;
     shin = 24.0 + 200.0 * wet;
 #endif
+    if (m == 14) {  // contact shadow under a vehicle: albedo × r, sun × g
+        alb *= v_color.r;
+        spec = 0.0;
+        refl = 0.0;
+        sunk = v_color.g;
+    }
 #elif defined(G_SIDEWALK)
     alb = sidewalk_rgb;
 #ifdef TEXTURES
@@ -230,13 +239,23 @@ vec3 shade() {
 #endif
 #elif defined(G_PROPS)
     if (m == 11) {
+        alb = v_color * foliage_tint;
 #ifdef TEXTURES
-        alb = v_color * (0.6 + 0.8 * texture(noise_tex, (p.xy + p.zz * 0.7) * 0.15).r);
+        alb *= 0.6 + 0.8 * texture(noise_tex, (p.xy + p.zz * 0.7) * 0.15).r;
 #endif
         wrap = 0.35;
-    } else if (m == 12) {
-        spec = 0.5;
-        shin = 40.0;
+    } else if (m == 1) {
+        emit = 1.0;
+    } else {
+        alb = v_color * prop_tint;
+        if (m == 12) {
+            spec = 0.5;
+            shin = 40.0;
+        } else if (m == 15) {
+#ifdef TEXTURES
+            alb *= 0.7 + 0.6 * texture(noise_tex, (p.xy * 0.8 + p.zz * 0.9) * 0.35).g;
+#endif
+        }
     }
 #elif defined(G_VEHICLE)
     if (m == 1) {
@@ -251,6 +270,10 @@ vec3 shade() {
         refl = 0.12;
     } else if (m == 7) {
         spec = 0.05;
+    } else if (m == 12) {
+        spec = 0.7;
+        shin = 60.0;
+        refl = 0.08;
     }
 #endif
     alb = clamp(alb, 0.0, 1.0);
@@ -263,7 +286,7 @@ vec3 shade() {
         sh = step(v_light.z - 0.002, texelFetch(shadow_map, ivec2(v_light.xy * shadow_px), 0).r);
 #endif
     sh *= step(0.0, ndl);
-    float direct = lam * (1.0 - shadow_strength * (1.0 - sh));
+    float direct = sunk * lam * (1.0 - shadow_strength * (1.0 - sh));
     vec3 amb = mix(amb_ground, amb_sky, 0.5 + 0.5 * n.z);
     vec3 col = alb * (amb + sun_rgb * direct);
 #ifdef SPECULAR
@@ -279,7 +302,7 @@ vec3 shade() {
     float fr = refl + (1.0 - refl) * c5 * min(1.0, refl * 8.0);
     col = mix(col, sky_color(reflect(-V, n)) * 0.75, clamp(fr, 0.0, 1.0));
 #endif
-#ifdef G_VEHICLE
+#if defined(G_VEHICLE) || defined(G_PROPS)
     col = mix(col, alb * 1.8, emit);
 #endif
     float fg = 1.0 - exp2(-1.4427 * fog_sigma * max(dist - fog_start, 0.0));
