@@ -27,7 +27,9 @@ Estimators (`LOCALIZERS`, chosen by name with `build_localizer`):
   offset of its nearest wheel contact from its centre along the ray is added
   (class-typical half wheelbase and half width, combined by the angle between the ray
   and the vehicle's heading, taken from the orientation class: front/back = along the
-  ray, side = across it). Where the bottom
+  ray, side = across it); near the camera the lowest pixel is the lower edge of the
+  body instead (class ground clearance above the road, half a length from the centre),
+  and the hypothesis placing the centre farther is the one that holds. Where the bottom
   edge is unusable (cut by the image border, at or above the horizon) the box gets
   Eq. 3's estimate and ``valid`` is False.
 - ``fused``: both, combined with their error models (Eq. 3's value divided by the
@@ -36,8 +38,8 @@ Estimators (`LOCALIZERS`, chosen by name with `build_localizer`):
   the class height; σ_ground =
   D² / (f h_cam) × 1 px + 0.3 m), falling back to the other estimate where one is
   unusable (bottom edge cut by the image border or above the horizon; top edge cut);
-  where a nearer detection hides a box's bottom edge, the distance from the box width
-  replaces both (see `FusedLocalizer._occluded_bottoms`).
+  where nearer detections hide a box's bottom edge (cover 60 % of its columns), the
+  distance from the box width replaces both (see `FusedLocalizer._occluded_bottoms`).
 """
 
 from __future__ import annotations

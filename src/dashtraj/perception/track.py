@@ -16,13 +16,18 @@ unassigned). Ids start at 1 and are never reused within a tracker.
 - ``ego``: uses what a 2-D tracker does not know, the observer's own odometry (its
   camera pose every frame; on a real drive GPS/IMU). Each track is a constant-velocity
   Kalman filter of the vehicle's ground position (CARLA world metres), measured by the
-  ``fused`` localizer. Every frame the predicted ground position is projected into the
-  *current* camera: its bearing gives the predicted box column, and the ratio of the
-  old to the new distance scales the last box about the principal point (points at
-  fixed heights move as 1/depth), so a turning or braking observer moves the predicted
-  boxes with the image. Association: Hungarian on 1 − IoU(predicted box, detection)
-  plus the ground distance over a gate that grows with the range; a pair is allowed
-  when IoU ≥ `iou_min` or the ground distance is within the gate.
+  ``fused`` localizer with an anisotropic covariance: the localizer's range error along
+  the viewing ray, a few pixels of bearing across it (a far box is well placed across
+  the ray and poorly along it). Every frame the predicted ground position is projected
+  into the *current* camera: its bearing gives the predicted box column, and the ratio
+  of the old to the new distance scales the last box about the principal point (points
+  at fixed heights move as 1/depth), so a turning or braking observer moves the
+  predicted boxes with the image. Association: Hungarian on 1 − IoU(predicted box,
+  detection) plus the squared Mahalanobis distance of the detection's position to the
+  track's over a χ² gate; a pair is allowed when IoU ≥ `iou_min` or it is inside the
+  gate. A track ages only while its prediction lies inside the image: a vehicle the
+  camera has turned away from is remembered (up to `out_of_view_s`) and picked up again
+  where the odometry says it should reappear.
 """
 
 from __future__ import annotations
@@ -179,11 +184,14 @@ class EgoTracker:
 
     Attributes:
         spec: the camera of the images (size, FOV, mount).
-        max_age_s: seconds a track survives without a detection (its ground-plane
-            prediction keeps it matchable through occlusions and short exits).
+        max_age_s: seconds a track survives without a detection while predicted inside
+            the image (its ground-plane prediction keeps it matchable through occlusions).
         min_hits: hits before a track is reported.
         iou_min: a pair with at least this IoU of predicted and detected box may match.
-        gate_m, gate_rel: ground-distance gate, metres: gate_m + gate_rel × range.
+        gate_chi2: gate on the squared Mahalanobis distance (2 degrees of freedom).
+        cross_px: bearing error of a detection's centre, pixels (across-ray σ).
+        out_of_view_s: seconds a track predicted outside the image is kept.
+        view_margin_px: a prediction this far inside the image border counts as in view.
         accel_mps2: process noise, the vehicles' acceleration (m/s², 1 σ).
     """
 
@@ -191,8 +199,6 @@ class EgoTracker:
     max_age_s: float = 3.0
     min_hits: int = 3
     iou_min: float = 0.1
-    gate_m: float = 1.5
-    gate_rel: float = 0.08
     accel_mps2: float = 3.0
     class_penalty: float = 0.5
     gate_chi2: float = 36.0
