@@ -3,14 +3,17 @@
 
 A 20 s town01 recording (seed 0, 4 observers, 20 agents, the paper's 1280 x 720
 camera) is simulated; observer frames at 10 fps. Stages, timed on one observer's
-frames: render (with exact labels), detect (oracle), localize (fused), track (sort,
-ego), map-match, crops (JPEG of the detections within 15 m), and the database write.
-Then `perceive` of one observer (one process) and of two observers with 2 workers,
-frames/s per observer (render included). Trackers: updates/s on the cached detections
+frames: render (with exact labels), detect (``--detector``: oracle, or an ONNX model
+such as the shipped ``src/dashtraj/data/detector/detector.onnx``, timed as its own
+stage ``detect_model`` beside the oracle), localize (fused), track (sort, ego),
+map-match, crops (JPEG of the detections within 15 m), and the database write. Then
+`perceive` with that detector of one observer (one process) and of two observers with
+2 workers, frames/s per observer (render included). Trackers: updates/s on the cached detections
 of all four observers, BoxMOT's ByteTrack / OC-SORT / BoT-SORT (ECC) when importable.
 
 Usage:
-    .venv/bin/python bench/bench_perception.py [--duration 20] [--json out.json]
+    .venv/bin/python bench/bench_perception.py [--duration 20] [--detector M.onnx]
+        [--json out.json]
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 
-def stages(rec, observer: int) -> tuple[dict, list]:
+def stages(rec, observer: int, model: str | None = None) -> tuple[dict, list]:
     from dashtraj.datasets.frames import crop_vehicle, encode_jpeg, open_renderer, recording_frames
     from dashtraj.perception.detections import OracleDetector
     from dashtraj.perception.localize import build_localizer
@@ -41,6 +44,12 @@ def stages(rec, observer: int) -> tuple[dict, list]:
     trk = {n: build_tracker(n, spec) for n in ("sort", "ego")}
     t = dict.fromkeys(("render", "detect", "localize", "track_sort", "track_ego", "mapmatch",
                        "crops"), 0.0)
+    mdet = None
+    if model is not None:
+        from dashtraj.perception.detections import build_detector
+
+        mdet = build_detector(model)
+        t["detect_model"] = 0.0
     frames = []
     it = recording_frames(rec, 0.1, None, [observer], msaa=0, renderer=r)
     n = 0
@@ -55,6 +64,10 @@ def stages(rec, observer: int) -> tuple[dict, list]:
         t0 = time.perf_counter()
         d = det.detect(rf)
         t["detect"] += time.perf_counter() - t0
+        if mdet is not None:
+            t0 = time.perf_counter()
+            mdet.detect(rf)
+            t["detect_model"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         lz = loc.localize(d.boxes, d.class_ids, spec, pose)
         t["localize"] += time.perf_counter() - t0
@@ -74,14 +87,16 @@ def stages(rec, observer: int) -> tuple[dict, list]:
     return {k: round(n / v, 1) if v > 0 else None for k, v in t.items()} | {"frames": n}, frames
 
 
-def whole(rec, root: Path, observers, workers: int) -> dict:
+def whole(rec, root: Path, observers, workers: int, detector: str = "oracle") -> dict:
     from dashtraj.perception.pipeline import PerceiveConfig, perceive
 
     db = root / f"run{workers}.db"
     t0 = time.perf_counter()
-    s = perceive(rec, db, PerceiveConfig(observers=tuple(observers)), workers=workers)
+    s = perceive(rec, db, PerceiveConfig(detector=detector, observers=tuple(observers)),
+                 workers=workers)
     wall = time.perf_counter() - t0
-    return {"observers": len(observers), "workers": workers, "frames": s.frames,
+    return {"detector": detector, "observers": len(observers), "workers": workers,
+            "frames": s.frames,
             "wall_s": round(wall, 2),
             "frames_per_s_per_observer": round(s.frames / wall / min(workers, len(observers)),
                                                1)}
@@ -124,8 +139,11 @@ def trackers(rec, seqs) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=20.0)
+    ap.add_argument("--detector", default="oracle",
+                    help="detector of the perceive runs: oracle or an .onnx model")
     ap.add_argument("--json", metavar="PATH")
     args = ap.parse_args(argv)
+    model = None if args.detector == "oracle" else str(Path(args.detector).resolve())
     from dashtraj.datasets.frames import observer_ids
     from dashtraj.world.recording import Recording, RunConfig, simulate
 
@@ -137,18 +155,20 @@ def main(argv=None) -> int:
             warnings.simplefilter("ignore")
             rec = Recording.open(root / "rec")
         obs = observer_ids(rec)
-        st, first = stages(rec, obs[0])
+        st, first = stages(rec, obs[0], model)
         seqs = [first] + [stages(rec, o)[1] for o in obs[1:]]
+        det = model or "oracle"
         res = {"stages_frames_per_s": st,
-               "perceive_1_worker": whole(rec, root, obs[:1], 1),
-               "perceive_2_workers": whole(rec, root, obs[:2], 2),
+               "perceive_1_worker": whole(rec, root, obs[:1], 1, det),
+               "perceive_2_workers": whole(rec, root, obs[:2], 2, det),
                "tracker_updates_per_s": trackers(rec, seqs)}
     tu = res["tracker_updates_per_s"]
     print("stage frames/s (one observer):",
           ", ".join(f"{k} {v}" for k, v in st.items() if k != "frames"))
     for k in ("perceive_1_worker", "perceive_2_workers"):
         r = res[k]
-        print(f"perceive, {r['observers']} observers / {r['workers']} workers: "
+        print(f"perceive ({Path(r['detector']).name}), {r['observers']} observers / "
+              f"{r['workers']} workers: "
               f"{r['frames_per_s_per_observer']} frames/s per observer (target >= 15)")
     print("tracker updates/s:", ", ".join(f"{k} {v}" for k, v in tu.items()
                                           if not k.endswith("skipped")))

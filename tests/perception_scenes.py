@@ -99,3 +99,26 @@ def turn_scene(hz: float = 10.0, speed_mps: float = 5.0, yaw_rate_dps: float = 4
         frames.append((t, cam, [(1, -8.0, -5.25, 180.0), (2, -2.0, 1.75, 0.0),
                                 (3, 6.0, -1.75, 0.0)]))
     return frames
+
+
+def look_away_scene(hz: float = 10.0, speed_mps: float = 5.0, away_s: float = 4.0):
+    """The observer drives +x at `speed_mps` behind car 1 (15 m ahead, same speed) and
+    turns its camera 80° to the left and back (1 s each way), the car out of view for
+    about `away_s` + 1 s in between, as a driver's head or a turning car would."""
+    frames = []
+    n = round((1.0 + 1.0 + away_s + 1.0 + 1.5) * hz) + 1
+    for k in range(n):
+        t = k / hz
+        if t <= 1.0:
+            yaw = 0.0
+        elif t <= 2.0:
+            yaw = -80.0 * (t - 1.0)
+        elif t <= 2.0 + away_s:
+            yaw = -80.0
+        elif t <= 3.0 + away_s:
+            yaw = -80.0 * (3.0 + away_s - t)
+        else:
+            yaw = 0.0
+        x, y, _ = straight(-60.0, 1.75, 0.0, speed_mps, t)
+        frames.append((t, (x, y, yaw), [(1, *straight(-45.0, 1.75, 0.0, speed_mps, t))]))
+    return frames

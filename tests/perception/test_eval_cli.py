@@ -16,6 +16,13 @@ def test_tracker_eval_json_has_the_metrics_per_tracker(small_run, gl_available, 
         assert {"idf1", "hota", "mota", "updates_per_s"} <= set(r[n])
         assert 0.0 <= r[n]["mota"] <= 1.0 and 0.0 <= r[n]["hota"] <= 1.0
         assert r[n]["num_gt"] > 50
+        # MOTChallenge-style ignore regions (boxes < 20 px high at 720 rows, scaled to
+        # the image but never under the oracle's 8 px, or < 30 % visible): no more truth
+        # boxes, the same tracker output minus the boxes on them
+        ig = r[n]["ignore_regions"]
+        assert {"idf1", "hota", "mota"} <= set(ig)
+        assert 0 < ig["num_gt"] <= r[n]["num_gt"]
+        assert ig["num_tracked"] <= r[n]["num_tracked"]
     assert r["ego"]["idf1"] >= 0.8
     assert r["ego"]["idf1"] >= r["sort"]["idf1"]
 

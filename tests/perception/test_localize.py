@@ -75,3 +75,38 @@ def test_calibration_recovers_the_constant_of_an_ideal_camera():
     assert np.allclose(out.distance_m, d)
     with pytest.raises(LocalizationError, match="positive"):
         calibrate_paper_constant(SPEC, boxes, np.zeros(4, int), -d)
+
+
+@pytest.fixture(scope="module")
+def near_model3(gl_available):
+    """A Tesla Model 3 (4.69 m long, the catalog's mean car length 4.76 m) straight ahead
+    at 5, 6 and 8 m ground distance, driving away and towards the camera (nearer, its
+    lower edge leaves the image)."""
+    from dashtraj.world import catalog
+    from perception_scenes import car_identities
+
+    cars = [i for i in catalog.identities() if i.model.vehicle_class == "car"]
+    model3 = next(i for i in cars if i.model.blueprint_id == "vehicle.tesla.model3")
+    frames, truth = [], []
+    for dist in (5.0, 6.0, 8.0):
+        for yaw in (0.0, 180.0):
+            frames.append((0.0, (-50.0, 0.0, 0.0), [(1, -50.0 + dist, 0.0, yaw)]))
+            truth.append(dist)
+    ids = car_identities() | {1: model3}
+    rendered = render_scene(frames, SPEC, ids)
+    return rendered, np.array(truth)
+
+
+def test_ground_near_range_uses_the_body_edge_not_the_wheels(near_model3):
+    """Nearer than ~11 m the lowest pixel of a car is its body's lower edge (ground
+    clearance above the road, half a length from the centre), not its wheel contact:
+    measured errors 0.00-0.04 m (the wheel-contact model alone put the car 0.37-0.67 m
+    too near)."""
+    rendered, truth = near_model3
+    loc = build_localizer("ground")
+    err = []
+    for f, dist in zip(rendered, truth, strict=True):
+        d = OracleDetector().detect(f)
+        r = loc.localize(d.boxes, d.class_ids, SPEC, f.pose)
+        err.append(r.distance_m[0] - dist)
+    assert max(abs(e) for e in err) < 0.15, np.round(err, 2)

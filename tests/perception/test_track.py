@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from dashtraj.perception.detections import Detections, OracleDetector
-from dashtraj.perception.track import TrackerError, build_tracker, mot_rows
+from dashtraj.perception.track import EgoTracker, TrackerError, build_tracker, mot_rows
 from dashtraj.world.camera import CameraSpec
-from perception_scenes import pass_scene, render_scene, turn_scene
+from perception_scenes import look_away_scene, pass_scene, render_scene, turn_scene
 
 SPEC = CameraSpec()
 
@@ -78,6 +78,31 @@ def test_ego_survives_the_observer_turn_where_sort_breaks(turn10):
     confirmed = sum(len(seq) for seq in sort.values())
     assert split + swapped >= 1
     assert confirmed < sum(len(seq) for seq in ego.values())
+
+
+@pytest.fixture(scope="module")
+def look_away10(gl_available):
+    return render_scene(look_away_scene(hz=10.0), SPEC)
+
+
+def test_ego_remembers_a_vehicle_out_of_view_longer_than_max_age(look_away10):
+    """The car leaves the image for ~5 s (longer than `max_age_s`, 3 s) because the camera
+    looks away; time out of view does not age an `ego` track (up to `out_of_view_s`), so
+    the car keeps its identity; with that memory off it comes back as a new track."""
+    det = OracleDetector()
+    seen = [len(det.detect(f)) for f in look_away10]
+    gaps = "".join("x" if s else "." for s in seen)
+    assert gaps.strip("x").count(".") >= 45 and gaps.startswith("x") and gaps.endswith("x")
+    runs = {}
+    for name, tracker in (("ego", build_tracker("ego", SPEC)),
+                          ("no_memory", EgoTracker(spec=SPEC, out_of_view_s=0.0))):
+        ids = []
+        for f in look_away10:
+            d = det.detect(f)
+            ids += [int(i) for i in tracker.update(d, f.t, f.pose) if i > 0]
+        runs[name] = set(ids)
+    assert len(runs["ego"]) == 1, runs
+    assert len(runs["no_memory"]) == 2, runs
 
 
 def test_class_is_part_of_the_sort_state():

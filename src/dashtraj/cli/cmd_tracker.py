@@ -63,8 +63,11 @@ def run_eval(args: argparse.Namespace) -> int:
           f"detector {args.detector}")
     for n in [*args.trackers, *peers]:
         r = res[n]
+        ig = r["ignore_regions"]
         print(f"  {n:10s} HOTA {r['hota']:.3f}  IDF1 {r['idf1']:.3f}  MOTA {r['mota']:.3f}  "
-              f"IDSW {r['idsw']:4d}  {r['updates_per_s'] or 0:,.0f} updates/s")
+              f"IDSW {r['idsw']:4d}  {r['updates_per_s'] or 0:,.0f} updates/s  "
+              f"(ignore regions: HOTA {ig['hota']:.3f}  IDF1 {ig['idf1']:.3f}  "
+              f"MOTA {ig['mota']:.3f})")
     if res["peers_skipped"]:
         print(f"  BoxMOT peers skipped: {res['peers_skipped']}")
     return 0

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dashtraj.perception.detections import build_detector, truth_of
+from dashtraj.perception.detections import OracleDetector, build_detector, truth_of
 from dashtraj.perception.localize import build_localizer
 from dashtraj.perception.mot_metrics import Sequence, counts, summarize
 from dashtraj.perception.pipeline import camera_pose_of, image_camera
@@ -40,6 +40,15 @@ class EvalFrame:
     detections: object
     truth: object
     rgb: np.ndarray | None
+    scored: object = None
+
+
+IGNORE_BELOW_PX = 20.0
+IGNORE_BELOW_VISIBLE = 0.3
+"""The detector protocol's ignore regions (its model card: vehicles under 20 px high or
+more than 70 % occluded are not expected to be found; px at 1280 x 720, scaled with the
+image height): truth boxes of the oracle that fall under either are ignore regions in the
+``ignore_regions`` scores of `tracker_eval`."""
 
 
 def eval_frames(recording, detector: str = "oracle", every_s: float = 0.1, size=None,
@@ -49,9 +58,13 @@ def eval_frames(recording, detector: str = "oracle", every_s: float = 0.1, size=
 
     spec = image_camera(recording, size)
     det = build_detector(detector)
+    floor_px = OracleDetector.min_height_px  # the scored truth is a subset of the truth
+    floor_vis = OracleDetector.min_visible_fraction
     for rf in recording_frames(recording, every_s, size, observers, msaa=0):
         yield EvalFrame(rf.observer_id, rf.frame, rf.t, camera_pose_of(rf, spec), det.detect(rf),
-                        truth_of(rf), rf.frame_data.rgb if keep_rgb else None)
+                        truth_of(rf), rf.frame_data.rgb if keep_rgb else None,
+                        truth_of(rf, max(IGNORE_BELOW_PX * spec.height_px / 720.0, floor_px),
+                                 max(IGNORE_BELOW_VISIBLE, floor_vis)))
 
 
 def open_recording(path):
@@ -72,11 +85,17 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
 
     Returns:
         {tracker: {"hota", "deta", "assa", "idf1", "mota", "idsw", ..., "updates",
-        "updates_per_s"}} plus "sequences" and "frames".
+        "updates_per_s", "ignore_regions": {"hota", "idf1", "mota", ...}}} plus
+        "sequences" and "frames". The top-level scores count every truth box of the
+        oracle (≥ 8 px high, ≥ 10 % visible); "ignore_regions" scores the same tracker
+        output MOTChallenge-style with the boxes under `IGNORE_BELOW_PX` high or
+        `IGNORE_BELOW_VISIBLE` visible as ignore regions: they are no truth, and tracker
+        boxes on them (the detection's matched vehicle) are removed before scoring.
     """
     peers = peers or {}
     names = list(trackers) + list(peers)
     all_counts: dict[str, list] = {n: [] for n in names}
+    ign_counts: dict[str, list] = {n: [] for n in names}
     seconds = dict.fromkeys(names, 0.0)
     n_frames = n_seq = 0
     for rec in recordings:
@@ -84,18 +103,23 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
         current = None
         state: dict = {}
         seqs: dict = {}
+        iseqs: dict = {}
         for ef in eval_frames(rec, detector, every_s, size, keep_rgb=bool(peers)):
             if ef.observer_id != current:
                 if current is not None:
                     for n in names:
                         all_counts[n].append(counts(seqs[n]))
+                        ign_counts[n].append(counts(iseqs[n]))
                 current = ef.observer_id
                 n_seq += 1
                 state = {n: build_tracker(n, spec) for n in trackers}
                 state.update({n: f(spec) for n, f in peers.items()})
                 seqs = {n: Sequence() for n in names}
+                iseqs = {n: Sequence() for n in names}
             n_frames += 1
-            d, gt = ef.detections, ef.truth
+            d, gt, sc = ef.detections, ef.truth, ef.scored
+            ignored = np.setdiff1d(gt.truth_ids, sc.truth_ids)
+            on_ignored = np.isin(d.truth_ids, ignored)
             for n in names:
                 t0 = time.perf_counter()
                 if n in peers:
@@ -105,14 +129,18 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
                 seconds[n] += time.perf_counter() - t0
                 ok = ids > 0
                 seqs[n].add(gt.truth_ids, gt.boxes, ids[ok], d.boxes[ok])
+                ok &= ~on_ignored
+                iseqs[n].add(sc.truth_ids, sc.boxes, ids[ok], d.boxes[ok])
         if current is not None:
             for n in names:
                 all_counts[n].append(counts(seqs[n]))
+                ign_counts[n].append(counts(iseqs[n]))
     out: dict = {"sequences": n_seq, "frames": n_frames}
     for n in names:
         r = summarize(all_counts[n])
         r["updates"] = n_frames
         r["updates_per_s"] = n_frames / seconds[n] if seconds[n] > 0 else None
+        r["ignore_regions"] = summarize(ign_counts[n])
         out[n] = r
     return out
 

@@ -27,7 +27,9 @@ Estimators (`LOCALIZERS`, chosen by name with `build_localizer`):
   offset of its nearest wheel contact from its centre along the ray is added
   (class-typical half wheelbase and half width, combined by the angle between the ray
   and the vehicle's heading, taken from the orientation class: front/back = along the
-  ray, side = across it). Where the bottom
+  ray, side = across it); near the camera the lowest pixel is the lower edge of the
+  body instead (class ground clearance above the road, half a length from the centre),
+  and the hypothesis placing the centre farther is the one that holds. Where the bottom
   edge is unusable (cut by the image border, at or above the horizon) the box gets
   Eq. 3's estimate and ``valid`` is False.
 - ``fused``: both, combined with their error models (Eq. 3's value divided by the
@@ -36,8 +38,8 @@ Estimators (`LOCALIZERS`, chosen by name with `build_localizer`):
   the class height; σ_ground =
   D² / (f h_cam) × 1 px + 0.3 m), falling back to the other estimate where one is
   unusable (bottom edge cut by the image border or above the horizon; top edge cut);
-  where a nearer detection hides a box's bottom edge, the distance from the box width
-  replaces both (see `FusedLocalizer._occluded_bottoms`).
+  where nearer detections hide a box's bottom edge (cover 60 % of its columns), the
+  distance from the box width replaces both (see `FusedLocalizer._occluded_bottoms`).
 """
 
 from __future__ import annotations
@@ -57,9 +59,12 @@ CLASS_HEIGHT_M: tuple[float, ...] = (1.6, 3.5, 3.5, 1.45, 1.45)
 CLASS_WHEELBASE_M: tuple[float, ...] = (2.85, 4.15, 5.72, 1.43, 1.06)
 CLASS_LENGTH_M: tuple[float, ...] = (4.76, 7.32, 11.2, 2.07, 1.77)
 CLASS_WIDTH_M: tuple[float, ...] = (1.87, 2.38, 2.52, 0.77, 0.56)
+CLASS_CLEARANCE_M: tuple[float, ...] = (0.16, 0.28, 0.30, 0.14, 0.30)
 """Typical wheelbase and width per vehicle class, metres (means of the vehicle catalog):
 the lowest pixel of a vehicle is where its nearest wheels touch the road, half a
-wheelbase from its centre along its length and half a width across it."""
+wheelbase from its centre along its length and half a width across it, or, seen from
+nearer than about 11 m (a car), the lower edge of its body (the ground clearance above
+the road, half a length from the centre)."""
 
 PAPER_MU_H: float = 583.96
 """μ_h of Eq. 3 for our 1280 x 720 camera (scaled with the image height), calibrated the
@@ -141,9 +146,11 @@ def calibrate_paper_constant(spec: CameraSpec, boxes, class_ids, true_distance_m
     return float(np.mean(paper_distance(spec, boxes, class_ids, 1.0) / d))
 
 
-def _half_extent_along_ray(class_ids, rel_deg=None) -> np.ndarray:
+def _half_extent_along_ray(class_ids, rel_deg=None, body: bool = False) -> np.ndarray:
+    """Distance from the vehicle centre to its nearest wheel contact (``body``: to the
+    nearest lower edge of its body) along the viewing ray, metres."""
     vc = VEHICLE_CLASS_INDEX[np.asarray(class_ids)]
-    L = np.asarray(CLASS_WHEELBASE_M)[vc] / 2
+    L = np.asarray(CLASS_LENGTH_M if body else CLASS_WHEELBASE_M)[vc] / 2
     W = np.asarray(CLASS_WIDTH_M)[vc] / 2
     if rel_deg is None:
         side = np.array([ORIENTATION_OF_CLASS[c] == "side" for c in np.asarray(class_ids)],
@@ -189,7 +196,12 @@ class GroundLocalizer:
         h = pose.z - pose.ground_z
         ok = slope < -1e-6
         near = np.where(ok, h / np.where(ok, -slope, 1.0), np.inf)
-        d = near + _half_extent_along_ray(class_ids, rel_deg)
+        # the lowest pixel is the wheel contact (on the road) or, near, the body's lower
+        # edge (clearance z_b above it): whichever hypothesis puts the centre farther holds
+        z_b = np.asarray(CLASS_CLEARANCE_M)[VEHICLE_CLASS_INDEX[np.asarray(class_ids)]]
+        d = np.maximum(near + _half_extent_along_ray(class_ids, rel_deg),
+                       near * (1.0 - z_b / max(h, 0.1))
+                       + _half_extent_along_ray(class_ids, rel_deg, body=True))
         valid = ok & (boxes[:, 3] < spec.height_px - self.border_px) & (near < 500)
         sigma = (d * d) / (spec.focal_px * max(h, 0.1)) * GROUND_SIGMA_PX + GROUND_SIGMA_M
         if not valid.all():  # bottom edge unusable: Eq. 3's estimate instead
@@ -207,6 +219,7 @@ class FusedLocalizer:
     mu_h: float = PAPER_MU_H
     name: str = "fused"
     border_px: float = 1.0
+    cover_frac: float = 0.6
 
     def localize(self, boxes, class_ids, spec: CameraSpec, pose: CameraPose,
                  rel_deg=None) -> Localized:
@@ -230,35 +243,43 @@ class FusedLocalizer:
 
 
     def _occluded_bottoms(self, boxes, class_ids, spec, bearing_deg, d):
-        """Boxes whose bottom edge is hidden by a nearer detection of the same frame: the
+        """Boxes whose bottom edge is hidden by nearer detections of the same frame: the
         visible bottom is too high and both the ground and Eq. 3 estimates are too far.
-        Unless the box is also cut sideways by that detection, use the distance from the
-        box width (class width for back views, the vehicle seen straight; the geometric
-        mean with the fused value for front and side views, seen obliquely), never more
-        than the fused value and at least 1 m beyond the occluder."""
+        A box counts as hidden when nearer boxes (lower bottom edge, top above this box's
+        bottom) cover at least `cover_frac` of its columns. Unless it is also cut sideways
+        (by one of them or the image border: its width says nothing then), use the
+        distance from the box width (class width for back views, the vehicle seen
+        straight; the geometric mean with the fused value for front and side views, seen
+        obliquely), never more than the fused value and at least 1 m beyond the
+        occluder."""
         n = len(boxes)
         if n < 2:
             return d
         b = boxes
-        uc = 0.5 * (b[:, 0] + b[:, 2])
+        w_px = np.maximum(b[:, 2] - b[:, 0], 1.0)
         below = (b[None, :, 3] > b[:, None, 3]) & (b[None, :, 1] <= b[:, None, 3] + 2.0)
-        covers = below & (b[None, :, 0] <= uc[:, None]) & (uc[:, None] <= b[None, :, 2])
-        np.fill_diagonal(covers, False)
+        np.fill_diagonal(below, False)
+        # columns of box i covered by the union of its occluders j
+        cols = np.linspace(0.0, 1.0, 16)
+        u = b[:, 0:1] + cols[None, :] * (b[:, 2:3] - b[:, 0:1])  # (n, 16)
+        inside = (b[None, :, 0, None] <= u[:, None, :]) & (u[:, None, :] <= b[None, :, 2, None])
+        covered = (inside & below[:, :, None]).any(1).mean(1)
+        covers = below & inside.any(2)
+        hidden = covered >= self.cover_frac
         cut = below & ((np.abs(b[:, None, 0] - b[None, :, 2]) <= 2.0)
                        | (np.abs(b[:, None, 2] - b[None, :, 0]) <= 2.0))
         cut = cut.any(1) | (b[:, 0] <= self.border_px) | (b[:, 2] >= spec.width_px - self.border_px)
-        hit = covers.any(1) & ~cut
-        if not hit.any():
+        hidden &= ~cut
+        if not hidden.any():
             return d
         vc = VEHICLE_CLASS_INDEX[np.asarray(class_ids)]
         back = np.array([ORIENTATION_OF_CLASS[c] == "back" for c in np.asarray(class_ids)])
         side = np.array([ORIENTATION_OF_CLASS[c] == "side" for c in np.asarray(class_ids)])
         extent = np.where(side, np.asarray(CLASS_LENGTH_M)[vc], np.asarray(CLASS_WIDTH_M)[vc])
-        w_px = np.maximum(b[:, 2] - b[:, 0], 1.0)
         d_w = spec.focal_px * extent / w_px / np.cos(np.radians(bearing_deg))
-        est = np.minimum(np.where(back, d_w, np.sqrt(d_w * d)), d)
         occluder = np.where(covers, d[None, :], 0.0).max(1)
-        return np.where(hit, np.maximum(est, occluder + 1.0), d)
+        est = np.minimum(np.where(back, d_w, np.sqrt(d_w * d)), d)
+        return np.where(hidden, np.maximum(est, occluder + 1.0), d)
 
 
 LOCALIZERS: dict[str, type] = {"paper": PaperLocalizer, "ground": GroundLocalizer,

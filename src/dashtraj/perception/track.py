@@ -16,13 +16,18 @@ unassigned). Ids start at 1 and are never reused within a tracker.
 - ``ego``: uses what a 2-D tracker does not know, the observer's own odometry (its
   camera pose every frame; on a real drive GPS/IMU). Each track is a constant-velocity
   Kalman filter of the vehicle's ground position (CARLA world metres), measured by the
-  ``fused`` localizer. Every frame the predicted ground position is projected into the
-  *current* camera: its bearing gives the predicted box column, and the ratio of the
-  old to the new distance scales the last box about the principal point (points at
-  fixed heights move as 1/depth), so a turning or braking observer moves the predicted
-  boxes with the image. Association: Hungarian on 1 − IoU(predicted box, detection)
-  plus the ground distance over a gate that grows with the range; a pair is allowed
-  when IoU ≥ `iou_min` or the ground distance is within the gate.
+  ``fused`` localizer with an anisotropic covariance: the localizer's range error along
+  the viewing ray, a few pixels of bearing across it (a far box is well placed across
+  the ray and poorly along it). Every frame the predicted ground position is projected
+  into the *current* camera: its bearing gives the predicted box column, and the ratio
+  of the old to the new distance scales the last box about the principal point (points
+  at fixed heights move as 1/depth), so a turning or braking observer moves the
+  predicted boxes with the image. Association: Hungarian on 1 − IoU(predicted box,
+  detection) plus the squared Mahalanobis distance of the detection's position to the
+  track's over a χ² gate; a pair is allowed when IoU ≥ `iou_min` or it is inside the
+  gate. A track ages only while its prediction lies inside the image: a vehicle the
+  camera has turned away from is remembered (up to `out_of_view_s`) and picked up again
+  where the odometry says it should reappear.
 """
 
 from __future__ import annotations
@@ -179,22 +184,27 @@ class EgoTracker:
 
     Attributes:
         spec: the camera of the images (size, FOV, mount).
-        max_age_s: seconds a track survives without a detection (its ground-plane
-            prediction keeps it matchable through occlusions and short exits).
+        max_age_s: seconds a track survives without a detection while predicted inside
+            the image (its ground-plane prediction keeps it matchable through occlusions).
         min_hits: hits before a track is reported.
         iou_min: a pair with at least this IoU of predicted and detected box may match.
-        gate_m, gate_rel: ground-distance gate, metres: gate_m + gate_rel × range.
+        gate_chi2: gate on the squared Mahalanobis distance (2 degrees of freedom).
+        cross_px: bearing error of a detection's centre, pixels (across-ray σ).
+        out_of_view_s: seconds a track predicted outside the image is kept.
+        view_margin_px: a prediction this far inside the image border counts as in view.
         accel_mps2: process noise, the vehicles' acceleration (m/s², 1 σ).
     """
 
     spec: CameraSpec = field(default_factory=CameraSpec)
-    max_age_s: float = 2.0
+    max_age_s: float = 3.0
     min_hits: int = 3
     iou_min: float = 0.1
-    gate_m: float = 1.5
-    gate_rel: float = 0.08
     accel_mps2: float = 3.0
     class_penalty: float = 0.5
+    gate_chi2: float = 36.0
+    cross_px: float = 4.0
+    out_of_view_s: float = 6.0
+    view_margin_px: float = 0.0
     name: str = "ego"
     _x: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)), repr=False)
     _p: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)), repr=False)
@@ -205,6 +215,7 @@ class EgoTracker:
     _since: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
     _hits: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
     _last: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    _hidden: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     _t: float | None = None
     _next_id: int = 1
 
@@ -246,26 +257,27 @@ class EgoTracker:
         self._p = F @ self._p @ F.T + Q
         self._since += 1
         m = len(self._ids)
+        if m:  # time unseen counts only while the prediction is inside the image
+            self._hidden += dt * self._in_view(pose)
         eta = VEHICLE_CLASS_INDEX[det.class_ids] if n else np.zeros(0, np.int64)
+        lost = self._hidden > self.max_age_s + 1e-9
+        r_det = self._meas_cov(loc, pose)
         if n and m:
-            pbox, pdist, front = self.predicted_boxes(pose)
+            pbox, _, front = self.predicted_boxes(pose)
             iou = np.where(front[None, :], iou_matrix(det.boxes, pbox), 0.0)
-            gd = np.hypot(zx[:, None, 0] - self._x[None, :, 0],
-                          zx[:, None, 1] - self._x[None, :, 1])
-            gate = self.gate_m + self.gate_rel * np.maximum(pdist[None, :], loc.distance_m[:, None])
-            pos_sd = np.sqrt(np.maximum(self._p[:, 0, 0] + self._p[:, 1, 1], 0.0))[None, :]
-            gate = gate + pos_sd
+            v = zx[:, None, :] - self._x[None, :, :2]
+            S = self._p[None, :, :2, :2] + r_det[:, None]
+            d2 = np.einsum("nmi,nmij,nmj->nm", v, np.linalg.inv(S), v)  # Mahalanobis²
             same = eta[:, None] == np.argmax(self._votes, 1)[None, :]
-            cost = (1.0 - iou) + gd / gate + np.where(same, 0.0, self.class_penalty)
-            allowed = (iou >= self.iou_min) | (gd <= gate)
+            cost = (1.0 - iou) + d2 / self.gate_chi2 + np.where(same, 0.0, self.class_penalty)
+            allowed = ((iou >= self.iou_min) | (d2 <= self.gate_chi2)) & ~lost[None, :]
             matches, ud, _ = _assign(cost, allowed)
         else:
             matches, ud = np.zeros((0, 2), np.int64), np.arange(n)
         if len(matches):
             d, k = matches[:, 0], matches[:, 1]
-            r = np.maximum(loc.sigma_m[d], 0.3) ** 2
             x, p = self._x[k], self._p[k]
-            s = p[:, :2, :2] + r[:, None, None] * np.eye(2)
+            s = p[:, :2, :2] + r_det[d]
             gain = p[:, :, :2] @ np.linalg.inv(s)
             self._x[k] = x + np.einsum("nij,nj->ni", gain, zx[d] - x[:, :2])
             self._p[k] = (np.eye(4) - gain @ np.eye(2, 4)) @ p
@@ -279,7 +291,7 @@ class EgoTracker:
             x = np.zeros((k, 4))
             x[:, :2] = zx[ud]
             p = np.zeros((k, 4, 4))
-            p[:, 0, 0] = p[:, 1, 1] = np.maximum(loc.sigma_m[ud], 0.3) ** 2
+            p[:, :2, :2] = r_det[ud]
             p[:, 2, 2] = p[:, 3, 3] = 10.0**2  # unknown velocity, up to ~10 m/s
             votes = np.zeros((k, 5))
             votes[np.arange(k), eta[ud]] = 1
@@ -293,17 +305,38 @@ class EgoTracker:
             self._since = np.concatenate([self._since, np.zeros(k, np.int64)])
             self._hits = np.concatenate([self._hits, np.ones(k, np.int64)])
             self._last = np.concatenate([self._last, np.full(k, self._t)])
+            self._hidden = np.concatenate([self._hidden, np.zeros(k)])
         out = np.full(n, -1, np.int64)
         if len(matches):
             d, k = matches[:, 0], matches[:, 1]
             show = self._hits[k] >= self.min_hits
             out[d[show]] = self._ids[k[show]]
         self._last[self._since == 0] = self._t
-        keep = (self._t - self._last) <= self.max_age_s + 1e-9
-        for a in ("_x", "_p", "_box", "_dist", "_ids", "_votes", "_since", "_hits", "_last"):
+        self._hidden[self._since == 0] = 0.0
+        keep = ((self._hidden <= self.max_age_s + 1e-9)
+                & ((self._t - self._last) <= max(self.max_age_s, self.out_of_view_s) + 1e-9))
+        for a in ("_x", "_p", "_box", "_dist", "_ids", "_votes", "_since", "_hits", "_last",
+                  "_hidden"):
             setattr(self, a, getattr(self, a)[keep])
         return out
 
+
+    def _in_view(self, pose: CameraPose) -> np.ndarray:
+        """(M,) bool: the predicted box of each track lies (partly) inside the image."""
+        box, _, front = self.predicted_boxes(pose)
+        mg = self.view_margin_px
+        return (front & (box[:, 2] > mg) & (box[:, 0] < self.spec.width_px - mg))
+
+    def _meas_cov(self, loc, pose) -> np.ndarray:
+        """(N, 2, 2) covariance of each localized position (CARLA world, m²): the
+        localizer's range error along the ray, ``cross_px`` pixels of bearing across it."""
+        ang = np.radians(pose.yaw_deg + loc.bearing_deg)
+        u = np.stack([np.cos(ang), np.sin(ang)], -1)
+        w = np.stack([-u[:, 1], u[:, 0]], -1)
+        sr = np.maximum(loc.sigma_m, 0.3) ** 2
+        sc = np.maximum(loc.distance_m * self.cross_px / self.spec.focal_px, 0.3) ** 2
+        return (sr[:, None, None] * u[:, :, None] * u[:, None, :]
+                + sc[:, None, None] * w[:, :, None] * w[:, None, :])
 
 TRACKERS: tuple[str, ...] = ("sort", "ego")
 """Tracker names (module docstring)."""
