@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 export MPLBACKEND := Agg
 
-.PHONY: setup demo test lint bench clean weights reid-data reid-train
+.PHONY: setup demo test lint bench clean weights reid-data reid-train reid-threshold results
 
 $(STAMP): pyproject.toml scripts/install_render_deps.sh
 	bash scripts/install_render_deps.sh || echo "warning: could not install the EGL/Mesa packages; rendering tests will skip"
@@ -39,6 +39,17 @@ reid-train: $(STAMP)
 	$(PY) -m pip install -q -e '.[train]'
 	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN) --recipe cpu --seed 0 \
 		$$(test -f $(REID_RUN)/last.pt && echo --resume)
+
+# The ReID model's track-decision threshold, calibrated on training recordings (seeds 900-903,
+# identities < 650; never the test seeds) and written beside it: rerun after replacing the model.
+# REID_LOOK: the render look the model was trained on ("" = the renderer's default).
+REID_LOOK ?= flat
+reid-threshold: $(STAMP)
+	DASHTRAJ=$(VENV)/bin/dashtraj bash scripts/reid_threshold.sh runs/reid_threshold "$(REID_MODEL)" "$(REID_LOOK)"
+
+# The README's from-pixels tables (experiments --sightings vision, --ablation): hours on 2 cores.
+results: $(STAMP)
+	DASHTRAJ=$(VENV)/bin/dashtraj bash scripts/e2e_results.sh $(or $(WORK),runs/results)
 
 # Reproduce the shipped detector (src/dashtraj/data/detector/): recordings, YOLO set, cpu-recipe
 # training (resumes), ONNX export, held-out eval; hours on 2 CPU cores. WORK=runs/detector.

@@ -1,0 +1,23 @@
+#!/usr/bin/env bash
+# Regenerate the README's from-pixels tables: the error budget (experiments --ablation) on the
+# paper's ten experiments, one experiment per folder so that a stopped run keeps what it
+# finished, then scripts/e2e_tables.py prints the markdown tables.
+# Usage: [SEEDS=0-4] [TOWNS="town01 town10"] [EVERY=0.1] scripts/e2e_results.sh WORK
+set -euo pipefail
+WORK=${1:-runs/results}
+D=${DASHTRAJ:-dashtraj}
+PY=${PYTHON:-$(dirname "$(command -v "$D")")/python}
+SEEDS=${SEEDS:-0-4}
+TOWNS=${TOWNS:-town01 town10}
+EVERY=${EVERY:-0.1}
+lo=${SEEDS%-*}; hi=${SEEDS#*-}
+mkdir -p "$WORK"
+for seed in $(seq "$lo" "$hi"); do
+  for town in $TOWNS; do
+    out="$WORK/${town}_seed$seed"
+    test -f "$out/ablation.json" && continue
+    $D experiments --ablation --towns "$town" --seeds "$seed" --every "$EVERY" -o "$out" \
+        --overwrite ${EXTRA:-}
+  done
+done
+"$PY" "$(dirname "$0")/e2e_tables.py" "$WORK"
