@@ -16,7 +16,7 @@ for seed in $(seq "$lo" "$hi"); do
   for town in $TOWNS; do
     out="$WORK/${town}_seed$seed"
     test -f "$out/ablation.json" && continue
-    $D experiments --ablation --towns "$town" --seeds "$seed" --every "$EVERY" -o "$out" \
+    $D experiments --ablation --towns "$town" --seeds "$seed-$seed" --every "$EVERY" -o "$out" \
         --overwrite ${EXTRA:-}
   done
 done

@@ -11,6 +11,7 @@ MODEL=${2:-}
 LOOK=${3:-}
 D=${DASHTRAJ:-dashtraj}
 SIZE=${SIZE:-640x360}
+WORK="$WORK/look_${LOOK:-default}_$SIZE"   # crops depend on the look and size, not the model
 mkdir -p "$WORK"
 dbs=()
 for spec in town01:900 town10:901 town01:902 town10:903; do

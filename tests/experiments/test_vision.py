@@ -61,6 +61,14 @@ def test_demo_from_pixels_finds_the_target_and_writes_every_file(tmp_path, gl_av
     (call,) = spy
     assert len(call["sightings"]) == s["sightings"]
     assert call["results"]["hmm"]["sspd_whole_m"] == s["methods"]["hmm"]["sspd_whole_m"]
+    # the calibration command's mechanics on this database (a real threshold file comes
+    # from training recordings: make reid-threshold)
+    t = tmp_path / "t.json"
+    assert main(["reid-threshold", str(out / "sightings.db"), "-o", str(t), "--rule", "eer",
+                 "--max-queries", "100"]) == 0
+    cal = load_threshold(shipped_model_path(), t)
+    assert cal.calibration.rule == "eer" and cal.calibration.positives > 0
+    assert cal.provenance["sources"][0]["look"] == s["look"] == th.provenance["sources"][0]["look"]
 
 
 @pytest.mark.slow
