@@ -31,7 +31,7 @@ def test_shipped_model_has_a_threshold_calibrated_on_training_recordings():
 def test_stale_or_missing_threshold_is_refused(tmp_path):
     model = tmp_path / "m.onnx"
     model.write_bytes(b"not the calibrated model")
-    with pytest.raises(VisionReidError, match="no calibrated ReID threshold for m.onnx"):
+    with pytest.raises(VisionReidError, match=r"no calibrated ReID threshold for m\.onnx"):
         load_threshold(model)
     d = json.loads(threshold_path(shipped_model_path()).read_text())
     threshold_path(model).write_text(json.dumps(d))
@@ -46,5 +46,6 @@ def test_stale_or_missing_threshold_is_refused(tmp_path):
 
 
 def test_switch_names_are_checked():
-    with pytest.raises(VisionReidError, match="unknown tracks switch 'sort'; valid: tracker, truth"):
+    with pytest.raises(VisionReidError,
+                       match="unknown tracks switch 'sort'; valid: tracker, truth"):
         StageSwitches(tracks="sort")
