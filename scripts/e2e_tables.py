@@ -12,12 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
-from dashtraj.ablation import EXTRA_ROWS, ROWS, SOURCES
+from dashtraj.ablation import ROWS, SOURCES, budget
 
 
 def load(work: Path) -> dict[str, dict]:
     out: dict[str, dict] = {}
-    for p in sorted(work.glob("*/ablation.json")):
+    suites = [work / "ablation.json"] if (work / "ablation.json").is_file() else []
+    for p in suites + sorted(work.glob("*/ablation.json")):
         out.update(json.loads(p.read_text())["per_experiment"])
     return out
 
@@ -72,20 +73,23 @@ def main(argv: list[str]) -> int:
     print("\n| error source (Table IV) | stage turned real | impact on hmm SSPD whole / seen "
           "| impact on shortest-path SSPD whole / seen |")
     print("|---|---|---|---|")
-    ok = {m: [e for e in exps if all(m in e["rows"][r[0]]["methods"] for r in ROWS)]
-          for m in ("hmm", "shortest-path")}
+    b = budget(exps)
     for i in range(1, len(ROWS)):
-        row, prev = ROWS[i][0], ROWS[i - 1][0]
+        row = ROWS[i][0]
         cells = []
         for m in ("hmm", "shortest-path"):
-            d = [mean(ok[m], row, m, k)[0] - mean(ok[m], prev, m, k)[0]
-                 for k in ("sspd_whole_m", "sspd_seen_m")]
-            cells.append(f"{d[0]:+.2f} / {d[1]:+.2f} m")
+            imp = b.get(m, {}).get("impact", {}).get(row)
+            cells.append("-" if imp is None else
+                         f"{imp['sspd_whole_m']:+.2f} / {imp['sspd_seen_m']:+.2f} m"
+                         + ("" if imp["experiments"] == len(exps)
+                            else f" ({imp['experiments']} of {len(exps)})"))
         print(f"| {SOURCES[row]} | {row} | " + " | ".join(cells) + " |")
-    base = [mean(ok["hmm"], "oracle", "hmm", k)[0] for k in ("sspd_whole_m", "sspd_seen_m")]
-    print(f"\n(all-oracle baseline, hmm: {base[0]:.2f} / {base[1]:.2f} m over "
-          f"{len(ok['hmm'])} experiments where every row had sightings; "
-          f"extra row: {', '.join(r[0] for r in EXTRA_ROWS)})")
+    base = b.get("hmm", {}).get("rows", {}).get("oracle")
+    if base:
+        print(f"\n(all-oracle baseline, hmm: {base['sspd_whole_m']:.2f} / "
+              f"{base['sspd_seen_m']:.2f} m over {base['experiments']} experiments; an impact "
+              "is the mean difference to the row before over the experiments where both rows "
+              "had sightings)")
     print("\n| experiment | hmm SSPD whole / seen, by row: " + ", ".join(r[0] for r in ROWS)
           + " | ReID TP / FP / FN (reid row) |")
     print("|---|---|---|")

@@ -116,26 +116,38 @@ def run_ablation(config, out: str | Path,
 def budget(results: list[dict], methods=("hmm", "shortest-path")) -> dict:
     """Mean SSPD per row and method over experiments, and each real stage's impact.
 
-    An experiment where a row has no sightings (nothing to reconstruct) is left out of
-    every row's mean for that method, so the rows stay comparable (`experiments` says
-    how many were used).
+    A row's mean is over the experiments where it had sightings (a row with none has
+    nothing to reconstruct); a stage's impact is the mean over the experiments where
+    both its row and the row before had sightings of the difference between the two.
 
     Returns:
-        {method: {"experiments": n, "rows": {row: {"sspd_whole_m", "sspd_seen_m"}},
-        "impact": {stage: {"sspd_whole_m", "sspd_seen_m"}}}}, metres.
+        {method: {"experiments": n, "rows": {row: {"sspd_whole_m", "sspd_seen_m",
+        "experiments"}}, "impact": {stage: {"sspd_whole_m", "sspd_seen_m",
+        "experiments"}}}}, metres.
     """
     import numpy as np
 
+    keys = ("sspd_whole_m", "sspd_seen_m")
     out: dict = {}
-    names = [r[0] for r in ROWS]
+    names = [r[0] for r in ROWS] + [r[0] for r in EXTRA_ROWS]
     for m in methods:
-        ok = [r for r in results if all(m in r["rows"][n]["methods"] for n in names)]
-        if not ok:
-            continue
-        rows = {n: {k: float(np.mean([r["rows"][n]["methods"][m][k] for r in ok]))
-                    for k in ("sspd_whole_m", "sspd_seen_m")} for n in names}
-        impact = {names[i]: {k: rows[names[i]][k] - rows[names[i - 1]][k]
-                             for k in ("sspd_whole_m", "sspd_seen_m")}
-                  for i in range(1, len(names))}
-        out[m] = {"experiments": len(ok), "rows": rows, "impact": impact}
+        def has(r, n, m=m):
+            return m in r["rows"].get(n, {}).get("methods", {})
+
+        rows = {}
+        for n in names:
+            ok = [r for r in results if has(r, n)]
+            if ok:
+                rows[n] = {**{k: float(np.mean([r["rows"][n]["methods"][m][k] for r in ok]))
+                              for k in keys}, "experiments": len(ok)}
+        impact = {}
+        for i in range(1, len(ROWS)):
+            a, b = ROWS[i - 1][0], ROWS[i][0]
+            ok = [r for r in results if has(r, a) and has(r, b)]
+            if ok:
+                impact[b] = {**{k: float(np.mean([r["rows"][b]["methods"][m][k]
+                                                  - r["rows"][a]["methods"][m][k] for r in ok]))
+                                for k in keys}, "experiments": len(ok)}
+        if rows:
+            out[m] = {"experiments": len(results), "rows": rows, "impact": impact}
     return out

@@ -73,7 +73,7 @@ def test_demo_from_pixels_finds_the_target_and_writes_every_file(tmp_path, gl_av
 
 @pytest.mark.slow
 def test_oracle_vision_and_ablation_share_one_reconstruction(tmp_path, gl_available, spy):
-    from dashtraj.ablation import ROWS, budget, run_ablation
+    from dashtraj.ablation import EXTRA_ROWS, ROWS, budget, run_ablation
 
     oracle = ex.run_experiment(ex.ExperimentConfig(**{**SMALL, "sightings": "oracle"}),
                                tmp_path / "o")
@@ -82,9 +82,10 @@ def test_oracle_vision_and_ablation_share_one_reconstruction(tmp_path, gl_availa
     # content, so real detection adds exactly nothing; the ReID row is the vision pipeline
     res = run_ablation(ex.ExperimentConfig(**{**SMALL, "sightings": "vision",
                                               "reid": "appearance"}), tmp_path / "a")
-    assert len(spy) == 1 + len(ROWS)
+    assert len(spy) == 1 + len(ROWS) + len(EXTRA_ROWS)
     rows = res["rows"]
     assert rows["oracle"]["methods"] == rows["detection"]["methods"]
+    assert rows["vision-oracle-detector"] == rows["reid"]  # the "model" is the oracle here
     assert rows["oracle"]["reid_precision"] == 1.0 and rows["reid"]["sightings"] > 0
     assert all(rows[r[0]]["sightings"] > 0 for r in ROWS)
     b = budget([res])["hmm"]

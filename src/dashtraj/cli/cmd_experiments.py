@@ -203,16 +203,20 @@ def run_ablation_suite(args, base, out: Path) -> int:
         print(json.dumps({k: summary[k] for k in ("experiments", "rows", "sources", "detector",
                                                   "reid_model", "look", "budget")}, indent=2))
         return 0
+    if not b:
+        print("\nno experiment had sightings in any row: nothing to compare")
     for method, m in b.items():
-        print(f"\n{method}: mean over {m['experiments']} experiments (SSPD whole / seen, m)")
-        prev = None
+        print(f"\n{method}: mean SSPD whole / seen (m) over the experiments with sightings in "
+              f"the row; a stage adds the mean difference to the row before")
         for r in ROWS:
-            row = m["rows"][r[0]]
-            add = ("" if prev is None else
-                   f"   adds {m['impact'][r[0]]['sspd_whole_m']:+6.2f} / "
-                   f"{m['impact'][r[0]]['sspd_seen_m']:+6.2f}  ({SOURCES[r[0]]})")
-            print(f"  {'+ ' + r[0] if prev else r[0]:16s} {row['sspd_whole_m']:6.2f} / "
-                  f"{row['sspd_seen_m']:6.2f}{add}")
-            prev = r[0]
+            row = m["rows"].get(r[0])
+            cell = ("no sightings" if row is None else
+                    f"{row['sspd_whole_m']:6.2f} / {row['sspd_seen_m']:6.2f}  "
+                    f"({row['experiments']} exp.)")
+            imp = m["impact"].get(r[0])
+            add = ("" if imp is None else
+                   f"   adds {imp['sspd_whole_m']:+6.2f} / {imp['sspd_seen_m']:+6.2f}  "
+                   f"({SOURCES[r[0]]}; {imp['experiments']} exp.)")
+            print(f"  {r[0]:14s} {cell}{add}")
     print(f"files: {out}/")
     return 0
