@@ -4,12 +4,17 @@
 # held-out recordings. Every stage skips work whose output already exists, so a rerun
 # resumes (training resumes from DIR/last.pt).
 #   usage: scripts/detector_weights.sh [WORK_DIR]   (default runs/detector)
-#   env:   DASHTRAJ=path/to/dashtraj  RECIPE=cpu|paper  SEED=0
+#   env:   DASHTRAJ=path/to/dashtraj  RECIPE=cpu|paper  SEED=0  EPOCHS=(recipe's)
+#          STOP_AFTER=N (stop after epoch N of the EPOCHS schedule; rerun without it to go on)
+#          CARLA_FRAMES=../shared/carla_frames (scored with eval-external when present)
 set -euo pipefail
 WORK=${1:-runs/detector}
 DT=${DASHTRAJ:-.venv/bin/dashtraj}
 RECIPE=${RECIPE:-cpu}
 SEED=${SEED:-0}
+EPOCHS=${EPOCHS:-}
+STOP_AFTER=${STOP_AFTER:-}
+CARLA_FRAMES=${CARLA_FRAMES:-../shared/carla_frames}
 TOWN01_REAL=${TOWN01_REAL:-../shared/maps/carla/Town01.xodr}
 TOWN10_REAL=${TOWN10_REAL:-../shared/maps/carla/Town10HD.xodr}
 mkdir -p "$WORK/recs" "$WORK/heldout"
@@ -39,11 +44,18 @@ for spec in "town01 900" "town10 900" "$TOWN01_REAL 900" "$TOWN10_REAL 900" "$TO
 done
 [ -f "$WORK/dataset/dataset.json" ] \
   || "$DT" detection-dataset "${train[@]}" -o "$WORK/dataset" --every 2.0 --size 640x360 \
-       --seed 0 -q
-"$DT" detector train "$WORK/dataset" -o "$WORK/train" --recipe "$RECIPE" --seed "$SEED"
+       --seed 0 --randomize --randomize-seed 0 -q
+"$DT" detector train "$WORK/dataset" -o "$WORK/train" --recipe "$RECIPE" --seed "$SEED" \
+  ${EPOCHS:+--epochs "$EPOCHS"} ${STOP_AFTER:+--stop-after-epoch "$STOP_AFTER"}
 "$DT" detector export "$WORK/train/best.pt" -o "$WORK/detector.onnx" --overwrite
 "$DT" detector eval "${held[@]}" --model "$WORK/detector.onnx" --every 8 --plot \
   -o "$WORK/eval" --overwrite -q
+ext=()
+if [ -d "$CARLA_FRAMES/images" ]; then
+  "$DT" detector eval-external "$CARLA_FRAMES" --model "$WORK/detector.onnx" \
+    --names vehicle,bike,motobike,traffic_light,traffic_sign -o "$WORK/carla" --overwrite -q
+  ext=(--external "$WORK/carla/eval.json")
+fi
 # copy the model into the package with its card (MODEL.md, MODEL.json)
 "${PYTHON:-.venv/bin/python}" scripts/detector_card.py --run "$WORK/train" \
-  --dataset "$WORK/dataset" --onnx "$WORK/detector.onnx" --eval "$WORK/eval/eval.json"
+  --dataset "$WORK/dataset" --onnx "$WORK/detector.onnx" --eval "$WORK/eval/eval.json" "${ext[@]}"

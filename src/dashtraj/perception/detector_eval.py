@@ -204,7 +204,8 @@ def evaluate_external(folder, detector, their_names, class_map=None, small_px: f
                       progress=None) -> dict:
     """Score our detector on another source's frames with YOLO labels.
 
-    Each of our detections takes the class ``class_map[base]`` (``base``: our name
+    Each of our detections takes the class ``class_map[base]`` (default
+    `DEFAULT_CLASS_MAP`, restricted to the classes the set has) (``base``: our name
     without its ``_front``/``_back``/``_side`` orientation); detections whose base is
     unmapped are dropped, and after the mapping a class-aware NMS (IoU ``iou``) keeps
     one box per object. Their classes that no class of ours maps to (traffic lights,
@@ -232,8 +233,14 @@ def evaluate_external(folder, detector, their_names, class_map=None, small_px: f
         except OSError as exc:
             raise DashtrajError(f"{path}: not a readable image ({exc})") from None
 
-    class_map = dict(DEFAULT_CLASS_MAP if class_map is None else class_map)
     their_names = list(their_names)
+    if class_map is None:  # the default map, restricted to the classes the set has
+        class_map = {o: t for o, t in DEFAULT_CLASS_MAP.items() if t in their_names}
+        if not class_map:
+            raise DashtrajError(f"none of {', '.join(sorted(set(DEFAULT_CLASS_MAP.values())))} "
+                                f"is a class of the set ({', '.join(their_names)}); pass a "
+                                "class map (OURS=THEIRS,...)")
+    class_map = dict(class_map)
     ours = list(detector.names)
     bases = sorted({n.rsplit("_", 1)[0] if n.rsplit("_", 1)[-1] in ("front", "back", "side")
                     else n for n in ours})
