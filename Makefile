@@ -50,7 +50,7 @@ reid-threshold: $(STAMP)
 
 # The README's from-pixels tables (experiments --sightings vision, --ablation): hours on 2 cores.
 results: $(STAMP)
-	DASHTRAJ=$(VENV)/bin/dashtraj bash scripts/e2e_results.sh $(or $(WORK),runs/results)
+	README=README.md EVERY=$(or $(EVERY),0.2) DASHTRAJ=$(VENV)/bin/dashtraj bash scripts/e2e_results.sh $(or $(WORK),runs/results)
 
 # Reproduce the shipped detector (src/dashtraj/data/detector/): recordings, YOLO set, cpu-recipe
 # training (resumes), ONNX export, held-out eval; hours on 2 CPU cores. WORK=runs/detector.

@@ -2,7 +2,9 @@
 # Regenerate the README's from-pixels tables: the error budget (experiments --ablation) on the
 # paper's ten experiments, one experiment per folder so that a stopped run keeps what it
 # finished, then scripts/e2e_tables.py prints the markdown tables.
-# Usage: [SEEDS=0-4] [TOWNS="town01 town10"] [EVERY=0.1] scripts/e2e_results.sh WORK
+# Usage: [SEEDS=0-4] [TOWNS="town01 town10"] [EVERY=0.1] [README=README.md] \
+#        scripts/e2e_results.sh WORK
+# (README: replace the tables between its e2e-results markers)
 set -euo pipefail
 WORK=${1:-runs/results}
 D=${DASHTRAJ:-dashtraj}
@@ -20,4 +22,4 @@ for seed in $(seq "$lo" "$hi"); do
         --overwrite ${EXTRA:-}
   done
 done
-"$PY" "$(dirname "$0")/e2e_tables.py" "$WORK"
+"$PY" "$(dirname "$0")/e2e_tables.py" "$WORK" ${README:+--readme "$README"}

@@ -1,11 +1,14 @@
 """Print the README's from-pixels tables from `experiments --ablation` outputs.
 
-Usage: python scripts/e2e_tables.py WORK   (WORK/<town>_seed<N>/ablation.json, as
-scripts/e2e_results.sh writes them)
+Usage: python scripts/e2e_tables.py WORK [--readme README.md]
+(WORK/<town>_seed<N>/ablation.json, as scripts/e2e_results.sh writes them; with --readme the
+tables replace the block between the e2e-results markers of that file)
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import sys
 from pathlib import Path
@@ -40,7 +43,31 @@ def fmt(x: float | None, nd: int = 2) -> str:
     return "-" if x is None or x != x else f"{x:.{nd}f}"
 
 
+BEGIN = "<!-- e2e-results:"
+END = "<!-- /e2e-results -->"
+
+
 def main(argv: list[str]) -> int:
+    if "--readme" in argv:
+        i = argv.index("--readme")
+        readme = Path(argv[i + 1])
+        buf = io.StringIO()
+        with contextlib.redirect_stdout(buf):
+            rc = tables(argv[:i] + argv[i + 2:])
+        if rc:
+            print(buf.getvalue(), end="")
+            return rc
+        text = readme.read_text()
+        a = text.index(BEGIN)
+        a = text.index("\n", a) + 1
+        b = text.index(END)
+        readme.write_text(text[:a] + buf.getvalue() + text[b:])
+        print(f"{readme}: tables replaced")
+        return 0
+    return tables(argv)
+
+
+def tables(argv: list[str]) -> int:
     work = Path(argv[0] if argv else "runs/results")
     per = load(work)
     if not per:

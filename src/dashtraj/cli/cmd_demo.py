@@ -24,6 +24,12 @@ localization noise by default); reconstruct its route with the paper's method
 (shortest-path) and dashtraj's HMM; score both against the true route (SSPD, Hausdorff,
 metres) and draw a top view like the paper's Fig. 6.
 
+--sightings vision runs it from pixels instead: perceive every observer (the shipped
+detector, or --detector oracle) into OUT/sightings.db, embed the crops with the ReID model,
+pick the target's tracks with the threshold calibrated on training recordings and the
+road-network gate, then reconstruct and score the same way; the picture marks each used
+sighting as a true or false match.
+
 Writes OUT/recording/, sightings.csv, truth.csv, estimate_<method>.csv, summary.json and
 trajectory.png. The built-in towns town01 and town10 are generated after CARLA's (not
 CARLA's assets); a CARLA .xodr file works too."""
