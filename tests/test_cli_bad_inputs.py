@@ -125,6 +125,8 @@ CASES: list[tuple[str, list[str], str]] = [
                                 "{NEW_FILE}"], "no such model file"),
     ("perceive-missing-recording", ["perceive", "{MISSING}", "-o", "{NEW_FILE}"],
      "is not a directory"),
+    ("perceive-look", ["perceive", "{REC}", "--look", "neon", "-o", "{NEW_FILE}"],
+     "unknown look preset 'neon'; valid:"),
     ("perceive-size", ["perceive", "{REC}", "--size", "4x4", "-o", "{NEW_FILE}"],
      "argument --size"),
     ("perceive-exists", ["perceive", "{REC}", "-o", "{OUT_FILE}"], "--overwrite"),
