@@ -35,10 +35,15 @@ REID_RUN ?= runs/reid/osnet_x0_25_cpu
 reid-data: $(STAMP)
 	$(VENV)/bin/dashtraj reid-dataset -o $(REID_DATA) --workers 2
 
+# Stage 2 (the shipped weights): 3 more epochs from stage 1's weights on a new cosine from 1e-3.
 reid-train: $(STAMP)
 	$(PY) -m pip install -q -e '.[train]'
 	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN) --recipe cpu --seed 0 \
 		$$(test -f $(REID_RUN)/last.pt && echo --resume)
+	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_stage2 --recipe cpu --seed 0 \
+		--epochs 3 --lr 1e-3 --init $(REID_RUN)/last.pt \
+		$$(test -f $(REID_RUN)_stage2/last.pt && echo --resume)
+	$(VENV)/bin/dashtraj reid export $(REID_RUN)_stage2/best.pt -o $(REID_RUN)_stage2/osnet_x0_25_cpu.onnx --overwrite
 
 # The ReID model's track-decision threshold, calibrated on training recordings (seeds 900-903,
 # identities < 650; never the test seeds) and written beside it: rerun after replacing the model.

@@ -333,6 +333,59 @@ CASES: list[tuple[str, list[str], str]] = [
      "argument --epochs: expected an integer >= 1"),
     ("reid-eval-threads", ["reid", "eval", "--data", "{OUT_DIR}", "--threads", "0"],
      "argument --threads: expected an integer >= 1"),
+    # --- reid embed / query on a sightings database
+    ("reid-embed-missing-db", ["reid", "embed", "{MISSING}.db"], "does not exist"),
+    ("reid-embed-not-a-db", ["reid", "embed", "{GARBAGE_XODR}"], "is not a sightings database"),
+    ("reid-embed-foreign-db", ["reid", "embed", "{FOREIGN_DB}"],
+     "not a dashtraj sightings database"),
+    ("reid-embed-no-crops", ["reid", "embed", "{EMPTY_DB}"], "has no crops"),
+    ("reid-embed-dim-mismatch", ["reid", "embed", "{DIM_DB}"],
+     "holds 8-d embeddings of model osnet_x0_25_cpu.onnx"),
+    ("reid-embed-batch-zero", ["reid", "embed", "{CROPS_DB}", "--batch", "0"],
+     "argument --batch: expected an integer >= 1"),
+    ("reid-embed-missing-model", ["reid", "embed", "{CROPS_DB}", "--model", "{MISSING}.onnx"],
+     "no such ONNX model"),
+    ("reid-embed-not-a-model", ["reid", "embed", "{CROPS_DB}", "--model", "{GARBAGE_XODR}"],
+     "not a readable ONNX model"),
+    ("reid-query-missing-db", ["reid", "query", "{MISSING}.db", "--track", "1"],
+     "does not exist"),
+    ("reid-query-not-a-db", ["reid", "query", "{GARBAGE_XODR}", "--track", "1"],
+     "is not a sightings database"),
+    ("reid-query-foreign-db", ["reid", "query", "{FOREIGN_DB}", "--track", "1"],
+     "not a dashtraj sightings database"),
+    ("reid-query-no-crops", ["reid", "query", "{EMPTY_DB}", "--track", "1"], "has no crops"),
+    ("reid-query-not-embedded", ["reid", "query", "{CROPS_DB}", "--track", "1", "--observer",
+                                 "1"], "run: dashtraj reid embed"),
+    ("reid-query-unknown-track", ["reid", "query", "{QUERY_DB}", "--track", "99"],
+     "--track 99: no such track"),
+    ("reid-query-ambiguous-track", ["reid", "query", "{QUERY_DB}", "--track", "1"],
+     "observers 1, 2 of"),
+    ("reid-query-track-of-other-observer", ["reid", "query", "{QUERY_DB}", "--track", "3",
+                                            "--observer", "2"], "observer 2 of"),
+    ("reid-query-unknown-observer", ["reid", "query", "{QUERY_DB}", "--track", "1",
+                                     "--observer", "9"], "--observer 9: not an observer"),
+    ("reid-query-track-without-crops", ["reid", "query", "{QUERY_DB}", "--track", "3"],
+     "has no embedded crops"),
+    ("reid-query-unreadable-image", ["reid", "query", "{QUERY_DB}", "--image",
+                                     "{GARBAGE_XODR}"], "not a readable image"),
+    ("reid-query-missing-image", ["reid", "query", "{QUERY_DB}", "--image", "{MISSING}.jpg"],
+     "no such file"),
+    ("reid-query-k-zero", ["reid", "query", "{QUERY_DB}", "--track", "2", "--k", "0"],
+     "argument --k: expected an integer >= 1"),
+    ("reid-query-no-query", ["reid", "query", "{QUERY_DB}"],
+     "one of the arguments --image --track is required"),
+    ("reid-query-image-and-track", ["reid", "query", "{QUERY_DB}", "--image", "{QUERY_JPG}",
+                                    "--track", "2"], "not allowed with argument"),
+    ("reid-query-observer-alone", ["reid", "query", "{QUERY_DB}", "--image", "{QUERY_JPG}",
+                                   "--observer", "1"], "--observer goes with --track"),
+    ("reid-query-aggregate", ["reid", "query", "{QUERY_DB}", "--track", "2", "--aggregate",
+                              "max"], "argument --aggregate: invalid choice"),
+    ("reid-query-dim-mismatch", ["reid", "query", "{DIM_DB}", "--image", "{QUERY_JPG}"],
+     "outputs 512-d vectors but"),
+    ("reid-query-sheet-exists", ["reid", "query", "{QUERY_DB}", "--track", "2", "-o",
+                                 "{OUT_PNG}"], "--overwrite"),
+    ("reid-query-sheet-suffix", ["reid", "query", "{QUERY_DB}", "--track", "2", "-o",
+                                 "{NEW_FILE}"], "name a .png file"),
     ("no-command", [], "the following arguments are required: COMMAND"),
     ("unknown-command", ["frobnicate"], "invalid choice: 'frobnicate'"),
 ]
@@ -371,7 +424,64 @@ def inputs(tmp_path_factory) -> dict[str, str]:
     garbage = root / "garbage.xodr"
     garbage.write_text("not xml at all")
     return {"REC": str(rec), "SIGHTINGS": str(sightings), "FAR_CSV": str(far),
-            "NAN_CSV": str(nan), "TRUTH": str(truth), "GARBAGE_XODR": str(garbage)}
+            "NAN_CSV": str(nan), "TRUTH": str(truth), "GARBAGE_XODR": str(garbage),
+            **_sightings_dbs(root)}
+
+
+def _sightings_dbs(root: Path) -> dict[str, str]:
+    """Sightings databases for `reid embed` / `reid query`: without crops, with crops (two
+    observers, each with a track 1 and a track 2; observer 1 also a track 3 seen beyond
+    the crop range), the same embedded, one with 8-d vectors under the shipped model's
+    sha256, a foreign SQLite file, and a query JPEG."""
+    import io
+    import shutil
+    import sqlite3
+
+    import numpy as np
+    from PIL import Image
+
+    from dashtraj.reid.database import embed_database, file_sha256
+    from dashtraj.reid.embed import ReidEmbedder, shipped_model_path
+    from dashtraj.store import CropRow, DetectionRow, PoseRow, SightingsDB, TrackRow
+
+    def jpeg(colour) -> bytes:
+        buf = io.BytesIO()
+        Image.new("RGB", (40, 30), colour).save(buf, format="JPEG")
+        return buf.getvalue()
+
+    def write(path: Path, with_crops: bool) -> None:
+        with SightingsDB.create(path) as db:
+            db.write_run("rec", "town01", None, {}, {}, [(1, None), (2, None)])
+            for o in (1, 2):
+                poses = [PoseRow(o, f, f * 0.1, 0, 0, 0, 0, 0, 0, 1.6, 0, 0) for f in range(3)]
+                dets = [DetectionRow(o, f, i, f * 0.1, i + 1, 0, 0, 40, 30, 0.9, 1, "car",
+                                     "back", 30.0 if i == 2 else 8.0, 0, 0, 0, 0, None, None,
+                                     None, None, None, None)
+                        for f in range(3) for i in range(3 if o == 1 else 2)]
+                crops = [CropRow(o, f, i, jpeg((80 * i, 200 - 60 * o, 40 * f)), 40, 30)
+                         for f in range(3) for i in range(2)] if with_crops else []
+                tracks = [TrackRow(o, i + 1, "car", 0.0, 0.2, 3, None)
+                          for i in range(3 if o == 1 else 2)]
+                db.add_frames(poses, dets, crops, tracks)
+
+    out = {"EMPTY_DB": root / "empty.db", "CROPS_DB": root / "crops.db",
+           "QUERY_DB": root / "query.db", "DIM_DB": root / "dim.db",
+           "FOREIGN_DB": root / "foreign.db", "QUERY_JPG": root / "query.jpg"}
+    write(out["EMPTY_DB"], False)
+    write(out["CROPS_DB"], True)
+    shutil.copy(out["CROPS_DB"], out["QUERY_DB"])
+    with SightingsDB.open(out["QUERY_DB"], writable=True) as db:
+        embed_database(db, ReidEmbedder())
+    shutil.copy(out["CROPS_DB"], out["DIM_DB"])
+    with SightingsDB.open(out["DIM_DB"], writable=True) as db:
+        db.add_embeddings(shipped_model_path().name, file_sha256(shipped_model_path()),
+                          [(1, 0, 0), (1, 0, 1)], np.eye(2, 8, dtype=np.float32))
+    con = sqlite3.connect(out["FOREIGN_DB"])
+    con.execute("CREATE TABLE t (a)")
+    con.commit()
+    con.close()
+    out["QUERY_JPG"].write_bytes(jpeg((0, 140, 40)))
+    return {k: str(v) for k, v in out.items()}
 
 
 def _run(argv: list[str], capsys) -> tuple[int, str]:

@@ -1,4 +1,5 @@
-"""`dashtraj reid train|eval|export`: vehicle re-identification."""
+"""`dashtraj reid train|eval|export|moving-queries|embed|query`: vehicle re-identification
+(``embed`` and ``query`` on a sightings database run in `dashtraj.cli.reid_db`)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `reid` command and its sub-commands."""
     p = subparsers.add_parser(
         "reid",
-        help="vehicle re-identification: train, evaluate (VeRi protocol), export to ONNX",
+        help="vehicle re-identification: train, evaluate (VeRi protocol), export to ONNX, "
+             "embed a sightings database's crops and query its tracks",
         description="Vehicle re-identification after the paper (§II.E): backbones by name, "
                     "softmax training, VeRi-776 evaluation, ONNX embedding.",
     )
@@ -40,6 +42,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     t.add_argument("--lr", type=positive_float, default=None, help="override the learning rate")
     t.add_argument("--triplet", action="store_true", help="add the batch-hard triplet loss")
     t.add_argument("--resume", action="store_true", help="continue the run in DIR")
+    t.add_argument("--init", default=None, metavar="CKPT.pt",
+                   help="start from another run's weights (a second stage with its own "
+                   "schedule, e.g. --epochs 3 --lr 1e-3)")
     t.add_argument("--overwrite", action="store_true", help="start afresh in a non-empty DIR")
     t.add_argument("--max-hours", type=positive_float, default=None,
                    help="stop (resumable) after this many hours of this call")
@@ -90,6 +95,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     x.add_argument("--json", action="store_true", help="print the summary as JSON")
     x.set_defaults(func=run_export)
 
+    from dashtraj.cli.reid_db import register_db_commands
+
+    register_db_commands(sub)
+
 
 def _need_torch():
     from dashtraj.errors import DashtrajError
@@ -115,7 +124,7 @@ def run_train(args: argparse.Namespace) -> int:
     cmd = "dashtraj " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     s = train(args.data, args.output, recipe, seed=args.seed, resume=args.resume,
               overwrite=args.overwrite, max_hours=args.max_hours, threads=args.threads,
-              command=cmd, log=lambda m: print(m, flush=True))
+              command=cmd, init=args.init, log=lambda m: print(m, flush=True))
     best = s["best"]
     if args.json:
         print(json.dumps({k: s[k] for k in ("epochs_done", "finished", "train_wall_s", "best",

@@ -288,7 +288,8 @@ def plot_curves(history: list[dict], path: Path) -> None:
 
 def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
           resume: bool = False, overwrite: bool = False, max_hours: float | None = None,
-          threads: int | None = None, command: str | None = None, log=print) -> dict:
+          threads: int | None = None, command: str | None = None, init: str | Path | None = None,
+          log=print) -> dict:
     """Train (or resume) a run; returns the final run summary (also in run.json).
 
     Args:
@@ -298,6 +299,9 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
         recipe: a ``Recipe``. seed: weights, batches and augmentation seed.
         max_hours: stop (checkpointed, resumable) after this much wall time in this call.
         threads: torch intra-op threads (None: torch's default).
+        init: start from the weights of another run's checkpoint (``last.pt``/``best.pt``
+            of the same model on the same identities): a second stage with its own
+            schedule; the optimizer starts afresh. Ignored when resuming.
 
     Raises:
         TrainError: bad data folder, run folder conflicts, resume of a different run.
@@ -349,6 +353,7 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
     run_info = {"data": str(data.resolve()), "seed": seed, "recipe": asdict(recipe),
                 "command": command, "num_classes": len(pids), "train_images": len(labels),
                 "class_pids": pids, "torch": torch.__version__,
+                "init": str(Path(init).resolve()) if init else None,
                 "threads": torch.get_num_threads()}
     if resume:
         old = json.loads((out / "run.json").read_text())
@@ -374,6 +379,16 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
     opt = torch.optim.Adam(model.parameters(), lr=recipe.lr, weight_decay=recipe.weight_decay)
     state = {"epoch": 0, "step_in_epoch": 0, "global_step": 0, "history": [],
              "best": None, "wall_s": 0.0}
+    if init and not resume:
+        if not Path(init).is_file():
+            raise TrainError(f"--init: {init}: no such checkpoint")
+        ck = torch.load(init, map_location="cpu", weights_only=False)
+        if ck.get("num_classes") != len(pids) or ck.get("recipe", {}).get("model") != recipe.model:
+            raise TrainError(f"--init: {init} is a {ck.get('recipe', {}).get('model')} with "
+                             f"{ck.get('num_classes')} classes; this run trains a "
+                             f"{recipe.model} on {len(pids)} identities")
+        model.load_state_dict(ck["model"])
+        log(f"initialised from {init}")
     if resume:
         ck = torch.load(ckpt_path, map_location="cpu", weights_only=False)
         model.load_state_dict(ck["model"])

@@ -2,7 +2,8 @@
 
 One database per perception run (SQLite by default, one file; the SQL is plain DB-API
 so that a PostgreSQL connection can take the same repository later). See
-`dashtraj.store.db` for the tables and `SightingsDB` for the repository.
+`dashtraj.store.db` for the tables, the embeddings API and `SightingsDB` for the
+repository.
 """
 
 from dashtraj.store.db import (
@@ -10,11 +11,13 @@ from dashtraj.store.db import (
     SCHEMA_VERSION,
     CropRow,
     DetectionRow,
+    EmbeddingModel,
+    EmbeddingSet,
     PoseRow,
     SightingsDB,
     StoreError,
     TrackRow,
 )
 
-__all__ = ["FORMAT", "SCHEMA_VERSION", "CropRow", "DetectionRow", "PoseRow", "SightingsDB",
-           "StoreError", "TrackRow"]
+__all__ = ["FORMAT", "SCHEMA_VERSION", "CropRow", "DetectionRow", "EmbeddingModel",
+           "EmbeddingSet", "PoseRow", "SightingsDB", "StoreError", "TrackRow"]

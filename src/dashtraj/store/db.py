@@ -22,6 +22,10 @@ Tables (units: seconds, CARLA world metres, degrees, image pixels):
                 pose is the ``poses`` row of the same (observer_id, frame).
 ``crops``       observer_id, frame, idx, jpeg (bytes), width, height: the image crop of
                 each detection within the ReID range (15 m by default).
+``embeddings``  observer_id, frame, idx (the crop), model (name), model_sha256 (of the
+                model file), dim, vector (``dim`` little-endian float32, as the embedder
+                returned them: L2-normalised for `dashtraj.reid.embed`); one row per crop
+                and model, key (model_sha256, observer_id, frame, idx). Schema version 2.
 
 Crops live in the database, not in files beside it: a crop is written in the same
 transaction as its detection, so a run killed mid-way never has a detection without
@@ -33,6 +37,31 @@ Writing: `SightingsDB.create` (WAL journal) and one transaction per batch of fra
 (`add_frames`): a killed run leaves every committed frame readable. Reading:
 `SightingsDB.open` checks the file (SQLite header, integrity, format, schema
 version) and raises `StoreError` naming it.
+
+Schema versions and migration: ``meta.schema_version`` is 2 (1 had no ``embeddings``).
+`SightingsDB.open` reads both read-only (a version-1 file simply has no embeddings);
+``SightingsDB.open(path, writable=True)`` upgrades a version-1 file in place, in one
+transaction (`_MIGRATIONS`). A newer version than this dashtraj knows is refused.
+
+Embeddings API (appearance vectors of the crops, written by ``dashtraj reid embed``):
+
+- ``db = SightingsDB.open(path, writable=True)``: open to add embeddings (migrates).
+- ``db.count_missing_embeddings(model_sha256) -> int``: crops without a vector of
+  that model.
+- ``db.crops_missing_embedding(model_sha256, limit=None, after=None) -> list[CropRow]``:
+  those crops in key order (observer_id, frame, idx), at most ``limit``, keys after the
+  key ``after`` (page through them: pass the last key of the previous page).
+- ``db.add_embeddings(model, model_sha256, keys, vectors) -> int``: one transaction;
+  ``keys`` [(observer_id, frame, idx)], ``vectors`` (N, dim) float32; a crop that has
+  a vector of that model keeps it (returns the rows added). `StoreError` when a key
+  has no crop, the vectors are not finite, or ``dim`` differs from the model's rows.
+- ``db.embedding_models() -> list[EmbeddingModel]``: (model, model_sha256, dim, count)
+  of every model with vectors in the file.
+- ``db.embeddings(model_sha256, observer_id=None, track_id=None) -> EmbeddingSet``:
+  the vectors with their detection's observer, frame, idx, track id, time, box,
+  class, distance and truth (columns as arrays; `StoreError` naming the models
+  present when the model has none).
+- ``db.crops(keys=None)``: the crops (all, or those of the given keys, in key order).
 """
 
 from __future__ import annotations
@@ -43,11 +72,13 @@ from collections.abc import Iterable, Sequence
 from dataclasses import astuple, dataclass, fields
 from pathlib import Path
 
+import numpy as np
+
 from dashtraj.errors import DashtrajError
 from dashtraj.trajectory.records import Sighting
 
 FORMAT = "dashtraj-sightings"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 
 
@@ -128,6 +159,55 @@ class CropRow:
     height: int
 
 
+@dataclass(frozen=True, slots=True)
+class EmbeddingModel:
+    """A model with vectors in the file: name, sha256 of its file, vector size, rows."""
+
+    model: str
+    model_sha256: str
+    dim: int
+    count: int
+
+
+@dataclass(frozen=True, eq=False)
+class EmbeddingSet:
+    """The vectors of one model with their detections' columns (row i = one crop).
+
+    Attributes:
+        model, model_sha256, dim: the model (name, sha256 of its file, vector size).
+        observer_id, frame, idx: (N,) int64, the crop's (and its detection's) key.
+        track_id: (N,) int64, the detection's track; -1 where the tracker had not
+            confirmed it.
+        t: (N,) float64, seconds. box: (N, 4) float64 x0, y0, x1, y1, image pixels.
+        vehicle_class: N class names. distance_m: (N,) float64, estimated range.
+        truth_vehicle_id: (N,) int64, the renderer's vehicle (-1 unknown; evaluation
+            only). vectors: (N, dim) float32.
+    Rows are in key order (observer_id, frame, idx).
+    """
+
+    model: str
+    model_sha256: str
+    dim: int
+    observer_id: np.ndarray
+    frame: np.ndarray
+    idx: np.ndarray
+    track_id: np.ndarray
+    t: np.ndarray
+    box: np.ndarray
+    vehicle_class: tuple[str, ...]
+    distance_m: np.ndarray
+    truth_vehicle_id: np.ndarray
+    vectors: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.observer_id)
+
+    def keys(self) -> list[tuple[int, int, int]]:
+        """[(observer_id, frame, idx)] of the rows."""
+        return list(zip(self.observer_id.tolist(), self.frame.tolist(), self.idx.tolist(),
+                        strict=True))
+
+
 def _cols(cls) -> tuple[str, ...]:
     return tuple(f.name for f in fields(cls))
 
@@ -156,7 +236,19 @@ _DDL = (
     "idx INTEGER NOT NULL, jpeg BLOB NOT NULL, width INTEGER, height INTEGER, "
     "PRIMARY KEY (observer_id, frame, idx))",
 )
-_TABLES = ("meta", "run", "observers", "poses", "tracks", "detections", "crops")
+_EMBEDDINGS_DDL = (
+    "CREATE TABLE embeddings (observer_id INTEGER NOT NULL, frame INTEGER NOT NULL, "
+    "idx INTEGER NOT NULL, model TEXT NOT NULL, model_sha256 TEXT NOT NULL, "
+    "dim INTEGER NOT NULL CHECK (dim > 0), vector BLOB NOT NULL "
+    "CHECK (length(vector) = 4 * dim), PRIMARY KEY (model_sha256, observer_id, frame, idx), "
+    "FOREIGN KEY (observer_id, frame, idx) REFERENCES crops (observer_id, frame, idx))",
+)
+_DDL = _DDL + _EMBEDDINGS_DDL
+_MIGRATIONS: dict[int, tuple[str, ...]] = {2: _EMBEDDINGS_DDL}
+"""Statements that take a file from version v - 1 to v."""
+_TABLES = ("meta", "run", "observers", "poses", "tracks", "detections", "crops", "embeddings")
+_TABLES_V1 = _TABLES[:-1]
+_VECTOR = np.dtype("<f4")
 
 
 def _insert(table: str, cols: Sequence[str], upsert: bool = False) -> str:
@@ -164,11 +256,28 @@ def _insert(table: str, cols: Sequence[str], upsert: bool = False) -> str:
     return f"{verb} INTO {table} ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})"
 
 
+def _migrate(conn, path: Path, version: int) -> None:
+    """Upgrade an open file from ``version`` to `SCHEMA_VERSION` in one transaction."""
+    try:
+        conn.execute("BEGIN IMMEDIATE")
+        for v in range(version + 1, SCHEMA_VERSION + 1):
+            for stmt in _MIGRATIONS[v]:
+                conn.execute(stmt)
+        conn.execute("UPDATE meta SET value = ? WHERE key = 'schema_version'",
+                      (str(SCHEMA_VERSION),))
+        conn.commit()
+    except sqlite3.DatabaseError as exc:
+        conn.rollback()
+        raise StoreError(f"{path}: cannot upgrade schema version {version} to "
+                         f"{SCHEMA_VERSION}: {exc}") from exc
+
+
 class SightingsDB:
     """Repository of one run's sightings database over a DB-API connection.
 
     Create with `SightingsDB.create(path)` (a new file) or `SightingsDB.open(path)`
-    (an existing one, read-only); use as a context manager or call `close`.
+    (an existing one, read-only; ``writable=True`` to add embeddings); use as a context
+    manager or call `close`.
     """
 
     def __init__(self, conn, path: Path, writable: bool):
@@ -185,6 +294,7 @@ class SightingsDB:
             raise StoreError(f"{p} exists; a sightings database is written whole into a new "
                              "file")
         conn = sqlite3.connect(str(p))
+        conn.execute("PRAGMA foreign_keys=ON")
         conn.execute("PRAGMA journal_mode=WAL")
         conn.execute("PRAGMA synchronous=NORMAL")
         with conn:
@@ -195,8 +305,11 @@ class SightingsDB:
         return cls(conn, p, True)
 
     @classmethod
-    def open(cls, path: str | Path, check: bool = True) -> SightingsDB:
-        """Open an existing database read-only.
+    def open(cls, path: str | Path, check: bool = True, writable: bool = False) -> SightingsDB:
+        """Open an existing database, read-only unless ``writable``.
+
+        ``writable`` is for adding embeddings: a version-1 file is upgraded to the current
+        schema first (one transaction; module docstring).
 
         Raises:
             StoreError: no such file; not an SQLite file; truncated or corrupt (integrity
@@ -210,7 +323,8 @@ class SightingsDB:
         if head != _SQLITE_MAGIC:
             raise StoreError(f"{p} is not a sightings database (not an SQLite file)")
         try:
-            conn = sqlite3.connect(f"{p.resolve().as_uri()}?mode=ro", uri=True)
+            conn = sqlite3.connect(f"{p.resolve().as_uri()}?mode={'rw' if writable else 'ro'}",
+                                   uri=True)
             if check:
                 res = conn.execute("PRAGMA quick_check").fetchone()
                 if res is None or res[0] != "ok":
@@ -233,10 +347,14 @@ class SightingsDB:
         if version > SCHEMA_VERSION:
             raise StoreError(f"{p}: schema version {version} is newer than this dashtraj reads "
                              f"({SCHEMA_VERSION}); upgrade dashtraj")
-        missing = [t for t in _TABLES if t not in tables]
+        missing = [t for t in (_TABLES if version >= 2 else _TABLES_V1) if t not in tables]
         if missing:
             raise StoreError(f"{p}: missing table {missing[0]!r}; the file is damaged")
-        return cls(conn, p, False)
+        if writable:
+            conn.execute("PRAGMA foreign_keys=ON")
+            if version < SCHEMA_VERSION:
+                _migrate(conn, p, version)
+        return cls(conn, p, writable)
 
     def close(self) -> None:
         """Commit nothing further, fold the WAL into the file and close."""
@@ -343,13 +461,171 @@ class SightingsDB:
         return [TrackRow(*r) for r in self._query(
             f"SELECT {', '.join(_cols(TrackRow))} FROM tracks ORDER BY observer_id, track_id")]
 
-    def crops(self) -> list[CropRow]:
-        return [CropRow(*r) for r in self._query(
-            f"SELECT {', '.join(_cols(CropRow))} FROM crops ORDER BY observer_id, frame, idx")]
+    def crops(self, keys: Iterable[tuple[int, int, int]] | None = None) -> list[CropRow]:
+        """All crops, or those of ``keys`` [(observer_id, frame, idx)] (missing keys are
+        skipped), in key order."""
+        sql = f"SELECT {', '.join(_cols(CropRow))} FROM crops"
+        if keys is None:
+            return [CropRow(*r) for r in self._query(sql + " ORDER BY observer_id, frame, idx")]
+        out: list[CropRow] = []
+        ks = sorted({(int(o), int(f), int(i)) for o, f, i in keys})
+        for a in range(0, len(ks), 300):  # SQLite's host-parameter limit
+            part = ks[a:a + 300]
+            cond = " OR ".join(["(observer_id = ? AND frame = ? AND idx = ?)"] * len(part))
+            out += [CropRow(*r) for r in self._query(
+                f"{sql} WHERE {cond} ORDER BY observer_id, frame, idx",
+                [v for k in part for v in k])]
+        return out
+
+    # --------------------------------------------------------------- embeddings
+    def _has_embeddings(self) -> bool:
+        return bool(self._query("SELECT 1 FROM sqlite_master WHERE type = 'table' AND "
+                                "name = 'embeddings'"))
+
+    def count_missing_embeddings(self, model_sha256: str) -> int:
+        """Number of crops without a vector of the model ``model_sha256``."""
+        if not self._has_embeddings():
+            return self.count("crops")
+        return int(self._query(
+            "SELECT COUNT(*) FROM crops c WHERE NOT EXISTS (SELECT 1 FROM embeddings e WHERE "
+            "e.model_sha256 = ? AND e.observer_id = c.observer_id AND e.frame = c.frame AND "
+            "e.idx = c.idx)", (model_sha256,))[0][0])
+
+    def crops_missing_embedding(self, model_sha256: str, limit: int | None = None,
+                                after: tuple[int, int, int] | None = None) -> list[CropRow]:
+        """Crops without a vector of the model, in key order (observer_id, frame, idx).
+
+        Args:
+            model_sha256: the model's file sha256 (hex).
+            limit: at most this many (None: all).
+            after: only keys greater than this (observer_id, frame, idx): the last key of
+                the previous page, to page through a large file.
+        """
+        cols = ", ".join(f"c.{c}" for c in _cols(CropRow))
+        sql = f"SELECT {cols} FROM crops c"
+        where, args = [], []
+        if self._has_embeddings():
+            where.append("NOT EXISTS (SELECT 1 FROM embeddings e WHERE e.model_sha256 = ? AND "
+                         "e.observer_id = c.observer_id AND e.frame = c.frame AND "
+                         "e.idx = c.idx)")
+            args.append(model_sha256)
+        if after is not None:
+            where.append("(c.observer_id, c.frame, c.idx) > (?, ?, ?)")
+            args += [int(v) for v in after]
+        if where:
+            sql += " WHERE " + " AND ".join(where)
+        sql += " ORDER BY c.observer_id, c.frame, c.idx"
+        if limit is not None:
+            sql += " LIMIT ?"
+            args.append(int(limit))
+        return [CropRow(*r) for r in self._query(sql, args)]
+
+    def add_embeddings(self, model: str, model_sha256: str,
+                       keys: Sequence[tuple[int, int, int]], vectors) -> int:
+        """Write vectors of the model for crops, in one transaction; returns rows added.
+
+        Args:
+            model: the model's name (e.g. its file name). model_sha256: its file's sha256.
+            keys: N crop keys (observer_id, frame, idx).
+            vectors: (N, dim) float, stored as float32.
+
+        A crop that already has a vector of this model keeps it (a rerun adds nothing).
+
+        Raises:
+            StoreError: read-only; shapes disagree; non-finite values; ``dim`` differs
+                from the vectors of this model already in the file; a key without a crop.
+        """
+        self._need_writable()
+        v = np.asarray(vectors, dtype=np.float32)
+        keys = [(int(o), int(f), int(i)) for o, f, i in keys]
+        if v.ndim != 2 or v.shape[0] != len(keys) or v.shape[1] < 1:
+            raise StoreError(f"{self.path}: add_embeddings: {len(keys)} keys and vectors of "
+                             f"shape {v.shape}; expected ({len(keys)}, dim)")
+        if not np.isfinite(v).all():
+            raise StoreError(f"{self.path}: add_embeddings: vectors of {model} hold NaN or "
+                             "infinite values")
+        dim = int(v.shape[1])
+        have = self._query("SELECT dim, model FROM embeddings WHERE model_sha256 = ? LIMIT 1",
+                           (model_sha256,))
+        if have and int(have[0][0]) != dim:
+            raise StoreError(f"{self.path} holds {have[0][0]}-d embeddings of model "
+                             f"{have[0][1]} (sha256 {model_sha256[:12]}...), the new vectors "
+                             f"are {dim}-d")
+        le = v.astype(_VECTOR, copy=False)
+        rows = [(o, f, i, model, model_sha256, dim, le[n].tobytes())
+                for n, (o, f, i) in enumerate(keys)]
+        try:
+            with self.conn:
+                before = self.conn.total_changes
+                self.conn.executemany(
+                    "INSERT OR IGNORE INTO embeddings (observer_id, frame, idx, model, "
+                    "model_sha256, dim, vector) VALUES (?, ?, ?, ?, ?, ?, ?)", rows)
+                return self.conn.total_changes - before
+        except sqlite3.IntegrityError as exc:
+            raise StoreError(f"{self.path}: add_embeddings: a key has no crop ({exc})") from exc
+
+    def embedding_models(self) -> list[EmbeddingModel]:
+        """Every model with vectors in the file, by name then sha256."""
+        if not self._has_embeddings():
+            return []
+        return [EmbeddingModel(m, s, int(d), int(n)) for m, s, d, n in self._query(
+            "SELECT model, model_sha256, dim, COUNT(*) FROM embeddings GROUP BY model_sha256 "
+            "ORDER BY model, model_sha256")]
+
+    def embeddings(self, model_sha256: str, observer_id: int | None = None,
+                   track_id: int | None = None) -> EmbeddingSet:
+        """The vectors of the model with their detections' columns (`EmbeddingSet`).
+
+        Args:
+            model_sha256: the model's file sha256.
+            observer_id, track_id: keep only that observer's / that track's rows.
+
+        Raises:
+            StoreError: the file has no vectors of that model (the message lists those
+                it has).
+        """
+        models = {m.model_sha256: m for m in self.embedding_models()}
+        if model_sha256 not in models:
+            have = ", ".join(f"{m.model} ({m.model_sha256[:12]}...)" for m in models.values())
+            have = f"models: {have}" if have else "it has no embeddings yet"
+            raise StoreError(f"{self.path} has no embeddings of model sha256 "
+                             f"{model_sha256[:12]}... ({have}); run: dashtraj reid embed DB "
+                             "--model M.onnx")
+        m = models[model_sha256]
+        sql = ("SELECT e.observer_id, e.frame, e.idx, COALESCE(d.track_id, -1), d.t, d.x0, "
+               "d.y0, d.x1, d.y1, d.vehicle_class, d.distance_m, "
+               "COALESCE(d.truth_vehicle_id, -1), e.vector FROM embeddings e "
+               "JOIN detections d ON d.observer_id = e.observer_id AND d.frame = e.frame AND "
+               "d.idx = e.idx WHERE e.model_sha256 = ?")
+        args: list = [model_sha256]
+        if observer_id is not None:
+            sql += " AND e.observer_id = ?"
+            args.append(int(observer_id))
+        if track_id is not None:
+            sql += " AND d.track_id = ?"
+            args.append(int(track_id))
+        rows = self._query(sql + " ORDER BY e.observer_id, e.frame, e.idx", args)
+        n = len(rows)
+        cols = list(zip(*rows, strict=True)) if rows else [()] * 13
+
+        def col(j: int, dtype) -> np.ndarray:  # None becomes NaN in the float columns
+            return np.array(cols[j], dtype=dtype).reshape(n)
+
+        vecs = (np.frombuffer(b"".join(cols[12]), _VECTOR).reshape(n, m.dim).astype(np.float32)
+                if rows else np.zeros((0, m.dim), np.float32))
+        return EmbeddingSet(
+            model=m.model, model_sha256=m.model_sha256, dim=m.dim,
+            observer_id=col(0, np.int64), frame=col(1, np.int64), idx=col(2, np.int64),
+            track_id=col(3, np.int64), t=col(4, np.float64),
+            box=np.array(cols[5:9], np.float64).reshape(4, n).T.copy(),
+            vehicle_class=tuple(cols[9]), distance_m=col(10, np.float64),
+            truth_vehicle_id=col(11, np.int64), vectors=vecs)
 
     def count(self, table: str) -> int:
         if table not in _TABLES:
             raise StoreError(f"unknown table {table!r}; tables: {', '.join(_TABLES)}")
+        if table == "embeddings" and not self._has_embeddings():
+            return 0  # a version-1 file
         return int(self._query(f"SELECT COUNT(*) FROM {table}")[0][0])
 
     def sightings(self, vehicle: int | None = None, max_distance_m: float | None = None,
