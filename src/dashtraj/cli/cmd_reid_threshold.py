@@ -71,7 +71,7 @@ def run(args) -> int:
     embedder = ReidEmbedder(model)
     embs, ids, cams, sources = [], [], [], []
     for i, db_path in enumerate(args.databases):
-        with SightingsDB.open(db_path) as db:
+        with SightingsDB.open(db_path, writable=True) as db:
             run_info = db.run_info()
             det = {(d.observer_id, d.frame, d.idx): d.truth_vehicle_id for d in db.detections()}
             keys, e = crop_embeddings(db, embedder)

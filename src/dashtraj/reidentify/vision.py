@@ -19,14 +19,13 @@ when that is at most the threshold calibrated on TRAINING identities
 (`load_threshold`; ``dashtraj reid-threshold`` writes it beside the model); then the
 spatio-temporal gate (`select.select_target_tracks`).
 
-Embeddings are computed here, in memory, from the crops the store holds
-(`crop_embeddings`): the one place to switch to a stored embeddings table.
+Embeddings come from the store's embeddings table (`crop_embeddings`; missing vectors
+of the model are computed and stored first, as ``dashtraj reid embed DB`` does).
 """
 
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
@@ -130,17 +129,18 @@ def crop_embeddings(db, embedder) -> tuple[list[tuple[int, int, int]], np.ndarra
     """Every crop of a sightings DB embedded: keys (observer_id, frame, idx) and (N, D)
     L2-normalised float32 embeddings.
 
-    Computed in memory from the DB's JPEG crops (the store has no embeddings table
-    yet); switch this one function to read stored embeddings when it has.
+    Read from the store's embeddings table (`dashtraj reid embed DB`); the crops that
+    have no vector of this model yet are embedded and stored first
+    (`dashtraj.reid.database.embed_database`), so `db` must be open writable.
     """
-    from PIL import Image
+    from dashtraj.reid.database import embed_database, file_sha256
 
-    keys, images = [], []
-    for c in db.crops():
-        with Image.open(io.BytesIO(c.jpeg)) as im:
-            images.append(im.convert("RGB"))
-        keys.append((c.observer_id, c.frame, c.idx))
-    return keys, embedder.embed(images)
+    if db.count("crops") == 0:
+        return [], np.zeros((0, 512), np.float32)
+    embed_database(db, embedder)
+    es = db.embeddings(file_sha256(embedder.path))
+    keys = list(zip(es.observer_id.tolist(), es.frame.tolist(), es.idx.tolist(), strict=True))
+    return keys, es.vectors
 
 
 def true_positions(recording) -> Callable[[int, np.ndarray], np.ndarray]:
@@ -230,7 +230,7 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
     if switches.positions == "truth" and positions_of is None:
         raise VisionReidError("true positions need the recording (positions_of)")
     by_truth = switches.tracks == "truth"
-    with SightingsDB.open(db_path) as db:
+    with SightingsDB.open(db_path, writable=switches.reid == "appearance") as db:
         poses = {(p.observer_id, p.frame): p for p in db.poses()}
         near = [d for d in db.detections() if d.distance_m <= max_distance_m
                 and (d.truth_vehicle_id is not None if by_truth else d.track_id is not None)]
