@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 export MPLBACKEND := Agg
 
-.PHONY: setup demo test lint bench clean weights reid-data reid-train
+.PHONY: setup demo test lint bench clean weights reid-data reid-train reid-threshold results
 
 $(STAMP): pyproject.toml scripts/install_render_deps.sh
 	bash scripts/install_render_deps.sh || echo "warning: could not install the EGL/Mesa packages; rendering tests will skip"
@@ -44,6 +44,18 @@ reid-train: $(STAMP)
 		--epochs 3 --lr 1e-3 --init $(REID_RUN)/last.pt \
 		$$(test -f $(REID_RUN)_stage2/last.pt && echo --resume)
 	$(VENV)/bin/dashtraj reid export $(REID_RUN)_stage2/best.pt -o $(REID_RUN)_stage2/osnet_x0_25_cpu.onnx --overwrite
+
+# The ReID model's track-decision threshold, calibrated on training recordings (seeds 900-903,
+# identities < 650; never the test seeds) and written beside it: rerun after replacing the model.
+# REID_LOOK: the render look the model was trained on ("" = the renderer's default); REID_RULE:
+# eer (shipped: the under-trained model reaches no recall at precision 0.99) or precision.
+REID_LOOK ?= flat
+reid-threshold: $(STAMP)
+	RULE=$(or $(REID_RULE),eer) DASHTRAJ=$(VENV)/bin/dashtraj bash scripts/reid_threshold.sh runs/reid_threshold "$(REID_MODEL)" "$(REID_LOOK)"
+
+# The README's from-pixels tables (experiments --sightings vision, --ablation): hours on 2 cores.
+results: $(STAMP)
+	README=README.md EVERY=$(or $(EVERY),0.2) DASHTRAJ=$(VENV)/bin/dashtraj bash scripts/e2e_results.sh $(or $(WORK),runs/results)
 
 # Reproduce the shipped detector (src/dashtraj/data/detector/): recordings, YOLO set, cpu-recipe
 # training (resumes), ONNX export, held-out eval; hours on 2 CPU cores. WORK=runs/detector.

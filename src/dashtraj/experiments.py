@@ -23,6 +23,17 @@ scoring after them are the same code for every source):
   construction (a track is picked exactly when its truth is the target); a track
   that switched identity still brings its other vehicle's detections along.
 
+- ``vision``: from pixels, the paper's whole pipeline: `perceive` every observer
+  (`detector`: the shipped ONNX detector by default, or ``oracle``: the renderer's
+  exact boxes) into ``sightings.db``, embed every crop with the ReID model
+  (`reid_model`, default the shipped one), then re-identify the target
+  (`dashtraj.reidentify.vision.target_from_db`): the query is the target's first crop
+  within 15 m, each observer track is the target when the median cosine distance of
+  its crops to the query is at most the threshold calibrated on TRAINING recordings
+  (``M.threshold.json`` beside the model; ``dashtraj reid-threshold``), then the
+  spatio-temporal gate (`gate`). Precision and recall are measured against each
+  track's truth.
+
 How the target's tracks are picked among the candidates (`REID_MODES`):
 
 - ``identity``: by truth (above): the reference.
@@ -33,6 +44,7 @@ How the target's tracks are picked among the candidates (`REID_MODES`):
   (weight: sightings per track) containing the track of the target's first
   sighting (the query). This measures what the gate does to precision when
   appearance cannot help.
+- ``appearance``: (``vision`` only, its default) the embedding decision and the gate.
 
 Per method the summary holds the issue's keys ``sspd_whole_m``, ``sspd_seen_m``,
 ``hausdorff_seen_m`` (and ``hausdorff_whole_m``) beside the older ``sspd_m``,
@@ -55,10 +67,10 @@ PAPER_SSPD_M = 5.13
 
 METHODS = ("shortest-path", "hmm")
 
-SIGHTINGS = ("oracle", "detections")
+SIGHTINGS = ("oracle", "detections", "vision")
 """Sources of the target's sightings (module docstring)."""
 
-REID_MODES = ("identity", "look-alike")
+REID_MODES = ("identity", "look-alike", "appearance")
 """How the target's tracks are picked (`target_sightings`)."""
 
 SAMPLE_S = 0.5
@@ -83,7 +95,16 @@ class ExperimentConfig:
             the recording's camera).
         reid: how the target's tracks are picked, one of `REID_MODES` (see
             `target_sightings`).
-        gate: with ``look-alike``, the spatio-temporal gate on the lane graph.
+        gate: with ``look-alike`` or ``appearance``, the spatio-temporal gate on the
+            lane graph.
+        detector: ``vision``: "shipped" (the ONNX detector in the package), "oracle"
+            or a path to an .onnx model.
+        reid_model: ``vision``: the ReID .onnx model (None: the shipped one; its
+            calibrated threshold must lie beside it).
+        reid_threshold: ``vision``: a threshold JSON (``dashtraj reid-threshold``) of that
+            model instead of the one beside it.
+        look: ``vision``: the render look preset (None: the renderer's default).
+        every_s: ``detections``/``vision``: the frame period, seconds.
     """
 
     town: str = "town10"
@@ -99,6 +120,11 @@ class ExperimentConfig:
     image_size: tuple[int, int] | None = None
     reid: str = "identity"
     gate: bool = True
+    detector: str = "shipped"
+    reid_model: str | None = None
+    reid_threshold: str | None = None
+    look: str | None = None
+    every_s: float = 0.1
 
     def __post_init__(self) -> None:
         if self.reid not in REID_MODES:
@@ -107,6 +133,11 @@ class ExperimentConfig:
         if self.sightings not in SIGHTINGS:
             raise ExperimentError(f"unknown sightings source {self.sightings!r}; valid: "
                                   f"{', '.join(SIGHTINGS)}")
+        if ((self.reid == "appearance" and self.sightings != "vision")
+                or (self.sightings == "vision" and self.reid == "look-alike")):
+            raise ExperimentError(f"reid mode {self.reid!r} does not go with sightings "
+                                  f"{self.sightings!r} (appearance is vision's; vision takes "
+                                  "appearance or identity)")
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -140,18 +171,18 @@ class ExperimentResult:
 
 
 def run_experiment(config: ExperimentConfig, out: str | Path,
-                   progress: Callable[[float], None] | None = None) -> ExperimentResult:
+                   progress: Callable[[float], None] | None = None,
+                   say: Callable[[str], None] | None = None) -> ExperimentResult:
     """Run one experiment, writing its files into `out`.
 
     Files: ``recording/`` (the simulation), ``sightings.csv``, ``truth.csv``,
     ``estimate_<method>.csv``, ``summary.json`` (with the config, to repeat the run);
-    with ``sightings="detections"`` also ``sightings.db`` (every observer's detections).
+    with ``sightings="detections"`` or ``"vision"`` also ``sightings.db`` (every
+    observer's detections and crops). `progress` gets the simulated time; `say` a line
+    as each later stage starts.
     """
     from dashtraj.roads import RoadMap
-    from dashtraj.trajectory import Trajectory
     from dashtraj.trajectory.io import write_sightings, write_trajectory
-    from dashtraj.trajectory.metrics import hausdorff, sspd
-    from dashtraj.trajectory.reconstruct import reconstruct
     from dashtraj.world.recording import Recording, RunConfig, simulate
 
     out = Path(out)
@@ -162,38 +193,21 @@ def run_experiment(config: ExperimentConfig, out: str | Path,
     run = simulate(run_config, out / "recording", progress=progress)
     rec = Recording.open(out / "recording")
     road_map = RoadMap.from_file(rec.map_path)
+    if say is not None and config.sightings != "oracle":
+        det = config.detector if config.sightings == "vision" else "oracle"
+        say(f"perceive: {config.observers} observers, detector {det}")
     sightings, reid = target_sightings(config, rec, out, road_map)
     true_match = reid.pop("_true_match")
+    if say is not None:
+        say(f"re-identified: {len(sightings)} sightings in "
+            f"{len({(s.observer_id, s.track_id) for s in sightings})} tracks; reconstruct "
+            f"({', '.join(config.methods)}) and score")
     write_sightings(out / "sightings.csv", sightings)
     truth = rec.target_route
     write_trajectory(out / "truth.csv", truth)
 
-    results: dict = {}
-    estimates: dict = {}
-    seen = truth
-    if sightings:
-        t0, t1 = min(s.t for s in sightings), max(s.t for s in sightings)
-        keep = (truth.t >= t0) & (truth.t <= t1)
-        if keep.sum() >= 2:
-            seen = Trajectory(truth.points[keep], truth.t[keep])
-        for method in config.methods:
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
-                r = reconstruct(road_map, sightings, method=method)
-            estimates[method] = r.trajectory
-            write_trajectory(out / f"estimate_{method}.csv", r.trajectory)
-            whole_sspd = float(sspd(truth, r.trajectory))
-            whole_hd = float(hausdorff(truth, r.trajectory))
-            seen_sspd = float(sspd(seen, r.trajectory))
-            seen_hd = float(hausdorff(seen, r.trajectory))
-            results[method] = {
-                "sspd_whole_m": whole_sspd, "sspd_seen_m": seen_sspd,
-                "hausdorff_whole_m": whole_hd, "hausdorff_seen_m": seen_hd,
-                "sspd_m": whole_sspd, "hausdorff_m": whole_hd,
-                "seen_sspd_m": seen_sspd, "seen_hausdorff_m": seen_hd,
-                "points": len(r.trajectory),
-                "warnings": [str(w.message) for w in caught],
-            }
+    results, estimates, seen = reconstruct_and_score(road_map, truth, sightings,
+                                                     config.methods, out)
     summary = {
         "config": config.to_dict(),
         "simulated_s": run.simulated_to_t,
@@ -210,6 +224,124 @@ def run_experiment(config: ExperimentConfig, out: str | Path,
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return ExperimentResult(config, summary, truth, seen, sightings, estimates, road_map,
                             true_match)
+
+
+def reconstruct_and_score(road_map, truth, sightings: list, methods, out: Path | None = None
+                          ) -> tuple[dict, dict, object]:
+    """Reconstruct the route from `sightings` with each method and score it: the one
+    reconstruction path of every sightings source (oracle, detections, vision) and of
+    every row of the error budget.
+
+    Args:
+        road_map: the `RoadMap`. truth: the true `Trajectory`.
+        sightings: the target's sightings (any source), time order.
+        methods: names in `dashtraj.trajectory.reconstruct`.
+        out: write ``estimate_<method>.csv`` here (None: nothing written).
+
+    Returns:
+        (per-method scores in metres: sspd/hausdorff whole and seen, points, warnings;
+        per-method estimated `Trajectory`; the seen stretch of the truth, first to last
+        sighting). No sightings: ({}, {}, truth).
+    """
+    from dashtraj.trajectory import Trajectory
+    from dashtraj.trajectory.io import write_trajectory
+    from dashtraj.trajectory.metrics import hausdorff, sspd
+    from dashtraj.trajectory.reconstruct import reconstruct
+
+    results: dict = {}
+    estimates: dict = {}
+    seen = truth
+    if sightings:
+        t0, t1 = min(s.t for s in sightings), max(s.t for s in sightings)
+        keep = (truth.t >= t0) & (truth.t <= t1)
+        if keep.sum() >= 2:
+            seen = Trajectory(truth.points[keep], truth.t[keep])
+        for method in methods:
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                r = reconstruct(road_map, sightings, method=method)
+            estimates[method] = r.trajectory
+            if out is not None:
+                write_trajectory(Path(out) / f"estimate_{method}.csv", r.trajectory)
+            whole_sspd = float(sspd(truth, r.trajectory))
+            whole_hd = float(hausdorff(truth, r.trajectory))
+            seen_sspd = float(sspd(seen, r.trajectory))
+            seen_hd = float(hausdorff(seen, r.trajectory))
+            results[method] = {
+                "sspd_whole_m": whole_sspd, "sspd_seen_m": seen_sspd,
+                "hausdorff_whole_m": whole_hd, "hausdorff_seen_m": seen_hd,
+                "sspd_m": whole_sspd, "hausdorff_m": whole_hd,
+                "seen_sspd_m": seen_sspd, "seen_hausdorff_m": seen_hd,
+                "points": len(r.trajectory),
+                "warnings": [str(w.message) for w in caught],
+            }
+    return results, estimates, seen
+
+
+def detector_of(name: str) -> str:
+    """The perceive detector of an experiment's `detector` setting ("shipped" → the
+    package's ONNX detector)."""
+    if name == "shipped":
+        from dashtraj.perception.detect import default_model_path
+
+        return str(default_model_path())
+    return name
+
+
+def reid_model_of(config: ExperimentConfig):
+    """(ReidEmbedder, Threshold) of the experiment's ReID model (threshold beside it)."""
+    from dashtraj.reid.embed import ReidEmbedder, shipped_model_path
+    from dashtraj.reidentify.vision import load_threshold
+
+    path = Path(config.reid_model) if config.reid_model else shipped_model_path()
+    th = load_threshold(path, config.reid_threshold)
+    return ReidEmbedder(path, threads=1), th
+
+
+def look_of(config: ExperimentConfig, threshold=None) -> str | None:
+    """The render look of a vision run: the configured one, else the look the ReID
+    threshold was calibrated on (its provenance: the models' domain), else the
+    renderer's default (None)."""
+    if config.look is not None or threshold is None:
+        return config.look
+    looks = {src.get("look") for src in threshold.provenance.get("sources", [])}
+    return looks.pop() if len(looks) == 1 else None
+
+
+def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
+                 look: str | None = None) -> None:
+    """Perceive every observer of `rec` into `db_path` with the experiment's settings."""
+    from dashtraj.perception.pipeline import PerceiveConfig, perceive
+
+    perceive(rec, db_path, PerceiveConfig(detector=detector_of(detector), size=config.image_size,
+                                          every_s=config.every_s, look=look,
+                                          reid_range_m=config.max_distance_m))
+
+
+def vision_sightings(config: ExperimentConfig, rec, out: Path, road_map,
+                     model=None) -> tuple[list, dict]:
+    """``vision``: perceive into ``out/sightings.db``, then re-identify the target
+    (`dashtraj.reidentify.vision.target_from_db`). `model`: (embedder, Threshold), or
+    None to load `reid_model_of(config)`."""
+    from dashtraj.reidentify.vision import StageSwitches, target_from_db
+
+    db_path = out / "sightings.db"
+    target = int(rec.meta.get("target_vehicle_id", 0))
+    if config.reid == "identity":
+        perceive_run(config, rec, db_path, config.detector, config.look)
+        tt = target_from_db(db_path, road_map, target, switches=StageSwitches(reid="identity"),
+                            max_distance_m=config.max_distance_m, sample_s=SAMPLE_S)
+        return tt.sightings, {**tt.summary, "look": config.look, "_true_match": tt.true_match}
+    embedder, th = model if model is not None else reid_model_of(config)
+    look = look_of(config, th)
+    perceive_run(config, rec, db_path, config.detector, look)
+    tt = target_from_db(db_path, road_map, target, embedder=embedder,
+                        threshold=th.calibration.threshold, aggregate=th.calibration.aggregate,
+                        gate=config.gate, max_distance_m=config.max_distance_m,
+                        sample_s=SAMPLE_S)
+    return tt.sightings, {**tt.summary, "look": look, "reid_model": embedder.path.name,
+                          "reid_threshold_calibration": th.calibration.to_dict(),
+                          "_true_match": tt.true_match}
 
 
 def target_sightings(config: ExperimentConfig, rec, out: Path, road_map) -> tuple[list, dict]:
@@ -229,6 +361,8 @@ def target_sightings(config: ExperimentConfig, rec, out: Path, road_map) -> tupl
     from dashtraj.reidentify.scoring import reid_score
     from dashtraj.trajectory.gating import gate_tracks
 
+    if config.sightings == "vision":
+        return vision_sightings(config, rec, out, road_map)
     target = int(rec.meta.get("target_vehicle_id", 0))
     wanted = [target] + ([int(v) for v in rec.meta.get("twin_vehicle_ids", [])]
                          if config.reid == "look-alike" else [])

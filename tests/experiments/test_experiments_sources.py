@@ -51,8 +51,11 @@ def test_reid_pooled_over_experiments():
 def test_config_round_trip_and_bad_source():
     cfg = ExperimentConfig(sightings="detections", twins=3, image_size=(320, 180))
     assert ExperimentConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
-    with pytest.raises(ExperimentError, match="unknown sightings source 'vision'; valid: oracle"):
-        ExperimentConfig(sightings="vision")
+    with pytest.raises(ExperimentError, match="unknown sightings source 'pixels'; valid: oracle"):
+        ExperimentConfig(sightings="pixels")
+    vis = ExperimentConfig(sightings="vision", reid="appearance", detector="oracle",
+                           reid_threshold="t.json", look="flat", every_s=0.2)
+    assert ExperimentConfig.from_dict(json.loads(json.dumps(vis.to_dict()))) == vis
 
 
 @pytest.mark.slow

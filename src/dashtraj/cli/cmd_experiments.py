@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 
 from dashtraj.cli._args import HelpFormatter, count, seed_list
+from dashtraj.cli._vision_args import add_vision_args
 from dashtraj.outputs import add_output_args
 
 DESCRIPTION = """\
@@ -28,6 +30,19 @@ construction. --twins N adds N agents of the target's exact model and colour; wi
 cannot tell exact look-alikes apart) and the spatio-temporal gate on the lane graph keeps
 the chain the target could have driven (--no-gate: keep all, the paper's way).
 
+--sightings vision runs the paper's whole pipeline from pixels: perceive every observer
+(--detector: the shipped ONNX model, or oracle) into OUT/<run>/sightings.db, embed every
+crop with the ReID model, take the target's first crop within 15 m as the query, decide
+per observer track with the threshold calibrated on TRAINING recordings (beside the model;
+`dashtraj reid-threshold`), gate on the lane graph, then reconstruct and score as above.
+ReID precision/recall are then measured against each track's true identity.
+
+--ablation runs the error budget instead (the paper's Table IV with numbers): each
+experiment is perceived with exact boxes and with the detector model, and the target's
+sightings are taken with stages turned real one at a time (detection, tracking,
+localization, ReID); it prints the mean SSPD each real stage adds and writes
+OUT/ablation.json.
+
 Writes OUT/<town>_seed<N>/ (recording/, sightings.csv, truth.csv, estimate_<method>.csv,
 summary.json) and OUT/summary.json (every experiment and the means)."""
 
@@ -43,16 +58,18 @@ def register(sub) -> None:
                    help="seeds per town: a range A-B, a list a,b,c, or a count N (0..N-1)")
     p.add_argument("--noise", choices=("paper", "none"), default="paper",
                    help="localization noise of the oracle sightings")
-    p.add_argument("--sightings", choices=("oracle", "detections"), default="oracle",
-                   help="the target's sightings: the oracle with --noise, or the camera pipeline "
-                        "(oracle detector) with the target's tracks picked by true identity")
+    add_vision_args(p)
     p.add_argument("--twins", type=count, default=0, metavar="N",
                    help="agents of the target's exact model and colour (default 0)")
-    p.add_argument("--reid", choices=("identity", "look-alike"), default="identity",
-                   help="pick the target's tracks by identity (reference) or among every "
-                        "look-alike's (target and twins) with the gate")
+    p.add_argument("--reid", choices=("identity", "look-alike", "appearance"), default=None,
+                   help="pick the target's tracks by identity (reference), among every "
+                        "look-alike's (target and twins) with the gate, or by appearance "
+                        "(vision's default)")
     p.add_argument("--gate", action=argparse.BooleanOptionalAction, default=True,
-                   help="with --reid look-alike: the spatio-temporal gate (default on)")
+                   help="with --reid look-alike or appearance: the spatio-temporal gate "
+                        "(default on)")
+    p.add_argument("--ablation", action="store_true",
+                   help="the error budget: each stage oracle vs real, the SSPD each adds")
     p.add_argument("-o", "--output", default="runs/experiments", help="output folder")
     add_output_args(p)
     p.add_argument("--plots", action="store_true", help="also save a picture per experiment")
@@ -67,6 +84,7 @@ def town_label(town: str) -> str:
 
 def run(args) -> int:
     from dashtraj.cli._args import ArgumentError
+    from dashtraj.cli._vision_args import VISION_SIZE, check_reid_model, vision_settings
     from dashtraj.experiments import (
         PAPER_SSPD_M,
         ExperimentConfig,
@@ -80,21 +98,32 @@ def run(args) -> int:
     from dashtraj.world.towns import UnknownTownError, resolve_map
 
     out = check_output(args.output, overwrite=args.overwrite, kind="dir")
+    vision = vision_settings(args)
+    if args.ablation:
+        vision["sightings"] = "vision"
+    reid = args.reid or ("appearance" if vision["sightings"] == "vision" else "identity")
+    if args.ablation and reid != "appearance":
+        raise ArgumentError(f"--ablation with --reid {reid}: the ablation's last stage is "
+                            "appearance ReID (leave --reid out)")
+    base = ExperimentConfig(noise=args.noise, twins=args.twins, reid=reid, gate=args.gate,
+                            **{**vision, "image_size": vision["image_size"]
+                               or (VISION_SIZE if args.ablation else None)})
+    check_reid_model(base)
     for town in args.towns:  # every town named must exist before hours of work start
         try:
             resolve_map(town)
         except UnknownTownError as exc:
             raise ArgumentError(f"--towns {town!r} is neither a file nor a built-in town "
                                 f"({exc})") from None
+    if args.ablation:
+        return run_ablation_suite(args, base, out)
     summaries = []
     names = []
     header = False
     with atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:
         for town in args.towns:
             for seed in args.seeds:
-                cfg = ExperimentConfig(town=town, seed=seed, noise=args.noise,
-                                       sightings=args.sightings, twins=args.twins,
-                                       reid=args.reid, gate=args.gate)
+                cfg = replace(base, town=town, seed=seed)
                 name = f"{town_label(town)}_seed{seed}"
                 res = run_experiment(cfg, tmp / name)
                 if args.plots:
@@ -131,11 +160,63 @@ def run(args) -> int:
     for method, a in agg.items():
         print(f"  {method:14s} SSPD {a['mean_sspd_m']:6.2f} m / {a['mean_seen_sspd_m']:5.2f} m"
               f"   Hausdorff {a['mean_hausdorff_m']:6.2f} m / {a['mean_seen_hausdorff_m']:6.2f} m")
-    how = ("by construction: tracks picked by their true identity" if args.reid == "identity"
-           else f"look-alikes of the target, gate {'on' if args.gate else 'off'}")
+    how = ("by construction: tracks picked by their true identity" if reid == "identity"
+           else f"look-alikes of the target, gate {'on' if args.gate else 'off'}"
+           if reid == "look-alike"
+           else f"appearance, threshold calibrated on training recordings, gate "
+                f"{'on' if args.gate else 'off'}")
     p_, r_ = reid["reid_precision"], reid["reid_recall"]
     print(f"  ReID over {reid['reid_true_matches'] + reid['reid_false_matches']} accepted "
           f"tracks: precision {'-' if p_ is None else f'{p_:.3f}'}, recall "
           f"{'-' if r_ is None else f'{r_:.3f}'} ({how})")
+    print(f"files: {out}/")
+    return 0
+
+
+def run_ablation_suite(args, base, out: Path) -> int:
+    """``--ablation``: every experiment's error budget, the mean SSPD each real stage adds."""
+    from dashtraj.ablation import ROWS, SOURCES, budget, run_ablation
+    from dashtraj.outputs import atomic_output
+
+    results, names = [], []
+    with atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:
+        for town in args.towns:
+            for seed in args.seeds:
+                cfg = replace(base, town=town, seed=seed)
+                name = f"{town_label(town)}_seed{seed}"
+                res = run_ablation(cfg, tmp / name)
+                results.append(res)
+                names.append(name)
+                if not args.json:
+                    cells = "  ".join(
+                        f"{r[0]}: " + (f"{res['rows'][r[0]]['methods']['hmm']['sspd_whole_m']:.2f}"
+                                       if "hmm" in res["rows"][r[0]]["methods"] else "-")
+                        for r in ROWS)
+                    print(f"{name:16s} hmm SSPD whole  {cells}", flush=True)
+        b = budget(results)
+        summary = {"experiments": names, "rows": [r[0] for r in ROWS], "sources": SOURCES,
+                   "detector": base.detector, "reid_model": results[0]["reid_model"]
+                   if results else None, "look": results[0]["look"] if results else None,
+                   "budget": b, "per_experiment": dict(zip(names, results, strict=True))}
+        (tmp / "ablation.json").write_text(json.dumps(summary, indent=2) + "\n")
+    if args.json:
+        print(json.dumps({k: summary[k] for k in ("experiments", "rows", "sources", "detector",
+                                                  "reid_model", "look", "budget")}, indent=2))
+        return 0
+    if not b:
+        print("\nno experiment had sightings in any row: nothing to compare")
+    for method, m in b.items():
+        print(f"\n{method}: mean SSPD whole / seen (m) over the experiments with sightings in "
+              f"the row; a stage adds the mean difference to the row before")
+        for r in ROWS:
+            row = m["rows"].get(r[0])
+            cell = ("no sightings" if row is None else
+                    f"{row['sspd_whole_m']:6.2f} / {row['sspd_seen_m']:6.2f}  "
+                    f"({row['experiments']} exp.)")
+            imp = m["impact"].get(r[0])
+            add = ("" if imp is None else
+                   f"   adds {imp['sspd_whole_m']:+6.2f} / {imp['sspd_seen_m']:+6.2f}  "
+                   f"({SOURCES[r[0]]}; {imp['experiments']} exp.)")
+            print(f"  {r[0]:14s} {cell}{add}")
     print(f"files: {out}/")
     return 0

@@ -44,6 +44,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="observer vehicle ids (default all)")
     p.add_argument("--reid-range", type=positive_float, default=15.0, metavar="M",
                    help="keep image crops of detections this close, metres (default 15)")
+    p.add_argument("--look", default=None, metavar="PRESET",
+                   help="render look preset (dashtraj.render.look; default: the renderer's)")
     p.add_argument("--workers", type=positive_int, default=1, metavar="N",
                    help="observers processed in parallel processes (default 1)")
     p.add_argument("--save-frames", metavar="DIR",
@@ -82,7 +84,7 @@ def run_perceive(args: argparse.Namespace) -> int:
         rec = Recording.open(args.recording)
     cfg = PerceiveConfig(detector=args.detector, tracker=args.tracker, localizer=args.localizer,
                          mu_h=args.mu_h, every_s=args.every, size=size, msaa=args.msaa,
-                         reid_range_m=args.reid_range,
+                         reid_range_m=args.reid_range, look=args.look,
                          observers=tuple(args.observers) if args.observers else None)
     from dashtraj.datasets.frames import observer_ids, sample_steps
 

@@ -49,6 +49,8 @@ class PerceiveConfig:
         reid_range_m: detections estimated this close keep their crop, metres.
         crop_long_side_px: crops larger than this are scaled down to it, pixels.
         jpeg_quality: crop JPEG quality. batch_frames: frames per committed batch.
+        look: a `dashtraj.render.look` preset name for the frames, or None for the
+            renderer's default look.
     """
 
     detector: str = "oracle"
@@ -63,6 +65,7 @@ class PerceiveConfig:
     jpeg_quality: int = 90
     batch_frames: int = 50
     observers: tuple[int, ...] | None = field(default=None)
+    look: str | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -191,6 +194,13 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
     yield batch
 
 
+def _set_look(renderer, look: str | None) -> None:
+    if look is not None:
+        from dashtraj.render.look import preset
+
+        renderer.set_look(preset(look))
+
+
 def _worker(recording_path: str, observers: list[int], config_dict: dict, out_q,
             frames_dir: str | None) -> None:
     """Process entry point: run `observer_batches` for each observer, send the batches."""
@@ -209,6 +219,7 @@ def _worker(recording_path: str, observers: list[int], config_dict: dict, out_q,
         road_map = RoadMap.from_file(rec.map_path)
         renderer = open_renderer(rec.map_path, spec.width_px, spec.height_px, spec.fov_deg,
                                  msaa=config.msaa)
+        _set_look(renderer, config.look)
         try:
             for o in observers:
                 for b in observer_batches(rec, o, config, road_map, renderer,
@@ -253,6 +264,10 @@ def perceive(recording, db_path: str | Path, config: PerceiveConfig = PerceiveCo
     from dashtraj.roads import RoadMap
 
     build_detector(config.detector)  # fail early on a bad name
+    if config.look is not None:
+        from dashtraj.render.look import preset
+
+        preset(config.look)
     build_tracker(config.tracker)
     build_localizer(config.localizer)
     all_obs = observer_ids(recording)
@@ -272,6 +287,7 @@ def perceive(recording, db_path: str | Path, config: PerceiveConfig = PerceiveCo
             road_map = RoadMap.from_file(recording.map_path)
             renderer = open_renderer(recording.map_path, spec.width_px, spec.height_px,
                                      spec.fov_deg, msaa=config.msaa)
+            _set_look(renderer, config.look)
             try:
                 for o in obs:
                     for b in observer_batches(recording, o, config, road_map, renderer, fdir):

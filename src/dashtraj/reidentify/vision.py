@@ -1,0 +1,300 @@
+"""The target's tracks from a sightings database: appearance ReID from the crops, the
+gate, and the oracle switches of the error budget.
+
+`target_from_db` turns one perception run's database (`dashtraj perceive`) into the
+target's sightings, with each stage after detection either real or an oracle
+(`StageSwitches`; the error budget of ``experiments --ablation``):
+
+- tracks: ``tracker`` (the DB's track ids) or ``truth`` (each detection grouped by its
+  true vehicle id per observer: perfect tracking);
+- positions: ``estimated`` (the localizer's x, y) or ``truth`` (the true vehicle
+  position at the detection's time: perfect localization);
+- reid: ``appearance`` or ``identity`` (the tracks whose truth is the target).
+
+Appearance ReID, the paper's ``calc_traj`` per track: the query is the target's
+first crop estimated within 15 m (`select.query_detection`, as ``calc_traj`` takes
+``veh_t1.image``); the gallery is every crop of every observer; each detection's
+cosine distance to the query is aggregated per track and the track is the target
+when that is at most the threshold calibrated on TRAINING identities
+(`load_threshold`; ``dashtraj reid-threshold`` writes it beside the model); then the
+spatio-temporal gate (`select.select_target_tracks`).
+
+Embeddings come from the store's embeddings table (`crop_embeddings`; missing vectors
+of the model are computed and stored first, as ``dashtraj reid embed DB`` does).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable, Hashable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from dashtraj.errors import DashtrajError
+from dashtraj.reidentify.decision import Calibration, cosine_distances
+from dashtraj.reidentify.scoring import reid_score
+from dashtraj.reidentify.select import DEFAULT_GATE, query_detection, select_target_tracks
+from dashtraj.trajectory.records import Sighting
+
+TRACKS = ("tracker", "truth")
+POSITIONS = ("estimated", "truth")
+REID = ("appearance", "identity")
+THRESHOLD_SUFFIX = ".threshold.json"
+"""The calibrated threshold of ``M.onnx`` lives in ``M.threshold.json`` beside it."""
+
+RECOMPUTE = "make reid-threshold  (or: dashtraj reid-threshold DB... --model M.onnx)"
+
+
+class VisionReidError(DashtrajError):
+    """A missing or stale threshold file, or a bad switch name (the message says which)."""
+
+
+@dataclass(frozen=True, slots=True)
+class StageSwitches:
+    """Which stages after detection are real and which are oracles (module docstring)."""
+
+    tracks: str = "tracker"
+    positions: str = "estimated"
+    reid: str = "appearance"
+
+    def __post_init__(self) -> None:
+        for name, val, valid in (("tracks", self.tracks, TRACKS),
+                                 ("positions", self.positions, POSITIONS),
+                                 ("reid", self.reid, REID)):
+            if val not in valid:
+                raise VisionReidError(f"unknown {name} switch {val!r}; valid: {', '.join(valid)}")
+
+
+@dataclass(frozen=True, slots=True)
+class Threshold:
+    """A calibrated decision threshold and where it came from.
+
+    Attributes:
+        calibration: the `Calibration` (threshold, rule, aggregator, its precision
+            and recall on the calibration pairs).
+        model_sha256: sha256 of the ONNX model whose embeddings it was calibrated on.
+        provenance: the calibration data (databases, recordings, towns, seeds, look,
+            counts) and the command that recomputes it.
+    """
+
+    calibration: Calibration
+    model_sha256: str
+    provenance: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"calibration": self.calibration.to_dict(), "model_sha256": self.model_sha256,
+                "provenance": self.provenance}
+
+
+def sha256_of(path: str | Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def threshold_path(model_path: str | Path) -> Path:
+    """``M.threshold.json`` beside ``M.onnx``."""
+    p = Path(model_path)
+    return p.with_name(p.stem + THRESHOLD_SUFFIX)
+
+
+def load_threshold(model_path: str | Path, path: str | Path | None = None) -> Threshold:
+    """The calibrated threshold of `model_path`: the file `path`, or by default
+    ``M.threshold.json`` beside the model.
+
+    Raises:
+        VisionReidError: no threshold file, an unreadable one, or one calibrated on
+            another model (sha256 differs: the model was replaced; recompute it).
+    """
+    path = threshold_path(model_path) if path is None else Path(path)
+    if not path.is_file():
+        raise VisionReidError(f"{path}: no calibrated ReID threshold for {Path(model_path).name};"
+                              f" compute it on training recordings: {RECOMPUTE}")
+    try:
+        d = json.loads(path.read_text())
+        cal = Calibration(**d["calibration"])
+        th = Threshold(cal, str(d["model_sha256"]), dict(d.get("provenance", {})))
+    except (ValueError, KeyError, TypeError) as exc:
+        raise VisionReidError(f"{path}: not a threshold file ({exc})") from None
+    sha = sha256_of(model_path)
+    if sha != th.model_sha256:
+        raise VisionReidError(f"{path}: calibrated on model sha256 {th.model_sha256[:12]}, but "
+                              f"{Path(model_path).name} is {sha[:12]} (replaced?); recompute: "
+                              f"{RECOMPUTE}")
+    return th
+
+
+def crop_embeddings(db, embedder) -> tuple[list[tuple[int, int, int]], np.ndarray]:
+    """Every crop of a sightings DB embedded: keys (observer_id, frame, idx) and (N, D)
+    L2-normalised float32 embeddings.
+
+    Read from the store's embeddings table (`dashtraj reid embed DB`); the crops that
+    have no vector of this model yet are embedded and stored first
+    (`dashtraj.reid.database.embed_database`), so `db` must be open writable.
+    """
+    from dashtraj.reid.database import embed_database, file_sha256
+
+    if db.count("crops") == 0:
+        return [], np.zeros((0, 512), np.float32)
+    embed_database(db, embedder)
+    es = db.embeddings(file_sha256(embedder.path))
+    keys = list(zip(es.observer_id.tolist(), es.frame.tolist(), es.idx.tolist(), strict=True))
+    return keys, es.vectors
+
+
+def true_positions(recording) -> Callable[[int, np.ndarray], np.ndarray]:
+    """``f(vehicle_id, t (N,)) → (N, 2)`` true positions (CARLA world, metres), linearly
+    interpolated in the recording's states."""
+    st = recording.states
+    vid = st.column("vehicle_id").to_numpy()
+    t = st.column("t").to_numpy()
+    x = st.column("x").to_numpy()
+    y = st.column("y").to_numpy()
+    cache: dict[int, tuple] = {}
+
+    def f(v: int, ts: np.ndarray) -> np.ndarray:
+        if v not in cache:
+            m = vid == v
+            o = np.argsort(t[m], kind="stable")
+            cache[v] = (t[m][o], x[m][o], y[m][o])
+        tv, xv, yv = cache[v]
+        return np.stack([np.interp(ts, tv, xv), np.interp(ts, tv, yv)], axis=1)
+
+    return f
+
+
+@dataclass(slots=True)
+class TargetTracks:
+    """What `target_from_db` picked.
+
+    Attributes:
+        sightings: the accepted tracks' sightings, time order.
+        summary: reid_precision, reid_recall, their counts, reid_candidates (tracks the
+            appearance decision accepted, before the gate), reid_gated_out,
+            reid_tracks (tracks in the ReID range), query (observer, frame, t) and
+            threshold entries.
+        true_match: accepted track key → True when its truth is the target.
+    """
+
+    sightings: list[Sighting]
+    summary: dict
+    true_match: dict[Hashable, bool]
+
+
+def _sample(rows: list, sample_s: float) -> list:
+    """Per key (rows sorted by key, t, idx): the first row of every `sample_s` seconds."""
+    kept, key, t0, last = [], object(), 0.0, -1
+    for k, d in rows:
+        if k != key:
+            key, t0, last = k, d.t, -1
+        b = int((d.t - t0) / sample_s + 1e-9)
+        if b != last:
+            kept.append((k, d))
+            last = b
+    return kept
+
+
+def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
+                   switches: StageSwitches = StageSwitches(), embedder=None,
+                   threshold: float | None = None, aggregate: str = "median",
+                   gate: bool = True, max_distance_m: float = 15.0, sample_s: float = 0.5,
+                   positions_of: Callable[[int, np.ndarray], np.ndarray] | None = None
+                   ) -> TargetTracks:
+    """The target's sightings from one perception run's database.
+
+    Args:
+        db_path: a sightings DB written by `dashtraj.perception.pipeline.perceive`.
+        road_map: the run's `RoadMap`.
+        target_vehicle_id: the target's vehicle id (picks the query crop, and scores).
+        switches: real or oracle per stage (`StageSwitches`).
+        embedder: a `dashtraj.reid.embed.ReidEmbedder` (reid ``appearance``).
+        threshold: the calibrated cosine-distance threshold (reid ``appearance``).
+        aggregate: the track aggregator (`decision.AGGREGATORS`).
+        gate: the spatio-temporal gate after the appearance decision.
+        max_distance_m: the ReID range (detections estimated this close), metres.
+        sample_s: one sighting per track every this many seconds.
+        positions_of: `true_positions(recording)` (positions ``truth``).
+
+    Returns:
+        `TargetTracks`.
+
+    Raises:
+        VisionReidError: appearance ReID without an embedder or a threshold, or true
+            positions without `positions_of`.
+    """
+    from dashtraj.store import SightingsDB
+
+    if switches.reid == "appearance" and (embedder is None or threshold is None):
+        raise VisionReidError("appearance ReID needs an embedder and a calibrated threshold")
+    if switches.positions == "truth" and positions_of is None:
+        raise VisionReidError("true positions need the recording (positions_of)")
+    by_truth = switches.tracks == "truth"
+    with SightingsDB.open(db_path, writable=switches.reid == "appearance") as db:
+        poses = {(p.observer_id, p.frame): p for p in db.poses()}
+        near = [d for d in db.detections() if d.distance_m <= max_distance_m
+                and (d.truth_vehicle_id is not None if by_truth else d.track_id is not None)]
+        track_truth: dict[Hashable, int | None] = {}
+        if not by_truth:
+            track_truth = {(t.observer_id, t.track_id): t.truth_vehicle_id for t in db.tracks()}
+
+        def key_of(d) -> tuple[int, int]:
+            return (d.observer_id, d.truth_vehicle_id if by_truth else d.track_id)
+
+        query = query_detection(db, target_vehicle_id, max_distance_m)
+        dists = keys = None
+        if switches.reid == "appearance" and query is not None:
+            ckeys, emb = crop_embeddings(db, embedder)
+            row = {k: i for i, k in enumerate(ckeys)}
+            q = emb[row[(query.observer_id, query.frame, query.idx)]]
+            gal = [(key_of(d), row[(d.observer_id, d.frame, d.idx)]) for d in near
+                   if (d.observer_id, d.frame, d.idx) in row]
+            keys = [k for k, _ in gal]
+            dists = cosine_distances(q, emb[[i for _, i in gal]]) if gal else np.zeros(0)
+    rows = sorted(((key_of(d), d) for d in near), key=lambda r: (r[0], r[1].t, r[1].idx))
+    rows = _sample(rows, sample_s)
+    truth = {k: (k[1] if by_truth else track_truth.get(k)) for k, _ in rows}
+    if positions_of is not None and switches.positions == "truth" and rows:
+        xy = np.zeros((len(rows), 2))
+        vids = np.array([d.truth_vehicle_id if d.truth_vehicle_id is not None else -1
+                         for _, d in rows])
+        ts = np.array([d.t for _, d in rows])
+        for v in np.unique(vids):
+            m = vids == v
+            xy[m] = (positions_of(int(v), ts[m]) if v >= 0
+                     else [[d.x, d.y] for (_, d), keep in zip(rows, m, strict=True) if keep])
+    else:
+        xy = np.array([[d.x, d.y] for _, d in rows]).reshape(-1, 2)
+    tracks: dict[Hashable, list[Sighting]] = {}
+    for (k, d), (x, y) in zip(rows, xy, strict=True):
+        p = poses[(d.observer_id, d.frame)]
+        tracks.setdefault(k, []).append(Sighting(
+            t=d.t, observer_id=d.observer_id, observer_x=p.cam_x, observer_y=p.cam_y,
+            observer_yaw=p.cam_yaw, x=float(x), y=float(y), orientation=d.orientation,
+            vehicle_class=d.vehicle_class, track_id=k[1], distance=d.distance_m,
+            bearing=d.bearing_deg))
+    anchor = key_of(query) if query is not None else None
+    extra: dict = {"reid_tracks": len(tracks),
+                   "query": None if query is None else
+                   {"observer_id": query.observer_id, "frame": query.frame, "t": query.t}}
+    if switches.reid == "identity":
+        accepted = [k for k in tracks if truth.get(k) == target_vehicle_id]
+        candidates = accepted
+    elif query is None or keys is None:
+        accepted, candidates = [], []
+    else:
+        sel = select_target_tracks(road_map, dists, keys, tracks, float(threshold),
+                                   aggregate=aggregate, anchor=anchor,
+                                   gate=DEFAULT_GATE if gate else None)
+        accepted = [k for k in sel.accepted if k in tracks]
+        candidates = list(sel.candidates)
+        extra["reid_threshold"] = float(threshold)
+        extra["reid_aggregate"] = aggregate
+    for k in candidates:
+        truth.setdefault(k, None)
+    sightings = sorted((s for k in accepted for s in tracks[k]),
+                       key=lambda s: (s.t, s.observer_id))
+    score = reid_score(accepted, truth, target_vehicle_id)
+    return TargetTracks(sightings, {**score.to_dict(), "reid_candidates": len(candidates),
+                                    "reid_gated_out": len(candidates) - len(accepted), **extra},
+                        {k: truth.get(k) == target_vehicle_id for k in accepted})
