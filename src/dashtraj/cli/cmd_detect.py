@@ -390,22 +390,29 @@ def run_eval_external(args: argparse.Namespace) -> int:
     return 0
 
 
+def _ap_header(small) -> list[str]:
+    return [f"| class | AP50 | AP50-95 | GT | AP50 >= {small:g}px | AP50-95 >= {small:g}px "
+            "| GT >= px |", "|---|---|---|---|---|---|---|"]
+
+
+def _ap_row(name: str, a: dict | None, b: dict | None) -> str:
+    """One class's row: AP50 / AP50-95 / GT for all boxes (a) and the size subset (b)."""
+
+    def f(d, k):
+        return f"{d[k]:.3f}" if d is not None else "-"
+
+    return (f"| {name} | {f(a, 'ap50')} | {f(a, 'ap50_95')} | {a['gt'] if a else 0} | "
+            f"{f(b, 'ap50')} | {f(b, 'ap50_95')} | {b['gt'] if b else 0} |")
+
+
 def format_external_table(res: dict) -> str:
     """A Markdown table: AP50 / AP50-95 / GT per mapped class and class-agnostic."""
     small = res.get("small_px", 24)
     lines = [f"{res['images']} images of {res['folder']}; model {Path(res['model']).name}; "
              f"class map {', '.join(f'{a}->{b}' for a, b in res['class_map'].items())}", "",
-             f"| class | AP50 | AP50-95 | GT | AP50 >= {small:g}px | AP50-95 >= {small:g}px "
-             "| GT >= px |", "|---|---|---|---|---|---|---|"]
-
-    def f(d, k):
-        return f"{d[k]:.3f}" if d is not None else "-"
-
+             *_ap_header(small)]
     for n in res["scored_classes"]:
-        a = res["per_class"].get(n)
-        b = res.get("per_class_24px", {}).get(n)
-        lines.append(f"| {n} | {f(a, 'ap50')} | {f(a, 'ap50_95')} | {a['gt'] if a else 0} | "
-                     f"{f(b, 'ap50')} | {f(b, 'ap50_95')} | {b['gt'] if b else 0} |")
+        lines.append(_ap_row(n, res["per_class"].get(n), res.get("per_class_24px", {}).get(n)))
     lines.append(f"| any (class-agnostic) | {res['any_ap50']:.3f} | | | "
                  f"{res['any_ap50_24px']:.3f} | | |")
     lines.append("")
@@ -419,20 +426,12 @@ def format_table(res: dict) -> str:
     """A Markdown table: AP50 / AP50-95 / GT per class, all boxes and the size subset."""
     small = res.get("small_px", 24)
     lines = [f"{res['frames']} frames of {len(res['recordings'])} recordings; model "
-             f"{Path(res['model']).name}", "",
-             f"| class | AP50 | AP50-95 | GT | AP50 >= {small:g}px | AP50-95 >= {small:g}px "
-             "| GT >= px |", "|---|---|---|---|---|---|---|"]
+             f"{Path(res['model']).name}", "", *_ap_header(small)]
     for n in res["class_counts"]:
         a = res["per_class"].get(n)
         b = res.get("per_class_24px", {}).get(n)
-        if a is None and b is None:
-            continue
-
-        def f(d, k):
-            return f"{d[k]:.3f}" if d is not None else "-"
-
-        lines.append(f"| {n} | {f(a, 'ap50')} | {f(a, 'ap50_95')} | {a['gt'] if a else 0} | "
-                     f"{f(b, 'ap50')} | {f(b, 'ap50_95')} | {b['gt'] if b else 0} |")
+        if a is not None or b is not None:
+            lines.append(_ap_row(n, a, b))
     lines.append(f"| **all** | **{res['map50']:.3f}** | **{res['map50_95']:.3f}** | {res['gt']} "
                  f"| **{res.get('map50_24px', float('nan')):.3f}** | "
                  f"**{res.get('map50_95_24px', float('nan')):.3f}** | {res.get('gt_24px', 0)} |")
