@@ -199,12 +199,13 @@ def test_track_query_finds_the_vehicle_seen_by_another_observer(embedded, capsys
     with SightingsDB.open(embedded) as db:
         e = db.embeddings(_sha(db))
     res = _partner_ranks(e, DEFAULT_AGGREGATE)
-    assert len(res) >= 5 and min(n for _, _, n, _ in res) >= 12
-    # The shipped model is weak (18.7 % rank-1 on the ring query set); what it guarantees
-    # here: every other observer's track of the query's vehicle within the top 10 of the 13
-    # other tracks, and a mean best rank at least one place better than chance (measured:
-    # 2.4 against 5.0 by chance over 7 queries, worst 7).
-    assert max(best for _, best, _, _ in res) <= 10
+    assert len(res) >= 5 and min(n for _, _, n, _ in res) >= 8
+    # The shipped model is under-trained (55 % rank-1 on the ring query set); what it
+    # guarantees here: another observer's track of the query's vehicle within the top 5 of
+    # the 10 other tracks, and a mean best rank at least one place better than chance
+    # (measured with today's vehicle meshes: 1.8 against 4.6 by chance over 5 queries,
+    # worst 3).
+    assert max(best for _, best, _, _ in res) <= 5
     mean_best = np.mean([best for _, best, _, _ in res])
     assert mean_best <= np.mean([c for _, _, _, c in res]) - 1.0, res
     # the CLI: the target (vehicle 0) seen by observer 1, queried with k = 3
