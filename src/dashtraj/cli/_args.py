@@ -9,8 +9,10 @@ on) raise `ArgumentError`, a `DashtrajError`: the CLI prints one line and exits 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
-from collections.abc import Callable
+import sys
+from collections.abc import Callable, Iterator
 
 from dashtraj.errors import DashtrajError
 
@@ -21,6 +23,22 @@ centre line (metres, plan view) are refused (map route) or dropped (reconstruct)
 
 class ArgumentError(DashtrajError):
     """A command-line value that is well-formed but unusable; the message names the argument."""
+
+
+@contextlib.contextmanager
+def progress_bar(quiet: bool, **tqdm_args) -> Iterator[Callable[..., object] | None]:
+    """A tqdm bar on stderr (``tqdm_args``: unit, total, ...) when stderr is a terminal and
+    not ``quiet``: yields its ``update`` (or None without a bar) and closes it on exit."""
+    if quiet or not sys.stderr.isatty():
+        yield None
+        return
+    from tqdm import tqdm
+
+    bar = tqdm(file=sys.stderr, **tqdm_args)
+    try:
+        yield bar.update
+    finally:
+        bar.close()
 
 
 def _number(text: str) -> float:

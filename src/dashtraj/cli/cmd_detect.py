@@ -151,11 +151,8 @@ def _list_images(source: Path) -> list[Path]:
 
 def run_detect(args: argparse.Namespace) -> int:
     """Detect in images; writes YOLO txt (+ previews); prints a summary."""
-    import numpy as np
-    from PIL import Image, UnidentifiedImageError
-
     from dashtraj.outputs import atomic_output, check_output
-    from dashtraj.perception.detect import DetectorError, YoloDetector
+    from dashtraj.perception.detect import YoloDetector, read_rgb
 
     check_output(args.output, overwrite=args.overwrite, kind="dir")
     det = YoloDetector(args.model, names=args.names, conf=args.conf, iou=args.iou,
@@ -169,13 +166,7 @@ def run_detect(args: argparse.Namespace) -> int:
         records = []
         for i in range(0, len(images), args.batch):
             paths = images[i:i + args.batch]
-            frames = []
-            for p in paths:
-                try:
-                    with Image.open(p) as im:
-                        frames.append(np.asarray(im.convert("RGB")))
-                except (OSError, UnidentifiedImageError) as exc:
-                    raise DetectorError(f"{p}: not a readable image ({exc})") from None
+            frames = [read_rgb(p) for p in paths]
             for p, rgb, d in zip(paths, frames, det.detect(frames), strict=True):
                 h, w = rgb.shape[:2]
                 (tmp / "labels" / f"{p.stem}.txt").write_text(
@@ -256,7 +247,7 @@ def register_eval(sub) -> None:
 
 def run_eval(args: argparse.Namespace) -> int:
     """Evaluate; prints a table (or JSON)."""
-    from dashtraj.cli._args import ArgumentError
+    from dashtraj.cli._args import ArgumentError, progress_bar
     from dashtraj.datasets.frames import parse_size
     from dashtraj.outputs import atomic_output, check_output
     from dashtraj.perception.detect import YoloDetector
@@ -273,16 +264,8 @@ def run_eval(args: argparse.Namespace) -> int:
     cfg = EvalConfig(every_s=args.every, size=size, min_box_height_px=10.0 * w / 640,
                      small_px=args.small_px * w / 1280, conf=args.conf)
     det = YoloDetector(args.model, names=args.names, conf=0.001, iou=0.6)
-    bar = None
-    if not args.quiet and sys.stderr.isatty():
-        from tqdm import tqdm
-
-        bar = tqdm(unit="frame", file=sys.stderr)
-    try:
-        res = evaluate_recordings(recs, det, cfg, progress=bar.update if bar else None)
-    finally:
-        if bar is not None:
-            bar.close()
+    with progress_bar(args.quiet, unit="frame") as progress:
+        res = evaluate_recordings(recs, det, cfg, progress=progress)
     if args.output:
         with atomic_output(args.output, overwrite=args.overwrite, kind="dir") as tmp:
             (tmp / "eval.json").write_text(json.dumps(res, indent=1) + "\n", encoding="utf-8")
@@ -336,7 +319,7 @@ def register_eval_external(sub) -> None:
 
 def run_eval_external(args: argparse.Namespace) -> int:
     """Evaluate on another source's frames; prints a table (or JSON)."""
-    from dashtraj.cli._args import ArgumentError
+    from dashtraj.cli._args import ArgumentError, progress_bar
     from dashtraj.errors import DashtrajError
     from dashtraj.outputs import atomic_output, check_output
     from dashtraj.perception.detect import YoloDetector
@@ -368,18 +351,9 @@ def run_eval_external(args: argparse.Namespace) -> int:
         except ValueError as exc:
             raise ArgumentError(f"--class-map: {exc}") from None
     det = YoloDetector(args.model, conf=0.001, iou=0.6)
-    bar = None
-    if not args.quiet and sys.stderr.isatty():
-        from tqdm import tqdm
-
-        bar = tqdm(unit="image", file=sys.stderr)
-    try:
+    with progress_bar(args.quiet, unit="image") as progress:
         res = evaluate_external(folder, det, names, cmap, small_px=args.small_px,
-                                conf=args.conf, max_images=args.max_images,
-                                progress=bar.update if bar else None)
-    finally:
-        if bar is not None:
-            bar.close()
+                                conf=args.conf, max_images=args.max_images, progress=progress)
     if args.output:
         with atomic_output(args.output, overwrite=args.overwrite, kind="dir") as tmp:
             (tmp / "eval.json").write_text(json.dumps(res, indent=1) + "\n", encoding="utf-8")

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -63,6 +62,7 @@ def run_perceive(args: argparse.Namespace) -> int:
     import time
     import warnings
 
+    from dashtraj.cli._args import progress_bar
     from dashtraj.errors import DashtrajError
     from dashtraj.outputs import atomic_output, check_output
     from dashtraj.perception.pipeline import PerceiveConfig, perceive, write_mot
@@ -90,26 +90,16 @@ def run_perceive(args: argparse.Namespace) -> int:
 
     n_obs = len(args.observers) if args.observers else len(observer_ids(rec))
     total = n_obs * len(sample_steps(rec, args.every))
-    bar = None
-    progress = None
-    if not args.quiet and sys.stderr.isatty():
-        from tqdm import tqdm
-
-        bar = tqdm(total=total, unit="frame", file=sys.stderr)
-        progress = bar.update
     t0 = time.perf_counter()
-    try:
-        with contextlib.ExitStack() as stack:
-            frames_tmp = (stack.enter_context(atomic_output(args.save_frames,
-                                                            overwrite=args.overwrite))
-                          if args.save_frames else None)
-            tmp = stack.enter_context(atomic_output(args.output, overwrite=args.overwrite,
-                                                    kind="file", keep_partial=True))
-            summary = perceive(rec, tmp, cfg, workers=args.workers, progress=progress,
-                               frames_dir=frames_tmp)
-    finally:
-        if bar is not None:
-            bar.close()
+    with contextlib.ExitStack() as stack:
+        progress = stack.enter_context(progress_bar(args.quiet, total=total, unit="frame"))
+        frames_tmp = (stack.enter_context(atomic_output(args.save_frames,
+                                                        overwrite=args.overwrite))
+                      if args.save_frames else None)
+        tmp = stack.enter_context(atomic_output(args.output, overwrite=args.overwrite,
+                                                kind="file", keep_partial=True))
+        summary = perceive(rec, tmp, cfg, workers=args.workers, progress=progress,
+                           frames_dir=frames_tmp)
     wall = time.perf_counter() - t0
     if args.mot:
         with atomic_output(args.mot, overwrite=args.overwrite) as mot_tmp:

@@ -173,6 +173,21 @@ def postprocess(raw: np.ndarray, conf: float = 0.25, iou: float = 0.6, max_det: 
     return out
 
 
+def read_rgb(path) -> np.ndarray:
+    """(H, W, 3) uint8 RGB of an image file.
+
+    Raises:
+        DetectorError: the file is missing or not an image Pillow reads (names the file).
+    """
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            return np.asarray(im.convert("RGB"))
+    except OSError as exc:  # UnidentifiedImageError is an OSError
+        raise DetectorError(f"{path}: not a readable image ({exc})") from None
+
+
 # ----------------------------------------------------------------------------- names
 def read_names_yaml(path) -> list[str]:
     """Class names of a YOLO ``data.yaml`` (``names:`` as a mapping ``0: car`` on the

@@ -220,18 +220,9 @@ def evaluate_external(folder, detector, their_names, class_map=None, small_px: f
         the scored classes), ``vehicle_ap50``, ``vehicle_ap50_24px``, ``any_ap50``,
         ``any_ap50_24px``, precision/recall at ``conf``.
     """
-    from PIL import Image
-
     from dashtraj.errors import DashtrajError
-    from dashtraj.perception.detect import nms
+    from dashtraj.perception.detect import nms, read_rgb
     from dashtraj.perception.detmetrics import evaluate_detections
-
-    def load_rgb(path):
-        try:
-            with Image.open(path) as im:
-                return np.asarray(im.convert("RGB"))
-        except OSError as exc:
-            raise DashtrajError(f"{path}: not a readable image ({exc})") from None
 
     their_names = list(their_names)
     if class_map is None:  # the default map, restricted to the classes the set has
@@ -262,7 +253,7 @@ def evaluate_external(folder, detector, their_names, class_map=None, small_px: f
     preds, preds_any, gts, gts_any = [], [], [], []
     for start in range(0, len(items), 8):
         chunk = items[start:start + 8]
-        rgbs = [load_rgb(p) for p, _ in chunk]
+        rgbs = [read_rgb(p) for p, _ in chunk]
         for d, rgb, (_, lab) in zip(detector.detect(rgbs), rgbs, chunk, strict=True):
             h, w = rgb.shape[:2]
             c = our_to_scored[d.class_ids] if len(d) else np.zeros(0, np.int64)
