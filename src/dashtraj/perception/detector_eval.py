@@ -223,6 +223,7 @@ def evaluate_external(folder, detector, their_names, class_map=None, small_px: f
     from dashtraj.errors import DashtrajError
     from dashtraj.perception.detect import nms, read_rgb
     from dashtraj.perception.detmetrics import evaluate_detections
+    from dashtraj.trajectory.records import ORIENTATIONS
 
     their_names = list(their_names)
     if class_map is None:  # the default map, restricted to the classes the set has
@@ -232,9 +233,11 @@ def evaluate_external(folder, detector, their_names, class_map=None, small_px: f
                                 f"is a class of the set ({', '.join(their_names)}); pass a "
                                 "class map (OURS=THEIRS,...)")
     class_map = dict(class_map)
-    ours = list(detector.names)
-    bases = sorted({n.rsplit("_", 1)[0] if n.rsplit("_", 1)[-1] in ("front", "back", "side")
-                    else n for n in ours})
+    # our base class of each model class ("car_front" -> "car"; a name without an
+    # orientation suffix is its own base)
+    base = [n.rsplit("_", 1)[0] if n.rsplit("_", 1)[-1] in ORIENTATIONS else n
+            for n in detector.names]
+    bases = sorted(set(base))
     for o, t in class_map.items():
         if o not in bases:
             raise DashtrajError(f"class map: {o!r} is not a class of the model "
@@ -243,11 +246,8 @@ def evaluate_external(folder, detector, their_names, class_map=None, small_px: f
             raise DashtrajError(f"class map: {t!r} is not a class of the set "
                                 f"({', '.join(their_names)})")
     scored = [t for t in their_names if t in class_map.values()]
-    our_to_scored = np.full(len(ours), -1, np.int64)
-    for i, n in enumerate(ours):
-        base = n.rsplit("_", 1)[0] if n.rsplit("_", 1)[-1] in ("front", "back", "side") else n
-        if base in class_map:
-            our_to_scored[i] = scored.index(class_map[base])
+    our_to_scored = np.array([scored.index(class_map[b]) if b in class_map else -1
+                              for b in base], np.int64)
     their_to_scored = np.array([scored.index(t) if t in scored else -1 for t in their_names])
     items = read_external_set(folder, len(their_names))[:max_images]
     preds, preds_any, gts, gts_any = [], [], [], []
