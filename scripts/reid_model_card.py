@@ -73,11 +73,11 @@ def main() -> None:
               f"- training wall time {wall / 3600:.2f} h (steps + per-epoch evaluation)", "",
               "## Evaluation (VeRi-776 protocol: same-id same-camera gallery images "
               "excluded)", "",
-              "| query set | queries | gallery | rank-1 % | rank-5 % | rank-10 % | mAP % | "
-              "mINP % |", "|---|---|---|---|---|---|---|---|"]
+              "| set | query set | queries | gallery | rank-1 % | rank-5 % | rank-10 % | mAP % | "
+              "mINP % |", "|---|---|---|---|---|---|---|---|---|"]
     for e in a.eval:
         m = json.loads(Path(e).read_text())
-        lines.append(f"| {m['query']} | {m['queries']} | {m['gallery']} | "
+        lines.append(f"| `{Path(m['data']).name}` | {m['query']} | {m['queries']} | {m['gallery']} | "
                      f"{100 * m['rank1']:.2f} | {100 * m['rank5']:.2f} | "
                      f"{100 * m['rank10']:.2f} | {100 * m['map']:.2f} | {100 * m['minp']:.2f} |")
     if epochs:
