@@ -157,7 +157,10 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
             p.parent.mkdir(parents=True, exist_ok=True)
             p.write_bytes(encode_jpeg(rf.frame_data.rgb))
         det = detector.detect(rf)
-        loc = localizer.localize(det.boxes, det.class_ids, spec, pose)
+        if getattr(localizer, "sequential", False):
+            loc = localizer.localize(det.boxes, det.class_ids, spec, pose, t=rf.t)
+        else:
+            loc = localizer.localize(det.boxes, det.class_ids, spec, pose)
         ids = tracker.update(det, rf.t, pose)
         mm = map_match(road_map, loc.x, loc.y)
         rgb = rf.frame_data.rgb

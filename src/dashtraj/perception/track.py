@@ -40,7 +40,7 @@ from scipy.optimize import linear_sum_assignment
 
 from dashtraj.errors import DashtrajError
 from dashtraj.perception.detections import VEHICLE_CLASS_INDEX, Detections, iou_matrix
-from dashtraj.perception.localize import CameraPose, FusedLocalizer
+from dashtraj.perception.localize import PAPER_MU_H, CameraPose, FusedLocalizer
 from dashtraj.world.camera import CameraSpec
 
 
@@ -193,6 +193,7 @@ class EgoTracker:
         out_of_view_s: seconds a track predicted outside the image is kept.
         view_margin_px: a prediction this far inside the image border counts as in view.
         accel_mps2: process noise, the vehicles' acceleration (m/s², 1 σ).
+        mu_h: Eq. 3's constant of the ``fused`` localizer that measures positions.
     """
 
     spec: CameraSpec = field(default_factory=CameraSpec)
@@ -205,6 +206,7 @@ class EgoTracker:
     cross_px: float = 4.0
     out_of_view_s: float = 6.0
     view_margin_px: float = 0.0
+    mu_h: float = PAPER_MU_H
     name: str = "ego"
     _x: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)), repr=False)
     _p: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)), repr=False)
@@ -218,6 +220,15 @@ class EgoTracker:
     _hidden: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     _t: float | None = None
     _next_id: int = 1
+    positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
+    """After each `update`, (N, 2): every detection's ground position filtered by its
+    track (the track's state after this frame's measurement; a new track's is the
+    measurement itself), CARLA world metres."""
+    innovation_d2: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    """After each `update`, (N,): squared Mahalanobis distance of each detection's measured
+    position to its track's prediction (inf for a detection that started a track)."""
+    measured: object = field(default=None, repr=False)
+    """After each `update`: the ``fused`` localizer's `Localized` of the frame's detections."""
 
     def predicted_boxes(self, pose: CameraPose) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Predicted boxes (M, 4) in the current camera, their ranges (M,) metres and
@@ -243,7 +254,7 @@ class EgoTracker:
     def update(self, det: Detections, t: float, pose: CameraPose) -> np.ndarray:
         """Feed one frame; returns (N,) confirmed track id per detection or −1."""
         n = len(det)
-        loc = FusedLocalizer().localize(det.boxes, det.class_ids, self.spec, pose)
+        loc = FusedLocalizer(self.mu_h).localize(det.boxes, det.class_ids, self.spec, pose)
         zx = np.column_stack([loc.x, loc.y])
         dt = 0.0 if self._t is None else max(float(t) - self._t, 0.0)
         self._t = float(t)
@@ -306,6 +317,12 @@ class EgoTracker:
             self._hits = np.concatenate([self._hits, np.ones(k, np.int64)])
             self._last = np.concatenate([self._last, np.full(k, self._t)])
             self._hidden = np.concatenate([self._hidden, np.zeros(k)])
+        self.measured = loc
+        self.positions = zx.copy()
+        self.innovation_d2 = np.full(n, np.inf)
+        if len(matches):
+            self.positions[matches[:, 0]] = self._x[matches[:, 1], :2]
+            self.innovation_d2[matches[:, 0]] = d2[matches[:, 0], matches[:, 1]]
         out = np.full(n, -1, np.int64)
         if len(matches):
             d, k = matches[:, 0], matches[:, 1]
