@@ -194,6 +194,11 @@ class EgoTracker:
         view_margin_px: a prediction this far inside the image border counts as in view.
         accel_mps2: process noise, the vehicles' acceleration (m/s², 1 σ).
         mu_h: Eq. 3's constant of the ``fused`` localizer that measures positions.
+        coast_s: tracks unseen for longer than this (seconds) coast: they are matched
+            after the recent ones, to the detections left, on the Mahalanobis distance of
+            the ground positions alone (≤ ``coast_chi2``, the same vehicle class; their
+            covariance has grown with the time unseen), not on the predicted box's IoU.
+            None: one association for all.
     """
 
     spec: CameraSpec = field(default_factory=CameraSpec)
@@ -207,6 +212,8 @@ class EgoTracker:
     out_of_view_s: float = 6.0
     view_margin_px: float = 0.0
     mu_h: float = PAPER_MU_H
+    coast_s: float | None = 0.5
+    coast_chi2: float = 16.0
     name: str = "ego"
     _x: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)), repr=False)
     _p: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)), repr=False)
@@ -282,7 +289,19 @@ class EgoTracker:
             same = eta[:, None] == np.argmax(self._votes, 1)[None, :]
             cost = (1.0 - iou) + d2 / self.gate_chi2 + np.where(same, 0.0, self.class_penalty)
             allowed = ((iou >= self.iou_min) | (d2 <= self.gate_chi2)) & ~lost[None, :]
-            matches, ud, _ = _assign(cost, allowed)
+            if self.coast_s is None:
+                matches, ud, _ = _assign(cost, allowed)
+            else:  # recent tracks first; then tracks coasting longer, by ground position
+                recent = (self._t - self._last) <= self.coast_s + 1e-9
+                matches, ud, _ = _assign(cost, allowed & recent[None, :])
+                old = np.flatnonzero(~recent)
+                if len(ud) and len(old):
+                    a2 = (d2[np.ix_(ud, old)] <= self.coast_chi2) & same[np.ix_(ud, old)]
+                    m2, ud2, _ = _assign(d2[np.ix_(ud, old)], a2)
+                    if len(m2):
+                        matches = np.vstack([matches, np.column_stack([ud[m2[:, 0]],
+                                                                       old[m2[:, 1]]])])
+                    ud = ud[ud2]
         else:
             matches, ud = np.zeros((0, 2), np.int64), np.arange(n)
         if len(matches):
