@@ -42,7 +42,8 @@ class PerceiveConfig:
 
     Attributes:
         detector: "oracle" or a path to an .onnx model. tracker: "sort" or "ego".
-        localizer: "paper", "ground" or "fused". mu_h: Eq. 3's constant (None: default).
+        localizer: "paper", "ground", "fused" or "tracked". mu_h: Eq. 3's constant (None:
+            default).
         every_s: frame period, seconds (a multiple of the recording's step).
         size: (W, H) of the rendered images, pixels, or None for the recording's camera.
         msaa: colour-pass samples of the renderer (0 = none; boxes do not depend on it).
@@ -55,7 +56,7 @@ class PerceiveConfig:
 
     detector: str = "oracle"
     tracker: str = "ego"
-    localizer: str = "fused"
+    localizer: str = "tracked"
     mu_h: float | None = None
     every_s: float = 0.1
     size: tuple[int, int] | None = None
