@@ -40,6 +40,10 @@ Estimators (`LOCALIZERS`, chosen by name with `build_localizer`):
   unusable (bottom edge cut by the image border or above the horizon; top edge cut);
   where nearer detections hide a box's bottom edge (cover 60 % of its columns), the
   distance from the box width replaces both (see `FusedLocalizer._occluded_bottoms`).
+  Its output carries each box's truncation/occlusion evidence (`box_evidence`).
+- ``tracked``: track-level (`TrackedLocalizer`, sequential: one per camera, fed every
+  frame with its time): ``fused`` where the box is clean and consistent with its track,
+  else the ``ego`` tracker's ground-plane filter of the track (observer odometry).
 """
 
 from __future__ import annotations

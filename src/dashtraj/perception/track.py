@@ -27,7 +27,9 @@ unassigned). Ids start at 1 and are never reused within a tracker.
   track's over a χ² gate; a pair is allowed when IoU ≥ `iou_min` or it is inside the
   gate. A track ages only while its prediction lies inside the image: a vehicle the
   camera has turned away from is remembered (up to `out_of_view_s`) and picked up again
-  where the odometry says it should reappear.
+  where the odometry says it should reappear. Tracks unseen for more than `coast_s` are
+  matched in a second stage, to the detections the recent tracks left, on the ground-plane
+  Mahalanobis distance alone and the same vehicle class (not on their predicted box).
 """
 
 from __future__ import annotations
