@@ -29,13 +29,15 @@ def test_tracker_eval_json_has_the_metrics_per_tracker(small_run, gl_available, 
 
 def test_localization_eval_json_and_scatter(small_run, gl_available, tmp_path, capsys):
     png = tmp_path / "scatter.png"
+    # the sequential estimator fed every 0.5 s here (default 0.1 s) to keep the test short
     assert main(["localization", "eval", str(small_run.path), "--json", "--plot",
-                 str(png)]) == 0
+                 str(png), "--track-every", "0.5"]) == 0
     r = json.loads(capsys.readouterr().out)
-    for n in ("paper", "ground", "fused"):
+    for n in ("paper", "ground", "fused", "tracked"):
         assert {"rmse_lt20_m", "rmse_20_60_m", "median_lt20_m", "n_lt20"} <= set(r[n])
     assert r["fused"]["rmse_lt20_m"] < 1.5  # 320 x 180 pixels
     assert r["fused"]["rmse_lt20_m"] < r["paper"]["rmse_lt20_m"]
+    assert r["tracked"]["rmse_lt20_m"] < r["paper"]["rmse_lt20_m"]
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert main(["localization", "eval", str(small_run.path), "--plot", str(png)]) == 2
 

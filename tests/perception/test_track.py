@@ -119,6 +119,42 @@ def test_class_is_part_of_the_sort_state():
         assert got[0] == expect
 
 
+def _box_ahead(dist_m: float, lateral_m: float = 0.0) -> np.ndarray:
+    """Box of a car seen from behind (1.87 m wide, 1.5 m high) whose near face is dist_m
+    ahead of the camera (1.6 m above the road, looking along +x), lateral_m to the right."""
+    f, cu, cv = SPEC.focal_px, SPEC.width_px / 2, SPEC.height_px / 2
+    u = cu + f * lateral_m / dist_m
+    half = 0.5 * f * 1.87 / dist_m
+    return np.array([[u - half, cv + f * (1.6 - 1.5) / dist_m, u + half,
+                      cv + f * 1.6 / dist_m]])
+
+
+def test_ego_coasting_track_is_picked_up_by_position_and_class():
+    """A car about 20 m ahead, moving with the observer, is hidden for 2 s (no detection); when a
+    box reappears where its track predicts, a car keeps the identity (matched on the
+    ground-plane Mahalanobis distance, after the recent tracks) and a motorcycle there
+    starts a new track (class compatibility; with one association for all tracks, IoU
+    and a class penalty, it takes the car's identity)."""
+    from dashtraj.perception.localize import CameraPose
+
+    for class_id, same, coast in ((1, True, 0.5), (10, False, 0.5), (10, True, None)):
+        trk = EgoTracker(spec=SPEC, coast_s=coast)
+        ids = []
+        for k in range(60):
+            t = k / 10
+            pose = CameraPose(8.0 * t, 0.0, 1.6, 0.0)
+            hidden = 10 <= k < 30
+            cls = class_id if k >= 30 else 1
+            det = (Detections.empty() if hidden else
+                   Detections(_box_ahead(18.0), np.ones(1), np.array([cls]), np.array([-1])))
+            out = trk.update(det, t, pose)
+            if not hidden:
+                ids.append(int(out[0]))
+        first = ids[5]
+        assert first > 0 and ids[:10].count(first) >= 8
+        assert (ids[-1] == first) == same, ids
+
+
 def test_unknown_tracker_lists_valid_names():
     with pytest.raises(TrackerError, match="valid: sort, ego"):
         build_tracker("bytetrack")

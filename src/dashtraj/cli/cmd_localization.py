@@ -30,8 +30,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "true distance with --plot."),
     )
     add_frame_source_args(e, every_s=0.5)
-    e.add_argument("--localizers", nargs="+", default=["paper", "ground", "fused"],
+    e.add_argument("--localizers", nargs="+", default=["paper", "ground", "fused", "tracked"],
                    metavar="NAME")
+    e.add_argument("--track-every", type=positive_float, default=0.1, metavar="S",
+                   help="frame period fed to the sequential estimator (tracked), scored "
+                        "every --every seconds like the others (default 0.1, perceive's)")
     e.add_argument("--mu-h", type=positive_float, metavar="PX",
                    help="Eq. 3's constant (default ours)")
     e.add_argument("--plot", type=picture_path, metavar="PNG", help="write the scatter plot here")
@@ -74,7 +77,7 @@ def run_eval(args: argparse.Namespace) -> int:
         check_output(args.plot, overwrite=args.overwrite, kind="file")
     recs = [open_recording(r) for r in args.recordings]
     summary, samples = localization_eval(recs, args.localizers, args.detector, args.every,
-                                         _size(args.size), args.mu_h)
+                                         _size(args.size), args.mu_h, args.track_every)
     if args.plot:
         with atomic_output(args.plot, overwrite=args.overwrite, kind="file") as tmp:
             scatter_png(samples, args.localizers, tmp)
@@ -88,7 +91,7 @@ def run_eval(args: argparse.Namespace) -> int:
 
         def f(v):
             return "  n/a" if v is None else f"{v:5.2f}"
-        print(f"  {n:7s} position RMSE < 20 m {f(r['rmse_lt20_m'])} m (median "
+        print(f"  {n:8s} position RMSE < 20 m {f(r['rmse_lt20_m'])} m (median "
               f"{f(r['median_lt20_m'])}), 20–60 m {f(r['rmse_20_60_m'])} m (median "
               f"{f(r['median_20_60_m'])})")
     return 0

@@ -20,7 +20,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "Per observer of a recording: render its dashcam frames on the fly, detect the "
             "vehicles (the renderer's exact boxes with --detector oracle, or an ONNX model), "
             "track them (sort, or ego: ground-plane tracking with the observer's odometry), "
-            "localize them (paper: Eq. 3; ground: bottom edge on the road; fused), map-match "
+            "localize them (paper: Eq. 3; ground: bottom edge on the road; fused; tracked: "
+            "fused, or the track's ground-plane filter for truncated or occluded boxes), map-match "
             "them to waypoints, and write the SQLite sightings database (with the crops of "
             "the detections within the ReID range)."
         ),
@@ -30,7 +31,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--detector", default="oracle", metavar="oracle|M.onnx",
                    help="detector (default oracle: the renderer's exact visible boxes)")
     p.add_argument("--tracker", default="ego", help="sort or ego (default ego)")
-    p.add_argument("--localizer", default="fused", help="paper, ground or fused (default fused)")
+    p.add_argument("--localizer", default="tracked",
+                   help="paper, ground, fused or tracked (default tracked)")
     p.add_argument("--mu-h", type=positive_float, metavar="PX",
                    help="Eq. 3's calibrated sensor constant (dashtraj localization calibrate)")
     p.add_argument("--every", type=positive_float, default=0.1, metavar="S",

@@ -40,6 +40,10 @@ Estimators (`LOCALIZERS`, chosen by name with `build_localizer`):
   unusable (bottom edge cut by the image border or above the horizon; top edge cut);
   where nearer detections hide a box's bottom edge (cover 60 % of its columns), the
   distance from the box width replaces both (see `FusedLocalizer._occluded_bottoms`).
+  Its output carries each box's truncation/occlusion evidence (`box_evidence`).
+- ``tracked``: track-level (`TrackedLocalizer`, sequential: one per camera, fed every
+  frame with its time): ``fused`` where the box is clean and consistent with its track,
+  else the ``ego`` tracker's ground-plane filter of the track (observer odometry).
 """
 
 from __future__ import annotations
@@ -106,6 +110,44 @@ class Localized:
     y: np.ndarray
     sigma_m: np.ndarray
     valid: np.ndarray
+    evidence: np.ndarray | None = None
+
+
+CUT_LEFT, CUT_RIGHT, CUT_TOP, CUT_BOTTOM = 1, 2, 4, 8
+HIDDEN_BOTTOM, HIDDEN_SIDE = 16, 32
+"""Bits of `box_evidence`: the box touches the image's left / right / top / bottom
+border (truncated: the vehicle goes on outside the image); a nearer detection covers
+part of its bottom edge; a nearer detection overlaps one of its side edges (then its
+centre column and width are not the vehicle's either)."""
+
+
+def box_evidence(boxes, spec: CameraSpec, border_px: float = 1.0,
+                 tol_px: float = 2.0) -> np.ndarray:
+    """Truncation and occlusion evidence of each box of one frame, (N,) int bit flags
+    (`CUT_LEFT` … `HIDDEN_SIDE`; 0 = a clean box). Depth order without any estimate: of
+    two overlapping boxes, the one whose bottom edge is lower in the image (by more than
+    ``tol_px``) is the nearer (both stand on the road). A nearer box j hides part of box
+    i's bottom edge when it spans some of i's columns and its top is above i's bottom
+    row; it hides a side of i when it overlaps i and contains i's left or right edge
+    column."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 4)
+    ev = np.zeros(len(b), np.int64)
+    ev |= np.where(b[:, 0] <= border_px, CUT_LEFT, 0)
+    ev |= np.where(b[:, 2] >= spec.width_px - border_px, CUT_RIGHT, 0)
+    ev |= np.where(b[:, 1] <= border_px, CUT_TOP, 0)
+    ev |= np.where(b[:, 3] >= spec.height_px - border_px, CUT_BOTTOM, 0)
+    if len(b) < 2:
+        return ev
+    nearer = b[None, :, 3] > b[:, None, 3] + tol_px  # [i, j]: j is nearer than i
+    np.fill_diagonal(nearer, False)
+    cols = (b[None, :, 0] < b[:, None, 2]) & (b[None, :, 2] > b[:, None, 0])
+    ev |= np.where((nearer & cols & (b[None, :, 1] <= b[:, None, 3] + tol_px)).any(1),
+                   HIDDEN_BOTTOM, 0)
+    rows = (b[None, :, 1] < b[:, None, 3]) & (b[None, :, 3] > b[:, None, 1])
+    has_l = (b[None, :, 0] <= b[:, None, 0] + tol_px) & (b[None, :, 2] > b[:, None, 0])
+    has_r = (b[None, :, 2] >= b[:, None, 2] - tol_px) & (b[None, :, 0] < b[:, None, 2])
+    ev |= np.where((nearer & cols & rows & (has_l | has_r)).any(1), HIDDEN_SIDE, 0)
+    return ev
 
 
 def pixel_rays(spec: CameraSpec, pose: CameraPose, u, v):
@@ -239,7 +281,8 @@ class FusedLocalizer:
                          PAPER_SIGMA_REL * p_dist)
         d = self._occluded_bottoms(boxes, class_ids, spec, p.bearing_deg, d)
         x, y = place(pose, d, p.bearing_deg)
-        return Localized(d, p.bearing_deg, x, y, sigma, np.ones(len(d), bool))
+        return Localized(d, p.bearing_deg, x, y, sigma, np.ones(len(d), bool),
+                         box_evidence(boxes, spec, self.border_px))
 
 
     def _occluded_bottoms(self, boxes, class_ids, spec, bearing_deg, d):
@@ -282,8 +325,54 @@ class FusedLocalizer:
         return np.where(hidden, np.maximum(est, occluder + 1.0), d)
 
 
+@dataclass
+class TrackedLocalizer:
+    """Track-level estimation: every detection keeps its ``fused`` position when that
+    can be trusted, else takes its track's ground-plane filter (the ``ego`` tracker's
+    constant-velocity Kalman filter, driven by the observer's odometry).
+
+    A ``fused`` position is trusted when the box is clean (`box_evidence` 0: neither cut
+    by the image border nor partly hidden by a nearer detection) and consistent with its
+    track (squared Mahalanobis distance to the track's prediction ≤ ``consistent_chi2``,
+    or a detection that starts a track). Otherwise (a truncated or occluded box, or one
+    that jumps away from its track) the track's filtered position is used, which carries
+    what the vehicle's earlier, clean boxes said through the occlusion. Sequential and
+    stateful: one instance per camera, fed every frame in time order with ``t``
+    (seconds); ``sigma_m`` is ``fused``'s."""
+
+    mu_h: float = PAPER_MU_H
+    name: str = "tracked"
+    consistent_chi2: float = 9.0
+    sequential: bool = True
+    _tracker: object = None
+
+    def localize(self, boxes, class_ids, spec: CameraSpec, pose: CameraPose,
+                 t: float | None = None) -> Localized:
+        from dashtraj.perception.detections import Detections
+        from dashtraj.perception.track import EgoTracker
+
+        if t is None:
+            raise LocalizationError("the tracked localizer needs each frame's time t")
+        boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+        class_ids = np.asarray(class_ids, np.int64)
+        if self._tracker is None:
+            self._tracker = EgoTracker(spec=spec, mu_h=self.mu_h)
+        n = len(boxes)
+        tr = self._tracker
+        tr.update(Detections(boxes, np.ones(n), class_ids, np.full(n, -1, np.int64)), t, pose)
+        m = tr.measured
+        trust = (m.evidence == 0) & (tr.innovation_d2 <= self.consistent_chi2)
+        trust |= ~np.isfinite(tr.innovation_d2)
+        x = np.where(trust, m.x, tr.positions[:, 0])
+        y = np.where(trust, m.y, tr.positions[:, 1])
+        dx, dy = x - pose.x, y - pose.y
+        bearing = (np.degrees(np.arctan2(dy, dx)) - pose.yaw_deg + 180.0) % 360.0 - 180.0
+        return Localized(np.hypot(dx, dy), bearing, x, y, m.sigma_m, np.ones(n, bool),
+                         m.evidence)
+
+
 LOCALIZERS: dict[str, type] = {"paper": PaperLocalizer, "ground": GroundLocalizer,
-                               "fused": FusedLocalizer}
+                               "fused": FusedLocalizer, "tracked": TrackedLocalizer}
 """Estimators by name (see the module docstring)."""
 
 

@@ -42,7 +42,8 @@ class PerceiveConfig:
 
     Attributes:
         detector: "oracle" or a path to an .onnx model. tracker: "sort" or "ego".
-        localizer: "paper", "ground" or "fused". mu_h: Eq. 3's constant (None: default).
+        localizer: "paper", "ground", "fused" or "tracked". mu_h: Eq. 3's constant (None:
+            default).
         every_s: frame period, seconds (a multiple of the recording's step).
         size: (W, H) of the rendered images, pixels, or None for the recording's camera.
         msaa: colour-pass samples of the renderer (0 = none; boxes do not depend on it).
@@ -55,7 +56,7 @@ class PerceiveConfig:
 
     detector: str = "oracle"
     tracker: str = "ego"
-    localizer: str = "fused"
+    localizer: str = "tracked"
     mu_h: float | None = None
     every_s: float = 0.1
     size: tuple[int, int] | None = None
@@ -157,7 +158,10 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
             p.parent.mkdir(parents=True, exist_ok=True)
             p.write_bytes(encode_jpeg(rf.frame_data.rgb))
         det = detector.detect(rf)
-        loc = localizer.localize(det.boxes, det.class_ids, spec, pose)
+        if getattr(localizer, "sequential", False):
+            loc = localizer.localize(det.boxes, det.class_ids, spec, pose, t=rf.t)
+        else:
+            loc = localizer.localize(det.boxes, det.class_ids, spec, pose)
         ids = tracker.update(det, rf.t, pose)
         mm = map_match(road_map, loc.x, loc.y)
         rgb = rf.frame_data.rgb

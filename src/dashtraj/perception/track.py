@@ -27,7 +27,9 @@ unassigned). Ids start at 1 and are never reused within a tracker.
   track's over a χ² gate; a pair is allowed when IoU ≥ `iou_min` or it is inside the
   gate. A track ages only while its prediction lies inside the image: a vehicle the
   camera has turned away from is remembered (up to `out_of_view_s`) and picked up again
-  where the odometry says it should reappear.
+  where the odometry says it should reappear. Tracks unseen for more than `coast_s` are
+  matched in a second stage, to the detections the recent tracks left, on the ground-plane
+  Mahalanobis distance alone and the same vehicle class (not on their predicted box).
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ from scipy.optimize import linear_sum_assignment
 
 from dashtraj.errors import DashtrajError
 from dashtraj.perception.detections import VEHICLE_CLASS_INDEX, Detections, iou_matrix
-from dashtraj.perception.localize import CameraPose, FusedLocalizer
+from dashtraj.perception.localize import PAPER_MU_H, CameraPose, FusedLocalizer
 from dashtraj.world.camera import CameraSpec
 
 
@@ -193,6 +195,12 @@ class EgoTracker:
         out_of_view_s: seconds a track predicted outside the image is kept.
         view_margin_px: a prediction this far inside the image border counts as in view.
         accel_mps2: process noise, the vehicles' acceleration (m/s², 1 σ).
+        mu_h: Eq. 3's constant of the ``fused`` localizer that measures positions.
+        coast_s: tracks unseen for longer than this (seconds) coast: they are matched
+            after the recent ones, to the detections left, on the Mahalanobis distance of
+            the ground positions alone (≤ ``coast_chi2``, the same vehicle class; their
+            covariance has grown with the time unseen), not on the predicted box's IoU.
+            None: one association for all.
     """
 
     spec: CameraSpec = field(default_factory=CameraSpec)
@@ -205,6 +213,9 @@ class EgoTracker:
     cross_px: float = 4.0
     out_of_view_s: float = 6.0
     view_margin_px: float = 0.0
+    mu_h: float = PAPER_MU_H
+    coast_s: float | None = 0.5
+    coast_chi2: float = 16.0
     name: str = "ego"
     _x: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)), repr=False)
     _p: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)), repr=False)
@@ -218,6 +229,15 @@ class EgoTracker:
     _hidden: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     _t: float | None = None
     _next_id: int = 1
+    positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
+    """After each `update`, (N, 2): every detection's ground position filtered by its
+    track (the track's state after this frame's measurement; a new track's is the
+    measurement itself), CARLA world metres."""
+    innovation_d2: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    """After each `update`, (N,): squared Mahalanobis distance of each detection's measured
+    position to its track's prediction (inf for a detection that started a track)."""
+    measured: object = field(default=None, repr=False)
+    """After each `update`: the ``fused`` localizer's `Localized` of the frame's detections."""
 
     def predicted_boxes(self, pose: CameraPose) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Predicted boxes (M, 4) in the current camera, their ranges (M,) metres and
@@ -243,7 +263,7 @@ class EgoTracker:
     def update(self, det: Detections, t: float, pose: CameraPose) -> np.ndarray:
         """Feed one frame; returns (N,) confirmed track id per detection or −1."""
         n = len(det)
-        loc = FusedLocalizer().localize(det.boxes, det.class_ids, self.spec, pose)
+        loc = FusedLocalizer(self.mu_h).localize(det.boxes, det.class_ids, self.spec, pose)
         zx = np.column_stack([loc.x, loc.y])
         dt = 0.0 if self._t is None else max(float(t) - self._t, 0.0)
         self._t = float(t)
@@ -271,7 +291,19 @@ class EgoTracker:
             same = eta[:, None] == np.argmax(self._votes, 1)[None, :]
             cost = (1.0 - iou) + d2 / self.gate_chi2 + np.where(same, 0.0, self.class_penalty)
             allowed = ((iou >= self.iou_min) | (d2 <= self.gate_chi2)) & ~lost[None, :]
-            matches, ud, _ = _assign(cost, allowed)
+            if self.coast_s is None:
+                matches, ud, _ = _assign(cost, allowed)
+            else:  # recent tracks first; then tracks coasting longer, by ground position
+                recent = (self._t - self._last) <= self.coast_s + 1e-9
+                matches, ud, _ = _assign(cost, allowed & recent[None, :])
+                old = np.flatnonzero(~recent)
+                if len(ud) and len(old):
+                    a2 = (d2[np.ix_(ud, old)] <= self.coast_chi2) & same[np.ix_(ud, old)]
+                    m2, ud2, _ = _assign(d2[np.ix_(ud, old)], a2)
+                    if len(m2):
+                        matches = np.vstack([matches, np.column_stack([ud[m2[:, 0]],
+                                                                       old[m2[:, 1]]])])
+                    ud = ud[ud2]
         else:
             matches, ud = np.zeros((0, 2), np.int64), np.arange(n)
         if len(matches):
@@ -306,6 +338,12 @@ class EgoTracker:
             self._hits = np.concatenate([self._hits, np.ones(k, np.int64)])
             self._last = np.concatenate([self._last, np.full(k, self._t)])
             self._hidden = np.concatenate([self._hidden, np.zeros(k)])
+        self.measured = loc
+        self.positions = zx.copy()
+        self.innovation_d2 = np.full(n, np.inf)
+        if len(matches):
+            self.positions[matches[:, 0]] = self._x[matches[:, 1], :2]
+            self.innovation_d2[matches[:, 0]] = d2[matches[:, 0], matches[:, 1]]
         out = np.full(n, -1, np.int64)
         if len(matches):
             d, k = matches[:, 0], matches[:, 1]
