@@ -348,6 +348,13 @@ class Renderer:
                 if caster:
                     self._casters.append(len(self._static))
                 self._static.append((self._vaos(buf), offset, tiles, group, buf))
+        # corners of every static tile's box, all groups in one array: one matrix product
+        # per frame and view culls them all (``_static_runs``)
+        n_tiles = [len(e[2][0]) for e in self._static]
+        self._tile_corners = (np.concatenate([_box_corners(e[2][2], e[2][3]) for e in self._static])
+                              if self._static else np.zeros((0, 8, 3)))
+        self._tile_split = np.cumsum(n_tiles)[:-1]
+        self._groups = sorted({e[3] for e in self._static} | {"vehicle"})
         self._vbuf = None
         self._vbuf_bytes = 0
         self._sbuf = None  # contact shadows under the vehicles (colour passes only, id 0)
@@ -460,6 +467,7 @@ class Renderer:
         }
         values = {k: (tuple(float(x) for x in v) if np.ndim(v) else v) for k, v in values.items()}
         self._uniforms.update(values)
+        self._lighting = lt
         for prog in self._current_colour_progs():
             if prog.extra is self._token:
                 self._set_uniforms(prog, values)
@@ -476,7 +484,7 @@ class Renderer:
         self._uniforms.update(per_frame)
         self._noise.use(1)
         progs = [self._colour_prog("sky", "sky")]
-        for g in sorted({e[3] for e in self._static} | {"vehicle"}):
+        for g in self._groups:
             progs.append(self._colour_prog(2 if not self.msaa else 0, g))
         for prog in progs:
             self._set_uniforms(prog, per_frame)
@@ -485,7 +493,7 @@ class Renderer:
         """(4, 4) world → clip matrix of the sun's orthographic shadow map: it covers the
         camera's view frustum up to ``SHADOW_RANGE_M`` and the casters up to
         ``SHADOW_CASTER_REACH_M`` toward the sun."""
-        sun = lighting(self.look).sun_dir
+        sun = self._lighting.sun_dir
         k, w, h = self.k, self.width, self.height
         uv = np.array([[0, 0], [w, 0], [0, h], [w, h]], float)
         rays = np.column_stack([(uv[:, 0] - k[0, 2]) / k[0, 0], (uv[:, 1] - k[1, 2]) / k[1, 1],
@@ -525,9 +533,10 @@ class Renderer:
             ranges = list(zip(starts[:-1].tolist(), np.diff(starts).tolist(), strict=True))
             for first, count in _runs([ranges[i] for i in np.flatnonzero(inside)]):
                 self._vveh[4].render(mgl.TRIANGLES, first=first, vertices=count)
+        runs = self._static_runs(lm)
         for i in self._casters:
-            vaos, _, tiles, _, _ = self._static[i]
-            for first, count in _visible_runs(tiles, lm):
+            vaos = self._static[i][0]
+            for first, count in runs[i]:
                 vaos[4].render(mgl.TRIANGLES, first=first, vertices=count)
         self._shadow_tex.use(2)
         return lmb
@@ -685,6 +694,15 @@ class Renderer:
                 self.ctx.polygon_offset = (0.0, 0.0)
         self._draw_contact_shadows(which, mvp, shadow_vertices)
 
+    def _static_runs(self, mvp: np.ndarray) -> list[list[tuple[int, int]]]:
+        """Per static group, the (first, count) vertex runs of its tiles whose boxes touch
+        the frustum of ``mvp`` (``_corners_outside``: all groups in one product)."""
+        out = np.split(_corners_outside(self._tile_corners, mvp), self._tile_split)
+        return [
+            _runs(zip(e[2][0][~o].tolist(), e[2][1][~o].tolist(), strict=True))
+            for e, o in zip(self._static, out, strict=True)
+        ]
+
     def _mesh_rows(self, v: VehicleInstance) -> tuple[Mesh, np.ndarray]:
         """Cached (mesh, (N, 11) float32 model-frame rows) of a vehicle's mesh."""
         mesh = vehicle_mesh(v.model, v.rgb)
@@ -759,7 +777,7 @@ class Renderer:
             drawn = _vehicles_in_frustum(world, starts, mvp64) if n else np.zeros(0, bool)
         vruns = _runs([ranges[i] for i in np.flatnonzero(drawn)])
         n_shadow = self._upload_contact_shadows(vs, drawn) if n else 0
-        self._runs = [_visible_runs(e[2], mvp64) for e in self._static]
+        self._runs = self._static_runs(mvp64)
         mvp = mvp64.T.astype("f4").tobytes()  # column-major for GLSL
         self._frame_uniforms(pose, world, starts)
 
@@ -1059,18 +1077,20 @@ def _tiled(data: np.ndarray, tile_m: float = TILE_M):
     return data, (starts * 3, counts * 3, lo, hi)
 
 
-def _visible_runs(tiles, mvp: np.ndarray) -> list[tuple[int, int]]:
-    """(first, count) vertex runs of the tiles whose boxes touch the view frustum."""
-    first, count, lo, hi = tiles
-    out = _boxes_outside(lo, hi, mvp)
-    return _runs(zip(first[~out].tolist(), count[~out].tolist(), strict=True))
-
-
 def _boxes_outside(lo: np.ndarray, hi: np.ndarray, mvp: np.ndarray) -> np.ndarray:
     """(T,) bool: the world boxes lo/hi (T, 3) lie wholly outside one frustum plane."""
-    corners = np.stack(
+    return _corners_outside(_box_corners(lo, hi), mvp)
+
+
+def _box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(T, 8, 3) corners of the world boxes lo/hi (T, 3)."""
+    return np.stack(
         [np.where(np.array(b)[None, :], hi, lo) for b in np.ndindex(2, 2, 2)], axis=1
-    )  # (T, 8, 3)
+    )
+
+
+def _corners_outside(corners: np.ndarray, mvp: np.ndarray) -> np.ndarray:
+    """(T,) bool: the boxes with corners (T, 8, 3) lie wholly outside one frustum plane."""
     clip = corners @ mvp[:, :3].T + mvp[:, 3]  # (T, 8, 4)
     w = clip[..., 3]
     return (
