@@ -74,6 +74,8 @@ def register(sub) -> None:
     add_output_args(p)
     p.add_argument("--plots", action="store_true", help="also save a picture per experiment")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress lines on stderr")
     p.set_defaults(func=run)
 
 
@@ -84,7 +86,12 @@ def town_label(town: str) -> str:
 
 def run(args) -> int:
     from dashtraj.cli._args import ArgumentError
-    from dashtraj.cli._vision_args import VISION_SIZE, check_reid_model, vision_settings
+    from dashtraj.cli._vision_args import (
+        VISION_EVERY_S,
+        VISION_SIZE,
+        check_reid_model,
+        vision_settings,
+    )
     from dashtraj.experiments import (
         PAPER_SSPD_M,
         ExperimentConfig,
@@ -101,6 +108,8 @@ def run(args) -> int:
     vision = vision_settings(args)
     if args.ablation:
         vision["sightings"] = "vision"
+        if args.every is None:
+            vision["every_s"] = VISION_EVERY_S
     reid = args.reid or ("appearance" if vision["sightings"] == "vision" else "identity")
     if args.ablation and reid != "appearance":
         raise ArgumentError(f"--ablation with --reid {reid}: the ablation's last stage is "
@@ -117,17 +126,25 @@ def run(args) -> int:
                                 f"({exc})") from None
     if args.ablation:
         return run_ablation_suite(args, base, out)
+    from dashtraj.cli.cmd_demo import stage_printer
+
     summaries = []
     names = []
     header = False
+    total = {"wall_s": 0.0, "cpu_s": 0.0}
+    n_runs = len(args.towns) * len(args.seeds)
     with atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:
         for town in args.towns:
             for seed in args.seeds:
                 cfg = replace(base, town=town, seed=seed)
                 name = f"{town_label(town)}_seed{seed}"
-                res = run_experiment(cfg, tmp / name)
+                say = None if args.quiet else stage_printer(
+                    f"{name} {len(names) + 1}/{n_runs}")
+                res = run_experiment(cfg, tmp / name, say=say)
                 if args.plots:
                     plot_experiment(res, tmp / name / "trajectory.png")
+                for k in total:
+                    total[k] += sum(v[k] for v in res.timing.values())
                 summaries.append(res.summary)
                 names.append(name)
                 if args.json:
@@ -139,8 +156,11 @@ def run(args) -> int:
                     header = True
                 row = "  ".join(f"{m[k]['sspd_m']:24.2f} / {m[k]['seen_sspd_m']:5.2f} m"
                                 if k in m else f"{'(no sightings)':>34s}" for k in cfg.methods)
+                wall = sum(v["wall_s"] for v in res.timing.values())
+                cpu = sum(v["cpu_s"] for v in res.timing.values())
                 print(f"{name:16s} {res.summary['sightings']:9d} "
-                      f"{res.summary['observers_that_saw_target']:9d}   {row}", flush=True)
+                      f"{res.summary['observers_that_saw_target']:9d}   {row}   "
+                      f"({wall:.0f} s, CPU {cpu:.0f} s)", flush=True)
         agg = aggregate(summaries)
         reid = aggregate_reid(summaries)
         (tmp / "summary.json").write_text(
@@ -153,7 +173,7 @@ def run(args) -> int:
                 "experiments": len(summaries), **reid}
         print(json.dumps({"experiments": [figures(n, s) for n, s in zip(names, summaries,
                                                                           strict=True)],
-                          "mean": mean, "aggregate": agg}, indent=2))
+                          "mean": mean, "aggregate": agg, "timing": total}, indent=2))
         return 0
     print(f"\nmean over {len(summaries)} experiments (SSPD whole trip / seen stretch; "
           f"the paper: {PAPER_SSPD_M} m whole trip):")
@@ -169,6 +189,8 @@ def run(args) -> int:
     print(f"  ReID over {reid['reid_true_matches'] + reid['reid_false_matches']} accepted "
           f"tracks: precision {'-' if p_ is None else f'{p_:.3f}'}, recall "
           f"{'-' if r_ is None else f'{r_:.3f}'} ({how})")
+    print(f"time: {total['wall_s']:.0f} s wall, {total['cpu_s']:.0f} CPU-s for "
+          f"{len(summaries)} experiments")
     print(f"files: {out}/")
     return 0
 

@@ -150,11 +150,11 @@ class _ModelDetector:
     """Adapter of the ONNX run time (`dashtraj.perception.detect.YoloDetector`) to `Detector`;
     each detection also gets the vehicle id of the truth box it matches (for evaluation)."""
 
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, threads: int = 2):
         from dashtraj.perception.detect import YoloDetector
 
         self.name = path.name
-        self._model = YoloDetector(path)
+        self._model = YoloDetector(path, threads=threads)
 
     def detect(self, frame) -> Detections:
         out = self._model.detect([frame.frame_data.rgb])[0]
@@ -169,8 +169,9 @@ DETECTORS: tuple[str, ...] = ("oracle",)
 """Detector names; any other value must be a path to an .onnx model."""
 
 
-def build_detector(name: str) -> Detector:
-    """``"oracle"`` → `OracleDetector`; a path to an ``.onnx`` file → the ONNX detector.
+def build_detector(name: str, threads: int = 2) -> Detector:
+    """``"oracle"`` → `OracleDetector`; a path to an ``.onnx`` file → the ONNX detector
+    (`threads`: its onnxruntime intra-op threads).
 
     Raises:
         DetectorError: neither a known name nor an existing .onnx file.
@@ -183,4 +184,4 @@ def build_detector(name: str) -> Detector:
                             "model")
     if not p.is_file():
         raise DetectorError(f"--detector {p}: no such model file")
-    return _ModelDetector(p)
+    return _ModelDetector(p, threads)

@@ -13,11 +13,13 @@ target's sightings, with each stage after detection either real or an oracle
 
 Appearance ReID, the paper's ``calc_traj`` per track: the query is the target's
 first crop estimated within 15 m (`select.query_detection`, as ``calc_traj`` takes
-``veh_t1.image``); the gallery is every crop of every observer; each detection's
-cosine distance to the query is aggregated per track and the track is the target
-when that is at most the threshold calibrated on TRAINING identities
-(`load_threshold`; ``dashtraj reid-threshold`` writes it beside the model); then the
-spatio-temporal gate (`select.select_target_tracks`).
+``veh_t1.image``), or with query expansion the mean of its track's crops; the gallery
+is every crop of every observer (those of adequate size and not cut by the frame, as
+the `decision.Recipe` says); each detection's cosine distance to the query is
+aggregated per track and the track is the target when that is at most the threshold
+calibrated on TRAINING identities with the same recipe (`load_threshold`; ``dashtraj
+reid-threshold`` writes it beside the model); then the spatio-temporal gate
+(`select.select_target_tracks`).
 
 Embeddings come from the store's embeddings table (`crop_embeddings`; missing vectors
 of the model are computed and stored first, as ``dashtraj reid embed DB`` does).
@@ -34,7 +36,12 @@ from pathlib import Path
 import numpy as np
 
 from dashtraj.errors import DashtrajError
-from dashtraj.reidentify.decision import Calibration, cosine_distances
+from dashtraj.reidentify.decision import (
+    Calibration,
+    Recipe,
+    adequate_crops,
+    cosine_distances,
+)
 from dashtraj.reidentify.scoring import reid_score
 from dashtraj.reidentify.select import DEFAULT_GATE, query_detection, select_target_tracks
 from dashtraj.trajectory.records import Sighting
@@ -198,9 +205,10 @@ def _sample(rows: list, sample_s: float) -> list:
 def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
                    switches: StageSwitches = StageSwitches(), embedder=None,
                    threshold: float | None = None, aggregate: str = "median",
+                   recipe: Recipe | None = None,
                    gate: bool = True, max_distance_m: float = 15.0, sample_s: float = 0.5,
-                   positions_of: Callable[[int, np.ndarray], np.ndarray] | None = None
-                   ) -> TargetTracks:
+                   positions_of: Callable[[int, np.ndarray], np.ndarray] | None = None,
+                   stages=None) -> TargetTracks:
     """The target's sightings from one perception run's database.
 
     Args:
@@ -210,11 +218,16 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         switches: real or oracle per stage (`StageSwitches`).
         embedder: a `dashtraj.reid.embed.ReidEmbedder` (reid ``appearance``).
         threshold: the calibrated cosine-distance threshold (reid ``appearance``).
-        aggregate: the track aggregator (`decision.AGGREGATORS`).
+        aggregate: the track aggregator (`decision.AGGREGATORS`), when no `recipe`.
+        recipe: the query, crop filter and aggregator (`decision.Recipe`; the
+            threshold's `Calibration.recipe`); None: the paper's single crop, every
+            crop, `aggregate`.
         gate: the spatio-temporal gate after the appearance decision.
         max_distance_m: the ReID range (detections estimated this close), metres.
         sample_s: one sighting per track every this many seconds.
         positions_of: `true_positions(recording)` (positions ``truth``).
+        stages: None, or an object with ``start(name, line)`` (e.g.
+            `dashtraj.experiments.Stages`) told as embedding and deciding start.
 
     Returns:
         `TargetTracks`.
@@ -230,6 +243,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
     if switches.positions == "truth" and positions_of is None:
         raise VisionReidError("true positions need the recording (positions_of)")
     by_truth = switches.tracks == "truth"
+    recipe = recipe if recipe is not None else Recipe(aggregate)
+    aggregate = recipe.aggregate
     with SightingsDB.open(db_path, writable=switches.reid == "appearance") as db:
         poses = {(p.observer_id, p.frame): p for p in db.poses()}
         near = [d for d in db.detections() if d.distance_m <= max_distance_m
@@ -244,11 +259,29 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         query = query_detection(db, target_vehicle_id, max_distance_m)
         dists = keys = None
         if switches.reid == "appearance" and query is not None:
+            if stages is not None:
+                stages.start("embed", f"embed: {db.count('crops')} crops with "
+                                      f"{embedder.path.name}")
             ckeys, emb = crop_embeddings(db, embedder)
+            if stages is not None:
+                stages.start("re-identify", f"re-identify: query = the target's first crop "
+                                            f"within {max_distance_m:g} m (observer "
+                                            f"{query.observer_id}, t {query.t:.1f} s)"
+                                            + (", expanded with its track's crops"
+                                               if recipe.query == "track" else ""))
+            cam = db.run_info()["camera"]
             row = {k: i for i, k in enumerate(ckeys)}
+            have = [d for d in near if (d.observer_id, d.frame, d.idx) in row]
+            ok = adequate_crops(np.array([[d.x0, d.y0, d.x1, d.y1] for d in have]),
+                                int(cam["width_px"]), int(cam["height_px"]), recipe)
+            gal = [(key_of(d), row[(d.observer_id, d.frame, d.idx)])
+                   for d, good in zip(have, ok, strict=True) if good]
             q = emb[row[(query.observer_id, query.frame, query.idx)]]
-            gal = [(key_of(d), row[(d.observer_id, d.frame, d.idx)]) for d in near
-                   if (d.observer_id, d.frame, d.idx) in row]
+            if recipe.query == "track":
+                own = [i for k, i in gal if k == key_of(query)]
+                if own:  # query expansion: the query track's adequate crops
+                    m = emb[own].astype(np.float64).mean(axis=0)
+                    q = m / max(float(np.linalg.norm(m)), 1e-12)
             keys = [k for k, _ in gal]
             dists = cosine_distances(q, emb[[i for _, i in gal]]) if gal else np.zeros(0)
     rows = sorted(((key_of(d), d) for d in near), key=lambda r: (r[0], r[1].t, r[1].idx))
@@ -290,6 +323,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         candidates = list(sel.candidates)
         extra["reid_threshold"] = float(threshold)
         extra["reid_aggregate"] = aggregate
+        extra["reid_query"] = recipe.query
+        extra["reid_crops_used"] = len(keys)
     for k in candidates:
         truth.setdefault(k, None)
     sightings = sorted((s for k in accepted for s in tracks[k]),
