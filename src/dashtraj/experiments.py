@@ -28,11 +28,13 @@ scoring after them are the same code for every source):
   exact boxes) into ``sightings.db``, embed every crop with the ReID model
   (`reid_model`, default the shipped one), then re-identify the target
   (`dashtraj.reidentify.vision.target_from_db`): the query is the target's first crop
-  within 15 m, each observer track is the target when the median cosine distance of
-  its crops to the query is at most the threshold calibrated on TRAINING recordings
-  (``M.threshold.json`` beside the model; ``dashtraj reid-threshold``), then the
-  spatio-temporal gate (`gate`). Precision and recall are measured against each
-  track's truth.
+  within 15 m (expanded with the crops of its own track, as the threshold's recipe
+  says), each observer track is the target when the median cosine distance of its
+  crops (adequate size, not cut by the frame) to the query is at most the threshold
+  calibrated on TRAINING recordings with the same recipe (``M.threshold.json`` beside
+  the model; ``dashtraj reid-threshold``), then the spatio-temporal gate (`gate`).
+  Precision and recall are measured against each track's truth. The detector model
+  runs with class-agnostic NMS (`AGNOSTIC_NMS_IOU`).
 
 How the target's tracks are picked among the candidates (`REID_MODES`):
 
@@ -75,6 +77,10 @@ REID_MODES = ("identity", "look-alike", "appearance")
 
 SAMPLE_S = 0.5
 """One sighting per track every this many seconds (both sources), seconds."""
+
+AGNOSTIC_NMS_IOU = 0.45
+"""Class-agnostic NMS IoU of the detector model in ``vision`` runs: one box per vehicle
+instead of one per orientation class (`dashtraj.perception.detections._ModelDetector`)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -394,7 +400,8 @@ def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
 
     s = perceive(rec, db_path, PerceiveConfig(detector=detector_of(detector),
                                               size=config.image_size, every_s=config.every_s,
-                                              look=look, reid_range_m=config.max_distance_m),
+                                              look=look, reid_range_m=config.max_distance_m,
+                                              agnostic_nms_iou=AGNOSTIC_NMS_IOU),
                  workers=config.workers, progress=progress)
     stages.note(f"perceive: {s.frames} frames, {s.detections} detections, {s.tracks} tracks, "
                 f"{s.crops} crops within {config.max_distance_m:g} m")

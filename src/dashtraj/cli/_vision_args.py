@@ -22,12 +22,14 @@ DETECTIONS_EVERY_S = 0.1
 """Default frame period of ``--sightings detections``, seconds."""
 
 
-def add_vision_args(p: argparse.ArgumentParser, default_sightings: str = "oracle") -> None:
+def add_vision_args(p: argparse.ArgumentParser, default_sightings: str | None = "oracle") -> None:
+    """The vision options; `default_sightings` None leaves ``--sightings`` None for the
+    command to resolve."""
     p.add_argument("--sightings", choices=("oracle", "detections", "vision"),
                    default=default_sightings,
-                   help="the target's sightings: the oracle with --noise; the camera pipeline "
-                        "with the target's tracks picked by true identity (detections); or from "
-                        "pixels with appearance ReID (vision)")
+                   help="the target's sightings: from pixels with appearance ReID (vision, "
+                        "the default); the oracle with --noise; or the camera pipeline "
+                        "with the target's tracks picked by true identity (detections)")
     p.add_argument("--detector", default="shipped", metavar="shipped|oracle|M.onnx",
                    help="vision: the detector (default shipped: the package's ONNX model; "
                         "oracle: the renderer's exact boxes)")

@@ -14,11 +14,13 @@ from dashtraj.outputs import add_output_args
 DESCRIPTION = """\
 Run the paper's driving experiments (§II.G) end to end and score them: for every town and
 seed, simulate the town with 4 observers, one target and 20 agents until the target arrives,
-take oracle sightings of the target within 15 m of a dashcam (with the paper's localization
-noise by default), reconstruct its route with the paper's method (shortest-path) and with
+take the target's sightings within 15 m of a dashcam from pixels (--sightings vision, the
+default; see below) or from the oracle (--sightings oracle: the truth with the paper's
+localization noise), reconstruct its route with the paper's method (shortest-path) and with
 dashtraj's HMM, and score both against the true route with SSPD and Hausdorff distance
 (metres), over the whole trip and over the stretch between the first and last sighting.
-The default is the paper's set: five seeds in town01 and five in town10.
+The default is the paper's set: five seeds in town01 and five in town10. Progress lines go
+to stderr (-q: none); each row ends with the run's wall and CPU seconds.
 
 --sightings detections runs the camera pipeline instead of the oracle (perceive with the
 oracle detector: render, track, localize, map-match into OUT/<run>/sightings.db) and picks
@@ -30,7 +32,8 @@ construction. --twins N adds N agents of the target's exact model and colour; wi
 cannot tell exact look-alikes apart) and the spatio-temporal gate on the lane graph keeps
 the chain the target could have driven (--no-gate: keep all, the paper's way).
 
---sightings vision runs the paper's whole pipeline from pixels: perceive every observer
+--sightings vision (the default; --reid look-alike defaults to the oracle) runs the paper's
+whole pipeline from pixels: perceive every observer
 (--detector: the shipped ONNX model, or oracle) into OUT/<run>/sightings.db, embed every
 crop with the ReID model, take the target's first crop within 15 m as the query, decide
 per observer track with the threshold calibrated on TRAINING recordings (beside the model;
@@ -58,7 +61,7 @@ def register(sub) -> None:
                    help="seeds per town: a range A-B, a list a,b,c, or a count N (0..N-1)")
     p.add_argument("--noise", choices=("paper", "none"), default="paper",
                    help="localization noise of the oracle sightings")
-    add_vision_args(p)
+    add_vision_args(p, default_sightings=None)
     p.add_argument("--twins", type=count, default=0, metavar="N",
                    help="agents of the target's exact model and colour (default 0)")
     p.add_argument("--reid", choices=("identity", "look-alike", "appearance"), default=None,
@@ -105,6 +108,8 @@ def run(args) -> int:
     from dashtraj.world.towns import UnknownTownError, resolve_map
 
     out = check_output(args.output, overwrite=args.overwrite, kind="dir")
+    if args.sightings is None:  # from pixels, except the look-alike test (oracle tracks)
+        args.sightings = "oracle" if args.reid == "look-alike" else "vision"
     vision = vision_settings(args)
     if args.ablation:
         vision["sightings"] = "vision"

@@ -54,6 +54,8 @@ class PerceiveConfig:
         threads: onnxruntime threads of the detector model in each process (None: 2 in
             one process, 1 per worker with ``workers > 1``, so that k workers use k
             cores).
+        agnostic_nms_iou: the detector model's class-agnostic NMS IoU (None: its
+            class-aware NMS only; `dashtraj.perception.detections._ModelDetector`).
     """
 
     detector: str = "oracle"
@@ -70,6 +72,7 @@ class PerceiveConfig:
     observers: tuple[int, ...] | None = field(default=None)
     look: str | None = None
     threads: int | None = None
+    agnostic_nms_iou: float | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -139,7 +142,8 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
     from dashtraj.datasets.frames import crop_vehicle, encode_jpeg, recording_frames
 
     spec = image_camera(recording, config.size)
-    detector = build_detector(config.detector, 2 if config.threads is None else config.threads)
+    detector = build_detector(config.detector, 2 if config.threads is None else config.threads,
+                              config.agnostic_nms_iou)
     tracker = build_tracker(config.tracker, spec)
     localizer = build_localizer(config.localizer, config.mu_h)
     tstats = _TrackStats()

@@ -19,7 +19,15 @@ the `decision.Recipe` says); each detection's cosine distance to the query is
 aggregated per track and the track is the target when that is at most the threshold
 calibrated on TRAINING identities with the same recipe (`load_threshold`; ``dashtraj
 reid-threshold`` writes it beside the model); then the spatio-temporal gate
-(`select.select_target_tracks`).
+(`select.select_target_tracks`). With a crop filter, the query is the target's first
+crop within 15 m that the filter keeps (the paper's first crop when none is); the
+query's own track is a candidate whatever its distance (the user pointed at it).
+
+Scoring: a track is the target's when most of its used sightings (one every
+`sample_s` within range) are detections matched to the target's true box; a detection
+matched to no vehicle (a false detection, or a box that overlaps no true box by IoU
+0.5) votes for "no vehicle". (The store's track truth counts matched detections only,
+so a clutter track that the target crossed once would count as the target's.)
 
 Embeddings come from the store's embeddings table (`crop_embeddings`; missing vectors
 of the model are computed and stored first, as ``dashtraj reid embed DB`` does).
@@ -29,6 +37,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections import Counter
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -202,6 +211,12 @@ def _sample(rows: list, sample_s: float) -> list:
     return kept
 
 
+def _majority(votes: Counter):
+    """The most frequent value (None = a detection of no vehicle counts); ties go to a
+    vehicle id, then to the smaller id."""
+    return min(votes, key=lambda v: (-votes[v], v is None, v if v is not None else 0))
+
+
 def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
                    switches: StageSwitches = StageSwitches(), embedder=None,
                    threshold: float | None = None, aggregate: str = "median",
@@ -256,7 +271,14 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         def key_of(d) -> tuple[int, int]:
             return (d.observer_id, d.truth_vehicle_id if by_truth else d.track_id)
 
-        query = query_detection(db, target_vehicle_id, max_distance_m)
+        cam = db.run_info()["camera"]
+        size = (int(cam["width_px"]), int(cam["height_px"]))
+
+        def usable(d) -> bool:
+            return bool(adequate_crops(np.array([[d.x0, d.y0, d.x1, d.y1]]), *size, recipe)[0])
+
+        query = query_detection(db, target_vehicle_id, max_distance_m,
+                                usable if switches.reid == "appearance" else None)
         dists = keys = None
         if switches.reid == "appearance" and query is not None:
             if stages is not None:
@@ -269,11 +291,10 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
                                             f"{query.observer_id}, t {query.t:.1f} s)"
                                             + (", expanded with its track's crops"
                                                if recipe.query == "track" else ""))
-            cam = db.run_info()["camera"]
             row = {k: i for i, k in enumerate(ckeys)}
             have = [d for d in near if (d.observer_id, d.frame, d.idx) in row]
-            ok = adequate_crops(np.array([[d.x0, d.y0, d.x1, d.y1] for d in have]),
-                                int(cam["width_px"]), int(cam["height_px"]), recipe)
+            ok = adequate_crops(np.array([[d.x0, d.y0, d.x1, d.y1] for d in have]).reshape(-1, 4),
+                                *size, recipe)
             gal = [(key_of(d), row[(d.observer_id, d.frame, d.idx)])
                    for d, good in zip(have, ok, strict=True) if good]
             q = emb[row[(query.observer_id, query.frame, query.idx)]]
@@ -287,6 +308,11 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
     rows = sorted(((key_of(d), d) for d in near), key=lambda r: (r[0], r[1].t, r[1].idx))
     rows = _sample(rows, sample_s)
     truth = {k: (k[1] if by_truth else track_truth.get(k)) for k, _ in rows}
+    if not by_truth:  # what the used sightings show: most of them, "no vehicle" counted
+        votes: dict[Hashable, Counter] = {}
+        for k, d in rows:
+            votes.setdefault(k, Counter())[d.truth_vehicle_id] += 1
+        truth = {k: _majority(c) for k, c in votes.items()}
     if positions_of is not None and switches.positions == "truth" and rows:
         xy = np.zeros((len(rows), 2))
         vids = np.array([d.truth_vehicle_id if d.truth_vehicle_id is not None else -1
@@ -318,7 +344,7 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
     else:
         sel = select_target_tracks(road_map, dists, keys, tracks, float(threshold),
                                    aggregate=aggregate, anchor=anchor,
-                                   gate=DEFAULT_GATE if gate else None)
+                                   gate=DEFAULT_GATE if gate else None, keep_anchor=True)
         accepted = [k for k in sel.accepted if k in tracks]
         candidates = list(sel.candidates)
         extra["reid_threshold"] = float(threshold)
