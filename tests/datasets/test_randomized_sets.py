@@ -4,10 +4,13 @@ recorded per image (detection) and per ring image (ReID), same seed → same byt
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import pyarrow.parquet as pq
+import pytest
 
 from dashtraj.datasets.detection import DetectionConfig, build_detection_dataset
+from dashtraj.datasets.frames import DatasetError
 from dashtraj.datasets.reid import ReidConfig, build_reid_dataset, ring_look
 from dashtraj.render.randomize import frame_rng, random_look, violations
 
@@ -47,7 +50,7 @@ def test_randomized_detection_set(gl_available, recordings, tmp_path):
 
 def test_randomized_reid_set(gl_available, tmp_path):
     cfg = ReidConfig(n_ids=3, n_cameras=4, size=48, n_test_ids=1, seed=7, randomize=True,
-                     randomize_seed=2)
+                     randomize_seed=2, randomize_per="identity")
     info = build_reid_dataset(cfg, tmp_path / "r")
     root = tmp_path / "r"
     looks = pq.read_table(root / "looks.parquet").to_pylist()
@@ -70,3 +73,29 @@ def test_randomized_reid_set(gl_available, tmp_path):
     ra, pa_ = _files(root, "image_*/*.jpg"), _files(tmp_path / "p", "image_*/*.jpg")
     assert ra.keys() == pa_.keys()  # the same crops are kept: visibility ignores the look
     assert all(ra[k] != pa_[k] for k in ra)
+
+
+def test_reid_looks_per_image_and_test_only(gl_available, tmp_path):
+    """The default draws a scene per ring image: no weather or light is tied to an identity
+    (with one scene per identity, query and gallery of a test id share it, a shortcut);
+    --test-only renders the same query and gallery and no training images."""
+    cfg = ReidConfig(n_ids=3, n_cameras=4, size=48, n_test_ids=1, seed=7, randomize=True,
+                     randomize_seed=2)
+    assert cfg.randomize_per == "image"
+    info = build_reid_dataset(cfg, tmp_path / "r")
+    assert info["randomize"]["per"] == "image"
+    looks = pq.read_table(tmp_path / "r" / "looks.parquet").to_pylist()
+    by_id: dict[int, set] = {}
+    for r in looks:
+        by_id.setdefault(r["id"], set()).add(r["look_weather_sun_altitude_angle"])
+    assert all(len(v) == sum(1 for r in looks if r["id"] == i) for i, v in by_id.items())
+    assert max(len(v) for v in by_id.values()) > 1
+    test = build_reid_dataset(replace(cfg, test_only=True), tmp_path / "t")
+    assert test["counts"]["train"] == {"images": 0, "ids": 0}
+    assert test["counts"]["query"] == info["counts"]["query"]
+    assert test["counts"]["test"] == info["counts"]["test"]
+    full = _files(tmp_path / "r", "image_query/*.jpg") | _files(tmp_path / "r", "image_test/*.jpg")
+    only = _files(tmp_path / "t", "image_*/*.jpg")
+    assert full == only  # the same bytes: an identity's images do not depend on the others
+    with pytest.raises(DatasetError, match="--randomize-per 'scene'"):
+        build_reid_dataset(replace(cfg, randomize_per="scene"), tmp_path / "bad")

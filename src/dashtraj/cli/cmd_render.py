@@ -104,7 +104,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     r.add_argument("--image-size", default="800x600", metavar="WxH",
                    help="ring camera image size with a fixed FOV (default 800x600)")
     r.add_argument("--seed", type=seed_int, default=0, help="camera and split seed (default 0)")
-    _randomize_args(r, "identity (scene) and camera (effects)")
+    _randomize_args(r, "ring image (or --randomize-per identity)")
+    r.add_argument("--randomize-per", choices=("image", "identity"), default="image",
+                   help="draw the scene look (weather, sun, scene colours) per ring image "
+                        "(default) or once per identity, shared by its cameras (a look cue "
+                        "tied to the identity)")
+    r.add_argument("--test-only", action="store_true",
+                   help="render only the test identities (query and gallery): an "
+                        "evaluation set, e.g. in another look")
     r.add_argument("--workers", type=positive_int, default=1, help="render processes (default 1)")
     r.add_argument("--from-recordings", nargs="+", default=(), metavar="RUN",
                    help="recordings whose observers' crops make image_query_moving/")
@@ -271,9 +278,10 @@ def run_reid(args: argparse.Namespace) -> int:
     cfg = ReidConfig(n_ids=args.ids, n_cameras=args.cameras, size=args.size, seed=args.seed,
                      n_test_ids=args.test_ids, town=args.town, randomize=args.randomize,
                      randomize_seed=args.randomize_seed, fov_deg=fov,
-                     image_size=parse_size(args.image_size))
+                     image_size=parse_size(args.image_size),
+                     randomize_per=args.randomize_per, test_only=args.test_only)
     recs = [Recording.open(p) for p in args.from_recordings]
-    bar = _bar(args, args.ids, "id")
+    bar = _bar(args, cfg.test_ids if args.test_only else args.ids, "id")
     try:
         with atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:
             info = build_reid_dataset(cfg, tmp, workers=args.workers, recordings=recs,

@@ -111,10 +111,17 @@ class ReidConfig:
             paper's cameras); None = a zoom lens fitted per camera (``FOV_BINS_DEG``).
         image_size: (width, height) of a fixed-FOV ring camera's image, pixels.
         randomize: domain randomization of the ring images (``ring_look``): weather,
-            sun, scene colours and textures per identity, camera effects per camera;
-            the drawn looks go to ``looks.parquet`` (one row per ring image). Vehicle
-            colours are never changed (they are the identity).
+            sun, scene colours and textures, and camera effects; the drawn looks go to
+            ``looks.parquet`` (one row per ring image). Vehicle colours are never
+            changed (they are the identity).
         randomize_seed: seed of those draws.
+        randomize_per: ``"image"`` (default): every ring image draws its own scene, so
+            no look is tied to an identity; ``"identity"``: one scene per identity shared
+            by its cameras (camera effects still per camera). With ``"identity"`` every
+            image of an identity shares its weather and light, a cue a model can match
+            on instead of the vehicle (query and gallery of a test id share it too).
+        test_only: render only the test identities (query and gallery), an evaluation
+            set; ``image_train`` stays empty.
     """
 
     n_ids: int = 700
@@ -136,6 +143,8 @@ class ReidConfig:
     image_size: tuple[int, int] = (800, 600)
     randomize: bool = False
     randomize_seed: int = 0
+    randomize_per: str = "image"
+    test_only: bool = False
 
     @property
     def test_ids(self) -> int:
@@ -199,14 +208,21 @@ def query_cameras(vid: int, cams: list[int], config: ReidConfig) -> set[int]:
     return {int(c) for c in rng.choice(sorted(cams), size=n, replace=False)}
 
 
+RANDOMIZE_PER = ("image", "identity")
+
+
 def ring_look(config: ReidConfig, identity_id: int, cam_index: int):
     """The randomized look of one ring image: weather, sun, materials and the noise/rain
-    seed from ``default_rng([randomize_seed, identity_id])`` (shared by all cameras of the
-    identity, as one moment in one place), the camera effects from
-    ``default_rng([randomize_seed, identity_id, cam_index])``."""
+    seed from ``default_rng([randomize_seed, identity_id, cam_index, 1])`` (per image,
+    the default) or ``default_rng([randomize_seed, identity_id])`` (``randomize_per=
+    "identity"``: shared by all cameras of the identity, as one moment in one place);
+    the camera effects from ``default_rng([randomize_seed, identity_id, cam_index])``."""
     from dashtraj.render.randomize import CAMERA_PATHS, frame_rng, random_look
 
-    scene = random_look(frame_rng(config.randomize_seed, identity_id))
+    if config.randomize_per == "identity":
+        scene = random_look(frame_rng(config.randomize_seed, identity_id))
+    else:
+        scene = random_look(frame_rng(config.randomize_seed, identity_id, cam_index, 1))
     return random_look(frame_rng(config.randomize_seed, identity_id, cam_index), base=scene,
                        paths=CAMERA_PATHS)
 
@@ -227,7 +243,9 @@ def _write_ring_looks(out: Path, names: dict, config: ReidConfig) -> dict:
                          **ring_look(config, vid - 1, cam).flat()})
     cols = list(rows[0]) if rows else ["image"]
     pq.write_table(pa.table({c: [r[c] for r in rows] for c in cols}), out / "looks.parquet")
-    return {"seed": int(config.randomize_seed), "per": "identity (scene) and camera (effects)",
+    per = ("identity (scene) and camera (effects)" if config.randomize_per == "identity"
+           else "image")
+    return {"seed": int(config.randomize_seed), "per": per,
             "looks": "looks.parquet", "ranges": describe()}
 
 
@@ -385,6 +403,9 @@ def build_reid_dataset(config: ReidConfig, out_dir, workers: int = 1, recordings
                            "train and one test id")
     if not 1 <= config.n_cameras <= 999:
         raise DatasetError(f"--cameras {config.n_cameras}: 1 to 999 (c001 … c999)")
+    if config.randomize_per not in RANDOMIZE_PER:
+        raise DatasetError(f"--randomize-per {config.randomize_per!r}: one of "
+                           f"{', '.join(RANDOMIZE_PER)}")
     out = Path(out_dir)
     for s in (*SPLITS, "query_moving"):
         d = out / f"image_{s}"
@@ -395,7 +416,8 @@ def build_reid_dataset(config: ReidConfig, out_dir, workers: int = 1, recordings
             d.mkdir(parents=True)
     map_path = str(town_path(config.town))
     names: dict[str, list[str]] = {s: [] for s in SPLITS}
-    ids = list(range(config.n_ids))
+    ids = [i for i in range(config.n_ids)
+           if not config.test_only or split_of(i + 1, config) == "test"]
     if workers <= 1:
         stage = _Stage(config, map_path, str(out))
         try:
