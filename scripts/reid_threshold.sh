@@ -3,7 +3,10 @@
 # four recordings with training seeds and the ReID set's training identities (identity_id < 650),
 # perceived with the oracle detector at the experiments' image size, then `dashtraj
 # reid-threshold`, which writes M.threshold.json beside the model.
-# Usage: [RULE=eer|precision] [SIZE=640x360] scripts/reid_threshold.sh WORK [MODEL.onnx] [LOOK]
+# The decision recipe is reid-threshold's default: query expansion with the query's track, crops
+# >= 24 px tall and >= 2 px from the image border; rule far: the highest recall with at most
+# MAX_FAR (0.02) of the training negative pairs accepted.
+# Usage: [RULE=far|eer|precision] [MAX_FAR=0.02] [SIZE=640x360] scripts/reid_threshold.sh WORK [MODEL.onnx] [LOOK]
 # (LOOK: the render look preset the model was trained on, or "" for the renderer default)
 set -euo pipefail
 WORK=${1:-runs/reid_threshold}
@@ -24,4 +27,5 @@ for spec in town01:900 town10:901 town01:902 town10:903; do
       ${LOOK:+--look "$LOOK"}
   dbs+=("$db")
 done
-$D reid-threshold "${dbs[@]}" ${MODEL:+--model "$MODEL"} --rule "${RULE:-eer}" --overwrite
+$D reid-threshold "${dbs[@]}" ${MODEL:+--model "$MODEL"} --rule "${RULE:-far}" \
+    --max-far "${MAX_FAR:-0.02}" --overwrite

@@ -96,7 +96,7 @@ def run_ablation(config, out: str | Path,
         tt = target_from_db(dbs[db], road_map, target,
                             switches=StageSwitches(tracks=tracks, positions=pos, reid=reid),
                             embedder=embedder, threshold=th.calibration.threshold,
-                            aggregate=th.calibration.aggregate, gate=config.gate,
+                            recipe=th.calibration.recipe, gate=config.gate,
                             max_distance_m=config.max_distance_m, sample_s=SAMPLE_S,
                             positions_of=positions)
         results, _est, _seen = reconstruct_and_score(road_map, truth, tt.sightings,

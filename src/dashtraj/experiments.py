@@ -28,11 +28,13 @@ scoring after them are the same code for every source):
   exact boxes) into ``sightings.db``, embed every crop with the ReID model
   (`reid_model`, default the shipped one), then re-identify the target
   (`dashtraj.reidentify.vision.target_from_db`): the query is the target's first crop
-  within 15 m, each observer track is the target when the median cosine distance of
-  its crops to the query is at most the threshold calibrated on TRAINING recordings
-  (``M.threshold.json`` beside the model; ``dashtraj reid-threshold``), then the
-  spatio-temporal gate (`gate`). Precision and recall are measured against each
-  track's truth.
+  within 15 m (expanded with the crops of its own track, as the threshold's recipe
+  says), each observer track is the target when the median cosine distance of its
+  crops (adequate size, not cut by the frame) to the query is at most the threshold
+  calibrated on TRAINING recordings with the same recipe (``M.threshold.json`` beside
+  the model; ``dashtraj reid-threshold``), then the spatio-temporal gate (`gate`).
+  Precision and recall are measured against each track's truth. The detector model
+  runs with class-agnostic NMS (`AGNOSTIC_NMS_IOU`).
 
 How the target's tracks are picked among the candidates (`REID_MODES`):
 
@@ -76,6 +78,10 @@ REID_MODES = ("identity", "look-alike", "appearance")
 SAMPLE_S = 0.5
 """One sighting per track every this many seconds (both sources), seconds."""
 
+AGNOSTIC_NMS_IOU = 0.45
+"""Class-agnostic NMS IoU of the detector model in ``vision`` runs: one box per vehicle
+instead of one per orientation class (`dashtraj.perception.detections._ModelDetector`)."""
+
 
 @dataclass(frozen=True, slots=True)
 class ExperimentConfig:
@@ -105,6 +111,8 @@ class ExperimentConfig:
             model instead of the one beside it.
         look: ``vision``: the render look preset (None: the renderer's default).
         every_s: ``detections``/``vision``: the frame period, seconds.
+        workers: ``detections``/``vision``: perception processes (observers in
+            parallel; the database is the same for any count).
     """
 
     town: str = "town10"
@@ -125,6 +133,7 @@ class ExperimentConfig:
     reid_threshold: str | None = None
     look: str | None = None
     every_s: float = 0.1
+    workers: int = 2
 
     def __post_init__(self) -> None:
         if self.reid not in REID_MODES:
@@ -168,6 +177,60 @@ class ExperimentResult:
     true_match: dict = field(default_factory=dict, repr=False)
     """(observer_id, track_id) of each used sighting's track → True when its truth is
     the target (a false match: another vehicle, e.g. a twin, accepted as the target)."""
+    timing: dict = field(default_factory=dict)
+    """Stage name → {"wall_s", "cpu_s"} (`Stages`; not written to the run's files,
+    which stay byte-identical for one seed)."""
+
+
+class Stages:
+    """Wall and CPU seconds per pipeline stage, and a progress line as each starts.
+
+    CPU seconds are this process's (all threads) plus its finished children's (the
+    perception workers): on a shared machine they measure the work, where the wall
+    clock measures the load.
+
+    Example:
+        >>> st = Stages(None)
+        >>> st.start("simulate"); st.stop()["simulate"]["cpu_s"] >= 0
+        True
+    """
+
+    def __init__(self, say: Callable[[str], None] | None = None):
+        self.say = say
+        self.timing: dict[str, dict[str, float]] = {}
+        self._name: str | None = None
+        self._t0 = self._c0 = 0.0
+
+    @staticmethod
+    def cpu_s() -> float:
+        import resource
+        import time
+
+        ch = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return time.process_time() + ch.ru_utime + ch.ru_stime
+
+    def start(self, name: str, line: str | None = None) -> None:
+        """Close the running stage, start `name`, and say `line` (default: the name)."""
+        import time
+
+        self.stop()
+        self._name, self._t0, self._c0 = name, time.perf_counter(), self.cpu_s()
+        if self.say is not None:
+            self.say(line or name)
+
+    def stop(self) -> dict[str, dict[str, float]]:
+        import time
+
+        if self._name is not None:
+            t = self.timing.setdefault(self._name, {"wall_s": 0.0, "cpu_s": 0.0})
+            t["wall_s"] += time.perf_counter() - self._t0
+            t["cpu_s"] += self.cpu_s() - self._c0
+            self._name = None
+        return self.timing
+
+    def note(self, line: str) -> None:
+        if self.say is not None:
+            self.say(line)
 
 
 def run_experiment(config: ExperimentConfig, out: str | Path,
@@ -187,21 +250,23 @@ def run_experiment(config: ExperimentConfig, out: str | Path,
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    stages = Stages(say)
     run_config = RunConfig(map=config.town, seed=config.seed, duration_s=config.duration_s,
                            n_observers=config.observers, n_agents=config.agents,
                            n_twins=config.twins, until_target_arrives=True)
+    stages.start("simulate", f"simulate: {config.town} seed {config.seed}, {config.observers} "
+                             f"observers, {config.agents} agents, up to {config.duration_s:g} s")
     run = simulate(run_config, out / "recording", progress=progress)
     rec = Recording.open(out / "recording")
     road_map = RoadMap.from_file(rec.map_path)
-    if say is not None and config.sightings != "oracle":
-        det = config.detector if config.sightings == "vision" else "oracle"
-        say(f"perceive: {config.observers} observers, detector {det}")
-    sightings, reid = target_sightings(config, rec, out, road_map)
+    stages.note(f"simulate: done, {run.simulated_to_t:.1f} s simulated, {run.vehicles} "
+                "vehicles")
+    sightings, reid = target_sightings(config, rec, out, road_map, stages)
     true_match = reid.pop("_true_match")
-    if say is not None:
-        say(f"re-identified: {len(sightings)} sightings in "
-            f"{len({(s.observer_id, s.track_id) for s in sightings})} tracks; reconstruct "
-            f"({', '.join(config.methods)}) and score")
+    stages.start("reconstruct", f"reconstruct ({', '.join(config.methods)}) from "
+                                f"{len(sightings)} sightings in "
+                                f"{len({(s.observer_id, s.track_id) for s in sightings})} "
+                                "tracks, and score")
     write_sightings(out / "sightings.csv", sightings)
     truth = rec.target_route
     write_trajectory(out / "truth.csv", truth)
@@ -223,7 +288,7 @@ def run_experiment(config: ExperimentConfig, out: str | Path,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return ExperimentResult(config, summary, truth, seen, sightings, estimates, road_map,
-                            true_match)
+                            true_match, stages.stop())
 
 
 def reconstruct_and_score(road_map, truth, sightings: list, methods, out: Path | None = None
@@ -309,42 +374,73 @@ def look_of(config: ExperimentConfig, threshold=None) -> str | None:
 
 
 def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
-                 look: str | None = None) -> None:
-    """Perceive every observer of `rec` into `db_path` with the experiment's settings."""
+                 look: str | None = None, stages: Stages | None = None) -> None:
+    """Perceive every observer of `rec` into `db_path` with the experiment's settings
+    (`config.workers` processes), saying how many frames are done as batches land."""
+    import math
+
     from dashtraj.perception.pipeline import PerceiveConfig, perceive
 
-    perceive(rec, db_path, PerceiveConfig(detector=detector_of(detector), size=config.image_size,
-                                          every_s=config.every_s, look=look,
-                                          reid_range_m=config.max_distance_m))
+    stages = stages or Stages()
+    n_obs = len(rec.meta.get("observer_ids", [])) or config.observers
+    total = n_obs * (math.floor(float(rec.meta.get("simulated_to_t", config.duration_s))
+                                / config.every_s + 1e-9) + 1)
+    stages.start(f"perceive ({detector})",
+                 f"perceive: {n_obs} observers × {total // max(n_obs, 1)} frames "
+                 f"({config.image_size[0] if config.image_size else '?'}×"
+                 f"{config.image_size[1] if config.image_size else '?'}, every "
+                 f"{config.every_s:g} s), detector {detector}, {config.workers} workers")
+    done = [0, 0]
+
+    def progress(n: int) -> None:
+        done[0] += n
+        if done[0] - done[1] >= max(total // 10, 1) or done[0] >= total:
+            done[1] = done[0]
+            stages.note(f"perceive: {done[0]}/~{total} frames")
+
+    s = perceive(rec, db_path, PerceiveConfig(detector=detector_of(detector),
+                                              size=config.image_size, every_s=config.every_s,
+                                              look=look, reid_range_m=config.max_distance_m,
+                                              agnostic_nms_iou=AGNOSTIC_NMS_IOU),
+                 workers=config.workers, progress=progress)
+    stages.note(f"perceive: {s.frames} frames, {s.detections} detections, {s.tracks} tracks, "
+                f"{s.crops} crops within {config.max_distance_m:g} m")
 
 
 def vision_sightings(config: ExperimentConfig, rec, out: Path, road_map,
-                     model=None) -> tuple[list, dict]:
+                     model=None, stages: Stages | None = None) -> tuple[list, dict]:
     """``vision``: perceive into ``out/sightings.db``, then re-identify the target
     (`dashtraj.reidentify.vision.target_from_db`). `model`: (embedder, Threshold), or
     None to load `reid_model_of(config)`."""
     from dashtraj.reidentify.vision import StageSwitches, target_from_db
 
+    stages = stages or Stages()
     db_path = out / "sightings.db"
     target = int(rec.meta.get("target_vehicle_id", 0))
     if config.reid == "identity":
-        perceive_run(config, rec, db_path, config.detector, config.look)
+        perceive_run(config, rec, db_path, config.detector, config.look, stages)
+        stages.start("re-identify", "re-identify: the target's tracks by true identity")
         tt = target_from_db(db_path, road_map, target, switches=StageSwitches(reid="identity"),
                             max_distance_m=config.max_distance_m, sample_s=SAMPLE_S)
         return tt.sightings, {**tt.summary, "look": config.look, "_true_match": tt.true_match}
     embedder, th = model if model is not None else reid_model_of(config)
     look = look_of(config, th)
-    perceive_run(config, rec, db_path, config.detector, look)
+    perceive_run(config, rec, db_path, config.detector, look, stages)
     tt = target_from_db(db_path, road_map, target, embedder=embedder,
-                        threshold=th.calibration.threshold, aggregate=th.calibration.aggregate,
+                        threshold=th.calibration.threshold, recipe=th.calibration.recipe,
                         gate=config.gate, max_distance_m=config.max_distance_m,
-                        sample_s=SAMPLE_S)
+                        sample_s=SAMPLE_S, stages=stages)
+    s = tt.summary
+    stages.note(f"re-identify: {s['reid_candidates']} of {s['reid_tracks']} tracks within "
+                f"{config.max_distance_m:g} m pass the threshold, the gate keeps "
+                f"{s['reid_candidates'] - s['reid_gated_out']}")
     return tt.sightings, {**tt.summary, "look": look, "reid_model": embedder.path.name,
                           "reid_threshold_calibration": th.calibration.to_dict(),
                           "_true_match": tt.true_match}
 
 
-def target_sightings(config: ExperimentConfig, rec, out: Path, road_map) -> tuple[list, dict]:
+def target_sightings(config: ExperimentConfig, rec, out: Path, road_map,
+                     stages: Stages | None = None) -> tuple[list, dict]:
     """The target's sightings from the configured source and re-identification mode.
 
     Candidate tracks: ``identity`` mode: the target's own (by truth: precision and
@@ -361,8 +457,9 @@ def target_sightings(config: ExperimentConfig, rec, out: Path, road_map) -> tupl
     from dashtraj.reidentify.scoring import reid_score
     from dashtraj.trajectory.gating import gate_tracks
 
+    stages = stages or Stages()
     if config.sightings == "vision":
-        return vision_sightings(config, rec, out, road_map)
+        return vision_sightings(config, rec, out, road_map, stages=stages)
     target = int(rec.meta.get("target_vehicle_id", 0))
     wanted = [target] + ([int(v) for v in rec.meta.get("twin_vehicle_ids", [])]
                          if config.reid == "look-alike" else [])
@@ -371,6 +468,8 @@ def target_sightings(config: ExperimentConfig, rec, out: Path, road_map) -> tupl
     if config.sightings == "oracle":
         from dataclasses import replace as _replace
 
+        stages.start("sightings", f"sightings: the oracle's within {config.max_distance_m:g} m,"
+                                  f" noise {config.noise}")
         from dashtraj.world.oracle import OracleConfig, oracle_sightings
 
         for rank, vid in enumerate(wanted):
@@ -388,8 +487,11 @@ def target_sightings(config: ExperimentConfig, rec, out: Path, road_map) -> tupl
         from dashtraj.store import SightingsDB
 
         db_path = out / "sightings.db"
+        stages.start("perceive (oracle)", f"perceive: {config.observers} observers, "
+                                          "detector oracle")
         perceive(rec, db_path, PerceiveConfig(detector="oracle", size=config.image_size,
-                                              reid_range_m=config.max_distance_m))
+                                              reid_range_m=config.max_distance_m),
+                 workers=config.workers)
         with SightingsDB.open(db_path) as db:
             truth = truth_of_tracks(db, config.max_distance_m)
             every = db.sightings(max_distance_m=config.max_distance_m, sample_s=SAMPLE_S)

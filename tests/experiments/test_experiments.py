@@ -50,8 +50,8 @@ def test_aggregate_means():
 
 
 def test_demo_command(tmp_path, capsys):
-    assert main(["demo", "--town", "town01", "--seed", "2", "--agents", "8", "-q",
-                 "-o", str(tmp_path)]) == 0
+    assert main(["demo", "--sightings", "oracle", "--town", "town01", "--seed", "2",
+                 "--agents", "8", "-q", "-o", str(tmp_path)]) == 0
     text = capsys.readouterr().out
     assert "sightings of the target" in text and "hmm" in text
     assert (tmp_path / "trajectory.png").stat().st_size > 10_000

@@ -19,8 +19,8 @@ KEYS = ("sspd_whole_m", "sspd_seen_m", "hausdorff_whole_m", "hausdorff_seen_m")
 
 
 def test_json_has_the_issues_keys_per_experiment_and_mean(tmp_path, capsys):
-    assert main(["experiments", "--towns", "town01", "--seeds", "2-2", "--twins", "2", "--json",
-                 "-o", str(tmp_path / "x")]) == 0
+    assert main(["experiments", "--sightings", "oracle", "--towns", "town01", "--seeds", "2-2",
+                 "--twins", "2", "--json", "-o", str(tmp_path / "x")]) == 0
     out = json.loads(capsys.readouterr().out)
     (e,) = out["experiments"]
     assert e["experiment"] == "town01_seed2"

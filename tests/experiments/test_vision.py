@@ -36,24 +36,35 @@ def spy(monkeypatch):
 @pytest.mark.slow
 def test_demo_from_pixels_finds_the_target_and_writes_every_file(tmp_path, gl_available,
                                                                   capsys, spy):
+    # `dashtraj demo`'s defaults: from pixels, the shipped detector and ReID model and the
+    # threshold beside it, 640 x 360 frames every 0.2 s, two perception workers
     out = tmp_path / "demo"
-    assert main(["demo", "--sightings", "vision", "--detector", "oracle", "--town", "town01",
-                 "--seed", "0", "--observers", "3", "--agents", "10", "--duration", "30",
-                 "--size", "256x144", "-q", "-o", str(out)]) == 0
-    printed = capsys.readouterr().out
-    assert "from pixels, detector oracle" in printed and "ReID:" in printed
+    assert main(["demo", "--town", "town01", "--seed", "0", "--observers", "3", "--agents",
+                 "10", "--duration", "30", "-o", str(out)]) == 0
+    captured = capsys.readouterr()
+    printed, progress = captured.out, captured.err
+    assert "from pixels, detector shipped" in printed and "ReID:" in printed
+    assert "time: simulate" in printed
+    # a progress line for every stage
+    for stage in ("simulate:", "perceive:", "embed:", "re-identify:", "reconstruct",
+                  "picture:"):
+        assert f"] {stage}" in progress, stage
     for name in ("recording/meta.json", "sightings.db", "sightings.csv", "truth.csv",
                  "estimate_shortest-path.csv", "estimate_hmm.csv", "summary.json",
                  "trajectory.png"):
         assert (out / name).is_file(), name
     s = json.loads((out / "summary.json").read_text())
-    # the threshold is the one calibrated on training recordings, beside the shipped model
+    assert s["config"]["sightings"] == "vision" and s["config"]["detector"] == "shipped"
+    assert s["config"]["every_s"] == 0.2 and s["config"]["image_size"] == [640, 360]
+    # the threshold and recipe are the ones calibrated on training recordings, beside the
+    # shipped model
     th = load_threshold(shipped_model_path())
     assert s["reid_threshold"] == th.calibration.threshold
+    assert s["reid_query"] == th.calibration.query
     assert {src["seed"] for src in th.provenance["sources"]}.isdisjoint(range(5))
     assert s["query"]["observer_id"] > 0 and s["reid_tracks"] >= 2
     # it finds the target: every accepted track is the target's (the issue's precision 1.0
-    # on this run); how many of its tracks it finds depends on the ReID model
+    # on this run); how many of its tracks it finds depends on the models
     assert s["reid_true_matches"] >= 1
     assert s["reid_precision"] == 1.0 and s["reid_recall"] > 0.0
     assert s["sightings"] > 0 and set(s["methods"]) == {"shortest-path", "hmm"}
@@ -65,10 +76,11 @@ def test_demo_from_pixels_finds_the_target_and_writes_every_file(tmp_path, gl_av
     # the calibration command's mechanics on this database (a real threshold file comes
     # from training recordings: make reid-threshold)
     t = tmp_path / "t.json"
-    assert main(["reid-threshold", str(out / "sightings.db"), "-o", str(t), "--rule", "eer",
-                 "--max-queries", "100"]) == 0
+    assert main(["reid-threshold", str(out / "sightings.db"), "-o", str(t), "--rule", "far",
+                 "--max-far", "0.05", "--max-queries", "100"]) == 0
     cal = load_threshold(shipped_model_path(), t)
-    assert cal.calibration.rule == "eer" and cal.calibration.positives > 0
+    assert cal.calibration.rule == "far" and cal.calibration.positives > 0
+    assert cal.calibration.query == "track" and cal.calibration.max_far == 0.05
     assert cal.provenance["sources"][0]["look"] == s["look"] == th.provenance["sources"][0]["look"]
 
 

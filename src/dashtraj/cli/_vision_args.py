@@ -6,19 +6,30 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from dashtraj.cli._args import ArgumentError, image_size, positive_float
+from dashtraj.cli._args import ArgumentError, image_size, int_at_least, positive_float
 
 VISION_SIZE = (640, 360)
 """Default image size of ``--sightings vision``, pixels (the shipped detector's training
 frames; its input is 640 × 384)."""
 
+VISION_EVERY_S = 0.2
+"""Default frame period of ``--sightings vision``, seconds: the detector runs on every
+second frame of the 10 Hz dashcam (5 frames/s; the sightings are sampled every 0.5 s).
+Half the perception cost of 0.1 s; the README's "From pixels, fast" section measures
+what it costs in recall."""
 
-def add_vision_args(p: argparse.ArgumentParser, default_sightings: str = "oracle") -> None:
+DETECTIONS_EVERY_S = 0.1
+"""Default frame period of ``--sightings detections``, seconds."""
+
+
+def add_vision_args(p: argparse.ArgumentParser, default_sightings: str | None = "oracle") -> None:
+    """The vision options; `default_sightings` None leaves ``--sightings`` None for the
+    command to resolve."""
     p.add_argument("--sightings", choices=("oracle", "detections", "vision"),
                    default=default_sightings,
-                   help="the target's sightings: the oracle with --noise; the camera pipeline "
-                        "with the target's tracks picked by true identity (detections); or from "
-                        "pixels with appearance ReID (vision)")
+                   help="the target's sightings: from pixels with appearance ReID (vision, "
+                        "the default); the oracle with --noise; or the camera pipeline "
+                        "with the target's tracks picked by true identity (detections)")
     p.add_argument("--detector", default="shipped", metavar="shipped|oracle|M.onnx",
                    help="vision: the detector (default shipped: the package's ONNX model; "
                         "oracle: the renderer's exact boxes)")
@@ -32,8 +43,13 @@ def add_vision_args(p: argparse.ArgumentParser, default_sightings: str = "oracle
                         "calibrated on, i.e. the models' domain)")
     p.add_argument("--size", type=image_size, default=None, metavar="WxH",
                    help="detections/vision: image size (vision default 640x360)")
-    p.add_argument("--every", type=positive_float, default=0.1, metavar="S",
-                   help="detections/vision: frame period, seconds (default 0.1 = 10 fps)")
+    p.add_argument("--every", type=positive_float, default=None, metavar="S",
+                   help=f"detections/vision: frame period, seconds (default: vision "
+                        f"{VISION_EVERY_S:g} = {1 / VISION_EVERY_S:g} frames/s, detections "
+                        f"{DETECTIONS_EVERY_S:g})")
+    p.add_argument("--workers", type=int_at_least(1), default=2, metavar="N",
+                   help="detections/vision: perception processes, observers in parallel "
+                        "(default 2: the two cores of the reference machine)")
 
 
 def vision_settings(args) -> dict:
@@ -59,9 +75,11 @@ def vision_settings(args) -> dict:
         size = (w, h)
     elif args.sightings == "vision":
         size = VISION_SIZE
+    every = args.every if args.every is not None else (
+        VISION_EVERY_S if args.sightings == "vision" else DETECTIONS_EVERY_S)
     return {"sightings": args.sightings, "detector": args.detector,
             "reid_model": args.reid_model, "reid_threshold": args.reid_threshold,
-            "look": args.look, "image_size": size, "every_s": args.every}
+            "look": args.look, "image_size": size, "every_s": every, "workers": args.workers}
 
 
 def check_reid_model(config) -> None:

@@ -1,9 +1,11 @@
-"""`dashtraj demo`: the main job on the built-in world, end to end.
+"""`dashtraj demo`: the main job on the built-in world, end to end, from pixels.
 
-simulate (observers, one target, agents) → oracle sightings with the paper's
-localization noise → reconstruct the target's route (the paper's shortest-path
-method and dashtraj's HMM) → score against the true route (SSPD, Hausdorff) →
-a top view like the paper's Fig. 6.
+simulate (observers, one target, agents) → perceive every observer's dashcam frames
+(shipped detector, tracker, localizer) → embed the crops (shipped ReID model) →
+re-identify the target (calibrated threshold, road-network gate) → reconstruct its
+route (the paper's shortest-path method and dashtraj's HMM) → score against the true
+route (SSPD, Hausdorff) → a top view like the paper's Fig. 6. ``--sightings oracle``:
+the recording's truth with the paper's localization noise instead of pixels.
 """
 
 from __future__ import annotations
@@ -17,18 +19,19 @@ from dashtraj.cli._vision_args import add_vision_args
 from dashtraj.outputs import add_output_args
 
 DESCRIPTION = """\
-The main job on a built-in town, end to end: simulate one target car
-driving to a destination with observer cars (dashcams) and agents around it, until it
-arrives; take oracle sightings of the target within 15 m of a dashcam (with the paper's
-localization noise by default); reconstruct its route with the paper's method
-(shortest-path) and dashtraj's HMM; score both against the true route (SSPD, Hausdorff,
-metres) and draw a top view like the paper's Fig. 6.
+The main job on a built-in town, end to end from pixels: simulate one target car driving
+to a destination with observer cars (dashcams) and agents around it, until it arrives;
+perceive every observer's frames (the shipped detector, or --detector oracle; 640x360, 5
+frames/s, observers in --workers processes) into OUT/sightings.db; embed the crops with the
+shipped ReID model; take the target's first crop within 15 m as the query and pick its
+tracks with the threshold calibrated on training recordings and the road-network gate;
+reconstruct its route with the paper's method (shortest-path) and dashtraj's HMM; score
+both against the true route (SSPD, Hausdorff, metres) and draw a top view like the paper's
+Fig. 6, each used sighting marked as a true or false match. Every stage prints a progress
+line (stderr) and the summary ends with the wall and CPU seconds of each.
 
---sightings vision runs it from pixels instead: perceive every observer (the shipped
-detector, or --detector oracle) into OUT/sightings.db, embed the crops with the ReID model,
-pick the target's tracks with the threshold calibrated on training recordings and the
-road-network gate, then reconstruct and score the same way; the picture marks each used
-sighting as a true or false match.
+--sightings oracle takes the recording's truth within 15 m of a dashcam with the paper's
+localization noise instead of pixels (the reference; seconds).
 
 Writes OUT/recording/, sightings.csv, truth.csv, estimate_<method>.csv, summary.json and
 trajectory.png. The built-in towns town01 and town10 are generated after CARLA's (not
@@ -47,7 +50,7 @@ def register(sub) -> None:
                    help="longest drive, seconds (the run ends when the target arrives)")
     p.add_argument("--noise", choices=("paper", "none"), default="paper",
                    help="localization noise of the oracle sightings")
-    add_vision_args(p)
+    add_vision_args(p, default_sightings="vision")
     p.add_argument("--gate", action=argparse.BooleanOptionalAction, default=True,
                    help="vision: the spatio-temporal gate after the appearance decision")
     p.add_argument("-o", "--output", default="runs/demo", help="output folder")
@@ -87,8 +90,24 @@ def print_scores(summary: dict) -> None:
               f"{r['seen_sspd_m']:16.2f} m{r['seen_hausdorff_m']:12.2f} m")
 
 
-def _say(line: str) -> None:
-    print(f"[demo] {line}", file=sys.stderr, flush=True)
+def stage_printer(name: str):
+    """A ``say`` callback: ``[name   12.3 s] line`` on stderr (seconds since created)."""
+    import time
+
+    t0 = time.perf_counter()
+
+    def say(line: str) -> None:
+        print(f"[{name} {time.perf_counter() - t0:6.1f} s] {line}", file=sys.stderr, flush=True)
+
+    return say
+
+
+def timing_line(timing: dict) -> str:
+    """``time: simulate 2.1 s (CPU 2.0 s), ...; total 80.3 s (CPU 150.2 s)``."""
+    parts = [f"{k} {v['wall_s']:.1f} s (CPU {v['cpu_s']:.1f} s)" for k, v in timing.items()]
+    wall = sum(v["wall_s"] for v in timing.values())
+    cpu = sum(v["cpu_s"] for v in timing.values())
+    return f"time: {', '.join(parts)}; total {wall:.1f} s (CPU {cpu:.1f} s)"
 
 
 def run(args) -> int:
@@ -103,20 +122,33 @@ def run(args) -> int:
                               reid="appearance" if vision["sightings"] == "vision" else "identity",
                               gate=args.gate, **vision)
     check_reid_model(config)
+    from dashtraj.cli._args import ArgumentError
+    from dashtraj.world.towns import UnknownTownError, resolve_map
+
+    try:  # before any work starts
+        resolve_map(args.town)
+    except UnknownTownError as exc:
+        raise ArgumentError(f"--town {args.town!r} is neither an .xodr file nor a built-in "
+                            f"town ({exc})") from None
     update, bar = progress_bar(args.duration, args.quiet)
+    say = None if args.quiet else stage_printer("demo")
     with atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:
         try:
-            result = run_experiment(config, tmp, progress=update,
-                                    say=None if args.quiet else _say)
+            result = run_experiment(config, tmp, progress=update, say=say)
         finally:
             if bar is not None:
                 bar.close()
+        from dashtraj.experiments import Stages
+
+        st = Stages(say)
+        st.start("picture", "picture: trajectory.png")
         plot_experiment(result, tmp / "trajectory.png")
+        timing = {**result.timing, **st.stop()}
         png = out / "trajectory.png"
         summary = {**result.summary, "picture": str(png)}
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     if args.json:
-        print(json.dumps(summary, indent=2))
+        print(json.dumps({**summary, "timing": timing}, indent=2))
         return 0
     arrived = (f"target arrived at {summary['target_arrived_t']:.1f} s"
                if summary["target_arrived_t"] is not None else "target did not arrive")
@@ -136,5 +168,6 @@ def run(args) -> int:
     if summary["methods"]:
         print(f"(the paper: mean SSPD 5.13 m over ten experiments; the seen stretch is "
               f"{summary['seen_route_m']:.0f} of {summary['true_route_m']:.0f} m)")
+    print(timing_line(timing))
     print(f"files: {out}/  picture: {png}")
     return 0

@@ -14,11 +14,13 @@ from dashtraj.outputs import add_output_args
 DESCRIPTION = """\
 Run the paper's driving experiments (§II.G) end to end and score them: for every town and
 seed, simulate the town with 4 observers, one target and 20 agents until the target arrives,
-take oracle sightings of the target within 15 m of a dashcam (with the paper's localization
-noise by default), reconstruct its route with the paper's method (shortest-path) and with
+take the target's sightings within 15 m of a dashcam from pixels (--sightings vision, the
+default; see below) or from the oracle (--sightings oracle: the truth with the paper's
+localization noise), reconstruct its route with the paper's method (shortest-path) and with
 dashtraj's HMM, and score both against the true route with SSPD and Hausdorff distance
 (metres), over the whole trip and over the stretch between the first and last sighting.
-The default is the paper's set: five seeds in town01 and five in town10.
+The default is the paper's set: five seeds in town01 and five in town10. Progress lines go
+to stderr (-q: none); each row ends with the run's wall and CPU seconds.
 
 --sightings detections runs the camera pipeline instead of the oracle (perceive with the
 oracle detector: render, track, localize, map-match into OUT/<run>/sightings.db) and picks
@@ -30,7 +32,8 @@ construction. --twins N adds N agents of the target's exact model and colour; wi
 cannot tell exact look-alikes apart) and the spatio-temporal gate on the lane graph keeps
 the chain the target could have driven (--no-gate: keep all, the paper's way).
 
---sightings vision runs the paper's whole pipeline from pixels: perceive every observer
+--sightings vision (the default; --reid look-alike defaults to the oracle) runs the paper's
+whole pipeline from pixels: perceive every observer
 (--detector: the shipped ONNX model, or oracle) into OUT/<run>/sightings.db, embed every
 crop with the ReID model, take the target's first crop within 15 m as the query, decide
 per observer track with the threshold calibrated on TRAINING recordings (beside the model;
@@ -58,7 +61,7 @@ def register(sub) -> None:
                    help="seeds per town: a range A-B, a list a,b,c, or a count N (0..N-1)")
     p.add_argument("--noise", choices=("paper", "none"), default="paper",
                    help="localization noise of the oracle sightings")
-    add_vision_args(p)
+    add_vision_args(p, default_sightings=None)
     p.add_argument("--twins", type=count, default=0, metavar="N",
                    help="agents of the target's exact model and colour (default 0)")
     p.add_argument("--reid", choices=("identity", "look-alike", "appearance"), default=None,
@@ -74,6 +77,8 @@ def register(sub) -> None:
     add_output_args(p)
     p.add_argument("--plots", action="store_true", help="also save a picture per experiment")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress lines on stderr")
     p.set_defaults(func=run)
 
 
@@ -84,7 +89,12 @@ def town_label(town: str) -> str:
 
 def run(args) -> int:
     from dashtraj.cli._args import ArgumentError
-    from dashtraj.cli._vision_args import VISION_SIZE, check_reid_model, vision_settings
+    from dashtraj.cli._vision_args import (
+        VISION_EVERY_S,
+        VISION_SIZE,
+        check_reid_model,
+        vision_settings,
+    )
     from dashtraj.experiments import (
         PAPER_SSPD_M,
         ExperimentConfig,
@@ -98,9 +108,13 @@ def run(args) -> int:
     from dashtraj.world.towns import UnknownTownError, resolve_map
 
     out = check_output(args.output, overwrite=args.overwrite, kind="dir")
+    if args.sightings is None:  # from pixels, except the look-alike test (oracle tracks)
+        args.sightings = "oracle" if args.reid == "look-alike" else "vision"
     vision = vision_settings(args)
     if args.ablation:
         vision["sightings"] = "vision"
+        if args.every is None:
+            vision["every_s"] = VISION_EVERY_S
     reid = args.reid or ("appearance" if vision["sightings"] == "vision" else "identity")
     if args.ablation and reid != "appearance":
         raise ArgumentError(f"--ablation with --reid {reid}: the ablation's last stage is "
@@ -117,17 +131,25 @@ def run(args) -> int:
                                 f"({exc})") from None
     if args.ablation:
         return run_ablation_suite(args, base, out)
+    from dashtraj.cli.cmd_demo import stage_printer
+
     summaries = []
     names = []
     header = False
+    total = {"wall_s": 0.0, "cpu_s": 0.0}
+    n_runs = len(args.towns) * len(args.seeds)
     with atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:
         for town in args.towns:
             for seed in args.seeds:
                 cfg = replace(base, town=town, seed=seed)
                 name = f"{town_label(town)}_seed{seed}"
-                res = run_experiment(cfg, tmp / name)
+                say = None if args.quiet else stage_printer(
+                    f"{name} {len(names) + 1}/{n_runs}")
+                res = run_experiment(cfg, tmp / name, say=say)
                 if args.plots:
                     plot_experiment(res, tmp / name / "trajectory.png")
+                for k in total:
+                    total[k] += sum(v[k] for v in res.timing.values())
                 summaries.append(res.summary)
                 names.append(name)
                 if args.json:
@@ -139,8 +161,11 @@ def run(args) -> int:
                     header = True
                 row = "  ".join(f"{m[k]['sspd_m']:24.2f} / {m[k]['seen_sspd_m']:5.2f} m"
                                 if k in m else f"{'(no sightings)':>34s}" for k in cfg.methods)
+                wall = sum(v["wall_s"] for v in res.timing.values())
+                cpu = sum(v["cpu_s"] for v in res.timing.values())
                 print(f"{name:16s} {res.summary['sightings']:9d} "
-                      f"{res.summary['observers_that_saw_target']:9d}   {row}", flush=True)
+                      f"{res.summary['observers_that_saw_target']:9d}   {row}   "
+                      f"({wall:.0f} s, CPU {cpu:.0f} s)", flush=True)
         agg = aggregate(summaries)
         reid = aggregate_reid(summaries)
         (tmp / "summary.json").write_text(
@@ -153,7 +178,7 @@ def run(args) -> int:
                 "experiments": len(summaries), **reid}
         print(json.dumps({"experiments": [figures(n, s) for n, s in zip(names, summaries,
                                                                           strict=True)],
-                          "mean": mean, "aggregate": agg}, indent=2))
+                          "mean": mean, "aggregate": agg, "timing": total}, indent=2))
         return 0
     print(f"\nmean over {len(summaries)} experiments (SSPD whole trip / seen stretch; "
           f"the paper: {PAPER_SSPD_M} m whole trip):")
@@ -169,6 +194,8 @@ def run(args) -> int:
     print(f"  ReID over {reid['reid_true_matches'] + reid['reid_false_matches']} accepted "
           f"tracks: precision {'-' if p_ is None else f'{p_:.3f}'}, recall "
           f"{'-' if r_ is None else f'{r_:.3f}'} ({how})")
+    print(f"time: {total['wall_s']:.0f} s wall, {total['cpu_s']:.0f} CPU-s for "
+          f"{len(summaries)} experiments")
     print(f"files: {out}/")
     return 0
 

@@ -148,29 +148,74 @@ def iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 class _ModelDetector:
     """Adapter of the ONNX run time (`dashtraj.perception.detect.YoloDetector`) to `Detector`;
-    each detection also gets the vehicle id of the truth box it matches (for evaluation)."""
+    each detection also gets the vehicle id of the truth box it matches (for evaluation).
 
-    def __init__(self, path: Path):
+    ``agnostic_iou``: also suppress boxes of *other* classes overlapping a better one by
+    more than this IoU (class-agnostic NMS; None: class-aware only, the model's own
+    NMS). The 15 classes are one vehicle seen from the front, back or side, so a
+    vehicle has exactly one; class-aware NMS keeps one box per orientation class on
+    the same car (measured on town01 seed 20, 120 frames, the shipped detector: 76
+    duplicate boxes on a true vehicle; agnostic IoU 0.5: 6, 0.4: none, same recall of
+    vehicles >= 24 px; 0.3 lost some). Each duplicate becomes a duplicate track. With
+    it, a box that lies mostly inside a better one and is a sizeable part of it (a
+    sub-box of the same vehicle, IoU below the threshold) is dropped too
+    (`_part_of_better`)."""
+
+    def __init__(self, path: Path, threads: int = 2, agnostic_iou: float | None = None):
         from dashtraj.perception.detect import YoloDetector
 
         self.name = path.name
-        self._model = YoloDetector(path)
+        self._model = YoloDetector(path, threads=threads)
+        self.agnostic_iou = agnostic_iou
 
     def detect(self, frame) -> Detections:
+        from dashtraj.perception.detect import nms
+
         out = self._model.detect([frame.frame_data.rgb])[0]
-        d = Detections(np.asarray(out.boxes, np.float64).reshape(-1, 4),
-                       np.asarray(out.scores, np.float64),
-                       np.asarray(out.class_ids, np.int64),
-                       np.full(len(out.scores), -1, np.int64))
+        boxes = np.asarray(out.boxes, np.float64).reshape(-1, 4)
+        scores = np.asarray(out.scores, np.float64)
+        classes = np.asarray(out.class_ids, np.int64)
+        if self.agnostic_iou is not None and len(scores) > 1:
+            keep = np.sort(nms(boxes, scores, self.agnostic_iou))
+            boxes, scores, classes = boxes[keep], scores[keep], classes[keep]
+            keep = np.flatnonzero(~_part_of_better(boxes, scores))
+            boxes, scores, classes = boxes[keep], scores[keep], classes[keep]
+        d = Detections(boxes, scores, classes, np.full(len(scores), -1, np.int64))
         return Detections(d.boxes, d.scores, d.class_ids, match_truth(d, truth_of(frame)))
+
+
+def _part_of_better(boxes: np.ndarray, scores: np.ndarray, inside: float = 0.8,
+                    part: float = 0.25) -> np.ndarray:
+    """(N,) bool: boxes with at least `inside` of their area within a higher-scoring box
+    whose area they are at least `part` of (a piece of the same vehicle; a far vehicle
+    seen past a near one is a smaller fraction of its box).
+
+    Example:
+        >>> _part_of_better(np.array([[0, 0, 50, 40], [25, 10, 50, 40], [40, 30, 45, 34]]),
+        ...                 np.array([0.9, 0.8, 0.7])).tolist()
+        [False, True, False]
+    """
+    b = np.asarray(boxes, np.float64).reshape(-1, 4)
+    s = np.asarray(scores, np.float64)
+    area = (b[:, 2] - b[:, 0]).clip(0) * (b[:, 3] - b[:, 1]).clip(0)
+    iw = (np.minimum(b[:, None, 2], b[None, :, 2]) - np.maximum(b[:, None, 0], b[None, :, 0]))
+    ih = (np.minimum(b[:, None, 3], b[None, :, 3]) - np.maximum(b[:, None, 1], b[None, :, 1]))
+    inter = iw.clip(0) * ih.clip(0)  # inter[i, j]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac_in = np.where(area[:, None] > 0, inter / area[:, None], 0.0)
+        frac_of = np.where(area[None, :] > 0, area[:, None] / area[None, :], 0.0)
+    better = s[None, :] > s[:, None]
+    return np.any(better & (frac_in >= inside) & (frac_of >= part), axis=1)
 
 
 DETECTORS: tuple[str, ...] = ("oracle",)
 """Detector names; any other value must be a path to an .onnx model."""
 
 
-def build_detector(name: str) -> Detector:
-    """``"oracle"`` → `OracleDetector`; a path to an ``.onnx`` file → the ONNX detector.
+def build_detector(name: str, threads: int = 2, agnostic_iou: float | None = None) -> Detector:
+    """``"oracle"`` → `OracleDetector`; a path to an ``.onnx`` file → the ONNX detector
+    (`threads`: its onnxruntime intra-op threads; `agnostic_iou`: class-agnostic NMS,
+    see `_ModelDetector`).
 
     Raises:
         DetectorError: neither a known name nor an existing .onnx file.
@@ -183,4 +228,4 @@ def build_detector(name: str) -> Detector:
                             "model")
     if not p.is_file():
         raise DetectorError(f"--detector {p}: no such model file")
-    return _ModelDetector(p)
+    return _ModelDetector(p, threads, agnostic_iou)

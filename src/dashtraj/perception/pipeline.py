@@ -52,6 +52,11 @@ class PerceiveConfig:
         jpeg_quality: crop JPEG quality. batch_frames: frames per committed batch.
         look: a `dashtraj.render.look` preset name for the frames, or None for the
             renderer's default look.
+        threads: onnxruntime threads of the detector model in each process (None: 2 in
+            one process, 1 per worker with ``workers > 1``, so that k workers use k
+            cores).
+        agnostic_nms_iou: the detector model's class-agnostic NMS IoU (None: its
+            class-aware NMS only; `dashtraj.perception.detections._ModelDetector`).
     """
 
     detector: str = "oracle"
@@ -67,6 +72,8 @@ class PerceiveConfig:
     batch_frames: int = 50
     observers: tuple[int, ...] | None = field(default=None)
     look: str | None = None
+    threads: int | None = None
+    agnostic_nms_iou: float | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -136,7 +143,8 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
     from dashtraj.datasets.frames import crop_vehicle, encode_jpeg, recording_frames
 
     spec = image_camera(recording, config.size)
-    detector = build_detector(config.detector)
+    detector = build_detector(config.detector, 2 if config.threads is None else config.threads,
+                              config.agnostic_nms_iou)
     tracker = build_tracker(config.tracker, spec)
     localizer = build_localizer(config.localizer, config.mu_h)
     tstats = _TrackStats()
@@ -216,6 +224,8 @@ def _worker(recording_path: str, observers: list[int], config_dict: dict, out_q,
         from dashtraj.world.recording import Recording
 
         config = PerceiveConfig.from_dict(config_dict)
+        if config.threads is None:
+            config = replace(config, threads=1)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             rec = Recording.open(recording_path)

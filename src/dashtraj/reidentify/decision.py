@@ -24,6 +24,21 @@ Aggregation (`AGGREGATORS`, chosen by name; default ``median``):
 - ``kmin-mean``: mean of the k = ceil(n/2) smallest: between ``min`` and ``median``,
   for models whose bad crops are frequent.
 
+What a track's distance is made of (`Recipe`, recorded in the `Calibration` so that
+the run decides exactly as the threshold was calibrated):
+
+- the crops used (`adequate_crops`): a crop whose box is shorter than ``min_box_px``
+  or comes within ``border_px`` of the image border (a vehicle cut by the frame: half
+  a car looks like any car) is left out of both the query and the gallery tracks; a
+  track without any adequate crop is not decided (never the target);
+- the query (`QUERIES`): ``crop``, the target's first crop within 15 m as in
+  ``calc_traj`` (``veh_t1.image``); or ``track``, *query expansion*: the mean of the
+  L2-normalised embeddings of the adequate crops of the query's own track (the crops
+  the tracker joined to the query crop; with it if it is adequate), re-normalised.
+  Averaging cancels what differs from crop to crop (viewpoint, blur, truncation) and
+  keeps the vehicle's appearance, so a weak embedding separates tracks better than
+  it separates crops.
+
 Calibration forms the same decisions the run will make: a query is one embedding
 of identity A seen by camera c; a gallery "track" is the group of embeddings of one
 identity by one camera c' ≠ c (the VeRi protocol's cross-camera rule); its
@@ -35,6 +50,10 @@ otherwise. The threshold is chosen by `RULES`:
 - ``precision``: the highest recall whose precision on the calibration pairs is at
   least `target_precision` (the pairs' balance -- one identity among many -- is the
   run's: one target among dozens of tracks).
+- ``far``: the highest recall whose false-accept rate on the negative pairs is at
+  most `max_far`: a bound on how many of a run's other tracks pass the threshold
+  (``max_far`` × tracks in range) and are left to the gate, for a model that reaches
+  no useful recall at precision 0.99.
 
 Candidate thresholds are the midpoints between consecutive distinct pair distances
 (so a threshold never sits on a training distance), plus one below the smallest
@@ -69,7 +88,10 @@ AGGREGATORS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
 }
 """Track aggregators by name: (..., n) detection distances → (...) track distances."""
 
-RULES: tuple[str, ...] = ("eer", "precision")
+QUERIES: tuple[str, ...] = ("crop", "track")
+"""What the query is (module docstring): one crop (the paper) or the query's track."""
+
+RULES: tuple[str, ...] = ("eer", "precision", "far")
 """Threshold rules of `calibrate_threshold` / `threshold_from_pairs`."""
 
 
@@ -114,6 +136,66 @@ def cosine_distances(query: np.ndarray, gallery: np.ndarray, atol: float = 1e-3)
                                     f"{n[bad[0]]:.4f}, expected L2-normalised embeddings")
     d = np.clip(1.0 - q2 @ g.T, 0.0, 2.0)
     return d[0] if one else d
+
+
+@dataclass(frozen=True, slots=True)
+class Recipe:
+    """How a track's distance to the query is formed (module docstring).
+
+    Attributes:
+        aggregate: a name in `AGGREGATORS`.
+        query: a name in `QUERIES`.
+        min_box_px: crops whose box is shorter than this are not used, pixels (0: all).
+        border_px: crops whose box comes within this of the image border are not
+            used, pixels (None: truncated crops are used too).
+    """
+
+    aggregate: str = "median"
+    query: str = "crop"
+    min_box_px: float = 0.0
+    border_px: float | None = None
+
+    def __post_init__(self) -> None:
+        aggregator(self.aggregate)
+        if self.query not in QUERIES:
+            raise ReidDecisionError(f"unknown query {self.query!r}; valid: {', '.join(QUERIES)}")
+        if not (math.isfinite(self.min_box_px) and self.min_box_px >= 0):
+            raise ReidDecisionError(f"min_box_px must be >= 0, got {self.min_box_px!r}")
+        if self.border_px is not None and not (math.isfinite(self.border_px)
+                                               and self.border_px >= 0):
+            raise ReidDecisionError(f"border_px must be >= 0 or None, got {self.border_px!r}")
+
+
+PAPER_RECIPE = Recipe("median", "crop", 0.0, None)
+"""The paper's query (one crop) and every crop, with the median over each track."""
+
+EXPANDED_RECIPE = Recipe("median", "track", 24.0, 2.0)
+"""Query expansion with the query's track, crops at least 24 px tall (a car at ≈ 13 m
+in a 640-px-wide, 90° frame) and at least 2 px from the image border; the default of
+``dashtraj reid-threshold``."""
+
+
+def adequate_crops(boxes: np.ndarray, width_px: int, height_px: int,
+                   recipe: Recipe) -> np.ndarray:
+    """(N,) bool: which crops `recipe` uses.
+
+    Args:
+        boxes: (N, 4) x0, y0, x1, y1, image pixels.
+        width_px, height_px: the image size, pixels.
+        recipe: its ``min_box_px`` and ``border_px``.
+
+    Example:
+        >>> adequate_crops(np.array([[0, 10, 50, 60], [100, 10, 150, 30],
+        ...                          [100, 10, 150, 60]]), 640, 360, EXPANDED_RECIPE).tolist()
+        [False, False, True]
+    """
+    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    ok = (b[:, 3] - b[:, 1]) >= recipe.min_box_px
+    if recipe.border_px is not None:
+        m = recipe.border_px
+        ok &= ((b[:, 0] > m) & (b[:, 1] > m) & (b[:, 2] < width_px - m)
+               & (b[:, 3] < height_px - m))
+    return ok
 
 
 @dataclass(frozen=True, slots=True)
@@ -186,6 +268,10 @@ class Calibration:
         false_accept_rate: share of negative pairs accepted.
         positives, negatives: pair counts.
         target_precision: the asked precision (rule "precision"), or None.
+        max_far: the asked false-accept rate (rule "far"), or None.
+        query, min_box_px, border_px: the `Recipe` the pairs were formed with (the
+            run must decide the same way; files written before these fields existed
+            read as the paper's single query crop and every crop).
     """
 
     threshold: float
@@ -197,6 +283,14 @@ class Calibration:
     positives: int
     negatives: int
     target_precision: float | None = None
+    max_far: float | None = None
+    query: str = "crop"
+    min_box_px: float = 0.0
+    border_px: float | None = None
+
+    @property
+    def recipe(self) -> Recipe:
+        return Recipe(self.aggregate, self.query, self.min_box_px, self.border_px)
 
     def to_dict(self) -> dict:
         return {f: getattr(self, f) for f in self.__slots__}
@@ -204,7 +298,7 @@ class Calibration:
 
 def threshold_from_pairs(positive: np.ndarray, negative: np.ndarray, rule: str = "eer",
                          target_precision: float = 0.99,
-                         aggregate: str = "median") -> Calibration:
+                         aggregate: str = "median", max_far: float = 0.02) -> Calibration:
     """Pick a threshold from positive and negative pair distances (rules: module docstring).
 
     Args:
@@ -213,6 +307,7 @@ def threshold_from_pairs(positive: np.ndarray, negative: np.ndarray, rule: str =
         rule: "eer" or "precision".
         target_precision: for rule "precision", in (0, 1].
         aggregate: recorded in the result (the aggregator that made the distances).
+        max_far: for rule "far", in [0, 1].
 
     Returns:
         `Calibration`. With rule "precision" and no threshold reaching the target,
@@ -240,6 +335,8 @@ def threshold_from_pairs(positive: np.ndarray, negative: np.ndarray, rule: str =
             raise ReidDecisionError(f"calibration: a {name} pair distance is not finite")
     if rule == "precision" and not 0.0 < target_precision <= 1.0:
         raise ReidDecisionError(f"target precision must be in (0, 1], got {target_precision!r}")
+    if rule == "far" and not 0.0 <= max_far <= 1.0:
+        raise ReidDecisionError(f"max false-accept rate must be in [0, 1], got {max_far!r}")
     u = np.unique(np.concatenate([pos, neg]))
     cand = np.concatenate([[u[0] - 1e-6], (u[:-1] + u[1:]) / 2, [u[-1] + 1e-6]])
     tp = np.searchsorted(pos, cand, side="right").astype(np.float64)
@@ -263,36 +360,47 @@ def threshold_from_pairs(positive: np.ndarray, negative: np.ndarray, rule: str =
         else:
             i = int(np.lexsort((-recall, -precision))[0])
         tgt = float(target_precision)
+    if rule == "far":
+        # far rises with the candidate: the last one within the bound (the first is 0)
+        i = int(np.flatnonzero(far <= max_far + 1e-12)[-1])
+        tgt = None
     return Calibration(float(cand[i]), rule, aggregate, float(precision[i]), float(recall[i]),
-                       float(far[i]), len(pos), len(neg), tgt)
+                       float(far[i]), len(pos), len(neg), tgt,
+                       float(max_far) if rule == "far" else None)
 
 
 def pair_distances(embeddings: np.ndarray, ids: Sequence[int], cams: Sequence[int],
                    aggregate: str = "median", max_queries: int | None = 2000,
                    rng: np.random.Generator | None = None,
-                   chunk: int = 512) -> tuple[np.ndarray, np.ndarray]:
+                   chunk: int = 512, query: str = "crop") -> tuple[np.ndarray, np.ndarray]:
     """Positive and negative (query, track) distances of a labelled embedding set.
 
-    A query is one embedding (identity a, camera c); a track is the group of
-    embeddings of one (identity, camera) with camera ≠ c; its distance is the
-    aggregate of the query's distances to the group's members. (query, group of a)
-    is a positive pair, (query, group of b ≠ a) a negative one.
+    A track is the group of embeddings of one (identity, camera). A query is one
+    embedding (identity a, camera c) with ``query="crop"``, or the re-normalised mean
+    of one track's embeddings (identity a, camera c; query expansion) with
+    ``query="track"``. Its distance to a track of another camera c' ≠ c is the
+    aggregate of the query's distances to the track's members; (query, track of a)
+    is a positive pair, (query, track of b ≠ a) a negative one.
 
     Args:
-        embeddings: (N, D) L2-normalised.
+        embeddings: (N, D) L2-normalised (only the crops the run would use).
         ids, cams: N identity and camera labels.
         aggregate: a name in `AGGREGATORS`.
         max_queries: use at most this many queries, drawn with `rng` (None: all).
         rng: random generator for the query sample (required when sampling).
         chunk: queries per distance block (memory: chunk × N floats).
+        query: a name in `QUERIES`.
 
     Returns:
         (positive (P,), negative (Q,)) float64 distances.
 
     Raises:
-        ReidDecisionError: shapes or labels disagree, or sampling without `rng`.
+        ReidDecisionError: shapes or labels disagree, an unknown query, or sampling
+            without `rng`.
     """
     fn = aggregator(aggregate)
+    if query not in QUERIES:
+        raise ReidDecisionError(f"unknown query {query!r}; valid: {', '.join(QUERIES)}")
     e = np.asarray(embeddings, dtype=np.float64)
     ids_a = np.asarray(ids)
     cams_a = np.asarray(cams)
@@ -308,20 +416,29 @@ def pair_distances(embeddings: np.ndarray, ids: Sequence[int], cams: Sequence[in
         by_size.setdefault(len(members), []).append((k, members))
     blocks = [(np.array([k[0] for k, _ in gs]), np.array([k[1] for k, _ in gs]),
                np.array([m for _, m in gs])) for _, gs in sorted(by_size.items())]
-    queries = np.arange(len(e))
+    if query == "crop":
+        qv, q_ids, q_cams = e, ids_a, cams_a
+    else:
+        keys = list(groups)
+        m = np.stack([e[groups[k]].mean(axis=0) for k in keys]) if keys else e[:0]
+        qv = m / np.maximum(np.linalg.norm(m, axis=1, keepdims=True), 1e-12)
+        q_ids = np.array([k[0] for k in keys])
+        q_cams = np.array([k[1] for k in keys])
+    queries = np.arange(len(qv))
     if max_queries is not None and len(queries) > max_queries:
         if rng is None:
             raise ReidDecisionError("pair_distances: sampling queries needs a random generator")
-        queries = np.sort(rng.choice(len(e), size=max_queries, replace=False))
+        queries = np.sort(rng.choice(len(qv), size=max_queries, replace=False))
     pos: list[np.ndarray] = []
     neg: list[np.ndarray] = []
     for s in range(0, len(queries), chunk):
         qi = queries[s:s + chunk]
-        d = cosine_distances(e[qi], e)
+        d = np.clip(1.0 - qv[qi] @ e.T, 0.0, 2.0) if query == "track" else \
+            cosine_distances(e[qi], e)
         for gid, gcam, members in blocks:
             agg = fn(d[:, members])                       # (queries, groups)
-            cross = gcam[None, :] != cams_a[qi][:, None]  # the VeRi cross-camera rule
-            same = gid[None, :] == ids_a[qi][:, None]
+            cross = gcam[None, :] != q_cams[qi][:, None]  # the VeRi cross-camera rule
+            same = gid[None, :] == q_ids[qi][:, None]
             pos.append(agg[cross & same])
             neg.append(agg[cross & ~same])
     pos_a = np.concatenate(pos) if pos else np.empty(0)
@@ -332,16 +449,25 @@ def pair_distances(embeddings: np.ndarray, ids: Sequence[int], cams: Sequence[in
 def calibrate_threshold(embeddings: np.ndarray, ids: Sequence[int], cams: Sequence[int], *,
                         rule: str = "precision", target_precision: float = 0.99,
                         aggregate: str = "median", max_queries: int | None = 2000,
-                        rng: np.random.Generator | None = None) -> Calibration:
+                        rng: np.random.Generator | None = None,
+                        recipe: Recipe | None = None, max_far: float = 0.02) -> Calibration:
     """The track decision threshold from embeddings of TRAINING identities.
 
     `pair_distances` forms the (query, cross-camera track) pairs with the run's
-    aggregator; `threshold_from_pairs` picks the threshold by `rule`. The returned
-    precision and recall are measured on those pairs (training identities), not
-    on any test run.
+    aggregator and query (`recipe`; None: ``Recipe(aggregate)``, the paper's single
+    crop); the embeddings must be those of the crops the recipe keeps
+    (`adequate_crops`). `threshold_from_pairs` picks the threshold by `rule`. The
+    returned precision and recall are measured on those pairs (training identities),
+    not on any test run; the recipe is recorded in the `Calibration`.
 
     Raises:
         ReidDecisionError: as `pair_distances` and `threshold_from_pairs`.
     """
-    pos, neg = pair_distances(embeddings, ids, cams, aggregate, max_queries, rng)
-    return threshold_from_pairs(pos, neg, rule, target_precision, aggregate)
+    from dataclasses import replace
+
+    recipe = recipe if recipe is not None else Recipe(aggregate)
+    pos, neg = pair_distances(embeddings, ids, cams, recipe.aggregate, max_queries, rng,
+                              query=recipe.query)
+    cal = threshold_from_pairs(pos, neg, rule, target_precision, recipe.aggregate, max_far)
+    return replace(cal, query=recipe.query, min_box_px=float(recipe.min_box_px),
+                   border_px=None if recipe.border_px is None else float(recipe.border_px))

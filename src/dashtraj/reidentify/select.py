@@ -53,7 +53,8 @@ class Selection:
 def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequence[Hashable],
                          sightings: Mapping[Hashable, Sequence[Sighting]], threshold: float, *,
                          aggregate: str = "median", anchor: Hashable | None = None,
-                         gate: GateConfig | None = DEFAULT_GATE) -> Selection:
+                         gate: GateConfig | None = DEFAULT_GATE,
+                         keep_anchor: bool = False) -> Selection:
     """Decide and gate the target's tracks.
 
     Args:
@@ -68,6 +69,10 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
         anchor: key of the query's own track (kept through the gate when it is a
             candidate), or None.
         gate: `GateConfig`, or None for no gate (the paper's way).
+        keep_anchor: the anchor is a candidate whatever its distance (the track the
+            user pointed at is the target by definition; its aggregated distance to
+            the query can exceed the threshold when the query crop is unlike the
+            rest of its track).
 
     Returns:
         `Selection`.
@@ -76,7 +81,7 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
         ReidDecisionError, GatingError: as `decide_tracks` and `gate_tracks`.
     """
     decisions = decide_tracks(distances, keys, threshold, aggregate)
-    cand = [d for d in decisions if d.target]
+    cand = [d for d in decisions if d.target or (keep_anchor and d.key == anchor)]
     cand_keys = tuple(d.key for d in cand)
     if gate is None:
         return Selection(tuple(decisions), cand_keys, cand_keys, ())
@@ -105,7 +110,7 @@ def tracks_of(sightings: Sequence[Sighting]) -> dict[tuple[int, int | None], lis
     return out
 
 
-def query_detection(db, vehicle_id: int, max_distance_m: float = 15.0):
+def query_detection(db, vehicle_id: int, max_distance_m: float = 15.0, usable=None):
     """The query of re-identification: the vehicle's first detection with a crop, within
     `max_distance_m` (estimated) of a camera, as ``calc_traj`` takes ``veh_t1.image``.
 
@@ -116,17 +121,21 @@ def query_detection(db, vehicle_id: int, max_distance_m: float = 15.0):
         db: an open `dashtraj.store.SightingsDB`.
         vehicle_id: the renderer's vehicle id of the target.
         max_distance_m: the ReID range, metres.
+        usable: None, or ``usable(detection) -> bool``: the first detection it accepts
+            (e.g. a crop the decision recipe uses: large enough, not cut by the
+            frame), falling back to the first of all when it accepts none.
 
     Returns:
         The `DetectionRow` (its (observer_id, track_id) is the gate's anchor), or None
         when no such detection has a crop.
     """
     with_crop = {(c.observer_id, c.frame, c.idx) for c in db.crops()}
-    best = None
-    for d in db.detections():
-        if (d.truth_vehicle_id == vehicle_id and d.distance_m <= max_distance_m
-                and (d.observer_id, d.frame, d.idx) in with_crop
-                and (best is None or (d.t, d.observer_id, d.idx) < (best.t, best.observer_id,
-                                                                     best.idx))):
-            best = d
-    return best
+    mine = sorted((d for d in db.detections()
+                   if d.truth_vehicle_id == vehicle_id and d.distance_m <= max_distance_m
+                   and (d.observer_id, d.frame, d.idx) in with_crop),
+                  key=lambda d: (d.t, d.observer_id, d.idx))
+    if usable is not None:
+        good = [d for d in mine if usable(d)]
+        if good:
+            return good[0]
+    return mine[0] if mine else None

@@ -13,11 +13,21 @@ target's sightings, with each stage after detection either real or an oracle
 
 Appearance ReID, the paper's ``calc_traj`` per track: the query is the target's
 first crop estimated within 15 m (`select.query_detection`, as ``calc_traj`` takes
-``veh_t1.image``); the gallery is every crop of every observer; each detection's
-cosine distance to the query is aggregated per track and the track is the target
-when that is at most the threshold calibrated on TRAINING identities
-(`load_threshold`; ``dashtraj reid-threshold`` writes it beside the model); then the
-spatio-temporal gate (`select.select_target_tracks`).
+``veh_t1.image``), or with query expansion the mean of its track's crops; the gallery
+is every crop of every observer (those of adequate size and not cut by the frame, as
+the `decision.Recipe` says); each detection's cosine distance to the query is
+aggregated per track and the track is the target when that is at most the threshold
+calibrated on TRAINING identities with the same recipe (`load_threshold`; ``dashtraj
+reid-threshold`` writes it beside the model); then the spatio-temporal gate
+(`select.select_target_tracks`). With a crop filter, the query is the target's first
+crop within 15 m that the filter keeps (the paper's first crop when none is); the
+query's own track is a candidate whatever its distance (the user pointed at it).
+
+Scoring: a track is the target's when most of its used sightings (one every
+`sample_s` within range) are detections matched to the target's true box; a detection
+matched to no vehicle (a false detection, or a box that overlaps no true box by IoU
+0.5) votes for "no vehicle". (The store's track truth counts matched detections only,
+so a clutter track that the target crossed once would count as the target's.)
 
 Embeddings come from the store's embeddings table (`crop_embeddings`; missing vectors
 of the model are computed and stored first, as ``dashtraj reid embed DB`` does).
@@ -27,6 +37,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections import Counter
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,7 +45,12 @@ from pathlib import Path
 import numpy as np
 
 from dashtraj.errors import DashtrajError
-from dashtraj.reidentify.decision import Calibration, cosine_distances
+from dashtraj.reidentify.decision import (
+    Calibration,
+    Recipe,
+    adequate_crops,
+    cosine_distances,
+)
 from dashtraj.reidentify.scoring import reid_score
 from dashtraj.reidentify.select import DEFAULT_GATE, query_detection, select_target_tracks
 from dashtraj.trajectory.records import Sighting
@@ -195,12 +211,19 @@ def _sample(rows: list, sample_s: float) -> list:
     return kept
 
 
+def _majority(votes: Counter):
+    """The most frequent value (None = a detection of no vehicle counts); ties go to a
+    vehicle id, then to the smaller id."""
+    return min(votes, key=lambda v: (-votes[v], v is None, v if v is not None else 0))
+
+
 def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
                    switches: StageSwitches = StageSwitches(), embedder=None,
                    threshold: float | None = None, aggregate: str = "median",
+                   recipe: Recipe | None = None,
                    gate: bool = True, max_distance_m: float = 15.0, sample_s: float = 0.5,
-                   positions_of: Callable[[int, np.ndarray], np.ndarray] | None = None
-                   ) -> TargetTracks:
+                   positions_of: Callable[[int, np.ndarray], np.ndarray] | None = None,
+                   stages=None) -> TargetTracks:
     """The target's sightings from one perception run's database.
 
     Args:
@@ -210,11 +233,16 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         switches: real or oracle per stage (`StageSwitches`).
         embedder: a `dashtraj.reid.embed.ReidEmbedder` (reid ``appearance``).
         threshold: the calibrated cosine-distance threshold (reid ``appearance``).
-        aggregate: the track aggregator (`decision.AGGREGATORS`).
+        aggregate: the track aggregator (`decision.AGGREGATORS`), when no `recipe`.
+        recipe: the query, crop filter and aggregator (`decision.Recipe`; the
+            threshold's `Calibration.recipe`); None: the paper's single crop, every
+            crop, `aggregate`.
         gate: the spatio-temporal gate after the appearance decision.
         max_distance_m: the ReID range (detections estimated this close), metres.
         sample_s: one sighting per track every this many seconds.
         positions_of: `true_positions(recording)` (positions ``truth``).
+        stages: None, or an object with ``start(name, line)`` (e.g.
+            `dashtraj.experiments.Stages`) told as embedding and deciding start.
 
     Returns:
         `TargetTracks`.
@@ -230,6 +258,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
     if switches.positions == "truth" and positions_of is None:
         raise VisionReidError("true positions need the recording (positions_of)")
     by_truth = switches.tracks == "truth"
+    recipe = recipe if recipe is not None else Recipe(aggregate)
+    aggregate = recipe.aggregate
     with SightingsDB.open(db_path, writable=switches.reid == "appearance") as db:
         poses = {(p.observer_id, p.frame): p for p in db.poses()}
         near = [d for d in db.detections() if d.distance_m <= max_distance_m
@@ -241,19 +271,48 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         def key_of(d) -> tuple[int, int]:
             return (d.observer_id, d.truth_vehicle_id if by_truth else d.track_id)
 
-        query = query_detection(db, target_vehicle_id, max_distance_m)
+        cam = db.run_info()["camera"]
+        size = (int(cam["width_px"]), int(cam["height_px"]))
+
+        def usable(d) -> bool:
+            return bool(adequate_crops(np.array([[d.x0, d.y0, d.x1, d.y1]]), *size, recipe)[0])
+
+        query = query_detection(db, target_vehicle_id, max_distance_m,
+                                usable if switches.reid == "appearance" else None)
         dists = keys = None
         if switches.reid == "appearance" and query is not None:
+            if stages is not None:
+                stages.start("embed", f"embed: {db.count('crops')} crops with "
+                                      f"{embedder.path.name}")
             ckeys, emb = crop_embeddings(db, embedder)
+            if stages is not None:
+                stages.start("re-identify", f"re-identify: query = the target's first crop "
+                                            f"within {max_distance_m:g} m (observer "
+                                            f"{query.observer_id}, t {query.t:.1f} s)"
+                                            + (", expanded with its track's crops"
+                                               if recipe.query == "track" else ""))
             row = {k: i for i, k in enumerate(ckeys)}
+            have = [d for d in near if (d.observer_id, d.frame, d.idx) in row]
+            ok = adequate_crops(np.array([[d.x0, d.y0, d.x1, d.y1] for d in have]).reshape(-1, 4),
+                                *size, recipe)
+            gal = [(key_of(d), row[(d.observer_id, d.frame, d.idx)])
+                   for d, good in zip(have, ok, strict=True) if good]
             q = emb[row[(query.observer_id, query.frame, query.idx)]]
-            gal = [(key_of(d), row[(d.observer_id, d.frame, d.idx)]) for d in near
-                   if (d.observer_id, d.frame, d.idx) in row]
+            if recipe.query == "track":
+                own = [i for k, i in gal if k == key_of(query)]
+                if own:  # query expansion: the query track's adequate crops
+                    m = emb[own].astype(np.float64).mean(axis=0)
+                    q = m / max(float(np.linalg.norm(m)), 1e-12)
             keys = [k for k, _ in gal]
             dists = cosine_distances(q, emb[[i for _, i in gal]]) if gal else np.zeros(0)
     rows = sorted(((key_of(d), d) for d in near), key=lambda r: (r[0], r[1].t, r[1].idx))
     rows = _sample(rows, sample_s)
     truth = {k: (k[1] if by_truth else track_truth.get(k)) for k, _ in rows}
+    if not by_truth:  # what the used sightings show: most of them, "no vehicle" counted
+        votes: dict[Hashable, Counter] = {}
+        for k, d in rows:
+            votes.setdefault(k, Counter())[d.truth_vehicle_id] += 1
+        truth = {k: _majority(c) for k, c in votes.items()}
     if positions_of is not None and switches.positions == "truth" and rows:
         xy = np.zeros((len(rows), 2))
         vids = np.array([d.truth_vehicle_id if d.truth_vehicle_id is not None else -1
@@ -285,11 +344,13 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
     else:
         sel = select_target_tracks(road_map, dists, keys, tracks, float(threshold),
                                    aggregate=aggregate, anchor=anchor,
-                                   gate=DEFAULT_GATE if gate else None)
+                                   gate=DEFAULT_GATE if gate else None, keep_anchor=True)
         accepted = [k for k in sel.accepted if k in tracks]
         candidates = list(sel.candidates)
         extra["reid_threshold"] = float(threshold)
         extra["reid_aggregate"] = aggregate
+        extra["reid_query"] = recipe.query
+        extra["reid_crops_used"] = len(keys)
     for k in candidates:
         truth.setdefault(k, None)
     sightings = sorted((s for k in accepted for s in tracks[k]),
