@@ -77,7 +77,8 @@ def main() -> None:
               "mINP % |", "|---|---|---|---|---|---|---|---|---|"]
     for e in a.eval:
         m = json.loads(Path(e).read_text())
-        lines.append(f"| `{Path(m['data']).name}` | {m['query']} | {m['queries']} | {m['gallery']} | "
+        lines.append(f"| `{Path(m['data']).name}` | {m['query']} | {m['queries']} | "
+                     f"{m['gallery']} | "
                      f"{100 * m['rank1']:.2f} | {100 * m['rank5']:.2f} | "
                      f"{100 * m['rank10']:.2f} | {100 * m['map']:.2f} | {100 * m['minp']:.2f} |")
     if epochs:
