@@ -16,6 +16,7 @@ from dashtraj.render.meshes import (
     MAT_METAL,
     MAT_TYRE,
     build_scene_meshes,
+    shadow_caster_mesh,
     vehicle_mesh,
 )
 from dashtraj.render.synthetic import (
@@ -155,6 +156,50 @@ def test_contact_shadow_lies_under_the_body_below_the_tyres():
         assert np.abs(s[:, 0]).max() <= model.length_m / 2
         assert np.abs(s[:, 1]).max() <= model.width_m / 2
         assert s[:, 2].max() < v.positions[:, 2].min()  # never hides a tyre
+
+
+def test_shadow_casters_are_the_body_without_its_details():
+    """Every catalog vehicle's shadow caster stays inside its mesh's bounds (1 cm), keeps
+    its length, width and height (the same body; tyres as boxes), and four-wheelers cast
+    at most 60 % of their triangles."""
+    for model in catalog_models():
+        c = shadow_caster_mesh(model).positions
+        p = vehicle_mesh(model, (10, 20, 30)).positions
+        lo, hi = p.min(axis=0), p.max(axis=0)
+        assert (c.min(axis=0) >= lo - 0.01).all() and (c.max(axis=0) <= hi + 0.01).all()
+        assert np.allclose(c.max(axis=0) - c.min(axis=0), hi - lo, atol=0.04), model.blueprint_id
+        if model.body_type not in ("motorcycle", "bicycle"):
+            assert len(c) <= 0.6 * len(p), model.blueprint_id
+
+
+def test_shadow_casters_change_pixels_only_slightly_never_labels(gl_ctx, straight_map,
+                                                                  monkeypatch):
+    """Drawing the full meshes into the shadow map instead of the casters leaves ids, depth
+    and labels byte-identical and changes < 0.5 % of the pixels (shadow outlines)."""
+    from dashtraj.render import meshes
+    from dashtraj.render.scene import Renderer
+
+    cam = (-95.0, 0.0, 1.6, 0.0, -5.0, 0.0)
+    vs = [(1, identity(SEDAN, (200, 30, 30), 1), -85.0, -1.75, 0.0, 10.0),
+          (2, identity(BUS, (30, 30, 200), 2), -75.0, 1.75, 0.0, 180.0),
+          (3, identity(MOTO, (30, 200, 30), 3), -88.0, 5.25, 0.0, 90.0)]
+    r = Renderer(straight_map, 640, 360, 90.0, msaa=0, ctx=gl_ctx)
+    try:
+        a = r.render(cam, vs)
+        r2 = Renderer(straight_map, 640, 360, 90.0, msaa=0, ctx=gl_ctx)
+        try:
+            monkeypatch.setattr(meshes, "shadow_caster_mesh",
+                                lambda model: vehicle_mesh(model, (0, 0, 0)))
+            b = r2.render(cam, vs)
+        finally:
+            r2.release()
+    finally:
+        r.release()
+    assert a.instance.tobytes() == b.instance.tobytes()
+    assert a.depth.tobytes() == b.depth.tobytes()
+    assert a.labels == b.labels
+    changed = (a.rgb != b.rgb).any(axis=2).mean()
+    assert changed < 0.005, changed
 
 
 def test_every_catalog_vehicle_keeps_its_dimensions():

@@ -10,9 +10,10 @@ CARLA/Unreal).
 
 Passes per frame (moderngl on Mesa llvmpipe, headless EGL; see ``dashtraj.render.gl``):
 
-0. shadow map (when the look has sun shadows): depth of the vehicles, buildings and
-   props seen from the sun, orthographic, ``SHADOW_MAP_PX`` square, fitted to the view
-   frustum up to ``SHADOW_RANGE_M``.
+0. shadow map (when the look has sun shadows): depth of the vehicles (their shadow
+   casters: ``meshes.shadow_caster_mesh``, without the details that lie on the body),
+   buildings and props seen from the sun, orthographic, ``SHADOW_MAP_PX`` square,
+   fitted to the view frustum up to ``SHADOW_RANGE_M``.
 1. with ``msaa=0``: ONE pass writes colour, instance ids and depth (three
    attachments). With MSAA: colour with ``msaa`` samples, resolved to ``rgb``, then
    ids and depth without multisampling (one sample per pixel centre: exact ids; all
@@ -278,7 +279,9 @@ class Renderer:
         self._prog_id = ctx.program(vertex_shader=vs, fragment_shader=shaders.FS_ID)
         self._prog_sil = ctx.program(vertex_shader=vs, fragment_shader=shaders.FS_SIL)
         self._prog_depth = ctx.program(vertex_shader=vs, fragment_shader=shaders.FS_DEPTH)
-        self._progs = (self._prog_id, self._prog_sil, self._prog_depth)
+        self._prog_caster = ctx.program(vertex_shader=shaders.VS_CASTER,
+                                        fragment_shader=shaders.FS_DEPTH)
+        self._progs = (self._prog_id, self._prog_sil, self._prog_depth, self._prog_caster)
         # (which, group, flags) -> program, shared by the renderers of one context (each
         # variant is compiled and JIT-ed once per context); ``prog.extra`` holds the token
         # of the renderer whose look its uniforms hold
@@ -359,6 +362,10 @@ class Renderer:
         self._vbuf_bytes = 0
         self._sbuf = None  # contact shadows under the vehicles (colour passes only, id 0)
         self._sbuf_bytes = 0
+        # the vehicles' shadow casters: caster mesh key -> (mesh buffer, instance buffer,
+        # its capacity in instances, vao), and the (8, 3) box corners per key
+        self._caster_draws: dict[tuple, list] = {}
+        self._caster_boxes: dict[tuple, np.ndarray] = {}
         self._shadow_rows: dict[tuple, np.ndarray] = {}
         self._vdata: dict[int, tuple[Mesh, np.ndarray]] = {}
         self._moderngl = moderngl
@@ -472,14 +479,14 @@ class Renderer:
             if prog.extra is self._token:
                 self._set_uniforms(prog, values)
 
-    def _frame_uniforms(self, pose, world, starts) -> None:
+    def _frame_uniforms(self, pose, vs) -> None:
         """Per-frame uniforms (camera position, sky rays, noise seed) and the shadow pass."""
         m = world_to_opencv(pose)
         pix_to_world = m[:3, :3].T @ np.linalg.inv(self.k)
         seed = float(zlib.crc32(np.array([*pose, self.look.seed], np.float64).tobytes()) % 9973)
         per_frame = {"cam_pos": tuple(float(c) for c in pose[:3]), "seed": seed,
                      "pix_to_world": pix_to_world.T.astype("f4").tobytes()}
-        per_frame["light_mvp"] = (self._shadow_pass(pose, world, starts) if self._shadows_on
+        per_frame["light_mvp"] = (self._shadow_pass(pose, vs) if self._shadows_on
                                   else np.eye(4, dtype="f4").tobytes())
         self._uniforms.update(per_frame)
         self._noise.use(1)
@@ -517,7 +524,10 @@ class Renderer:
         out[:3, 3] = -(hi + lo) / (hi - lo)
         return out
 
-    def _shadow_pass(self, pose, world, starts) -> None:
+    def _shadow_pass(self, pose, vs) -> bytes:
+        """Draw the sun's shadow map (pass 0): the vehicles whose boxes touch the light's
+        frustum, as their shadow casters (``meshes.shadow_caster_mesh``), and the static
+        caster groups by tile. Returns the light matrix (column-major float32 bytes)."""
         mgl = self._moderngl
         lm = self.light_matrix(pose)
         lmb = lm.T.astype("f4").tobytes()
@@ -528,11 +538,8 @@ class Renderer:
         ctx.enable(mgl.CULL_FACE)  # closed meshes: the faces toward the sun suffice
         ctx.front_face = "ccw"
         self._prog_depth["mvp"].write(lmb)
-        if len(starts) > 1:
-            inside = _vehicles_in_frustum(world, starts, lm)
-            ranges = list(zip(starts[:-1].tolist(), np.diff(starts).tolist(), strict=True))
-            for first, count in _runs([ranges[i] for i in np.flatnonzero(inside)]):
-                self._vveh[4].render(mgl.TRIANGLES, first=first, vertices=count)
+        if len(vs):
+            self._draw_casters(vs, lm)
         runs = self._static_runs(lm)
         for i in self._casters:
             vaos = self._static[i][0]
@@ -602,6 +609,51 @@ class Renderer:
             self._vveh = self._vaos(self._vbuf)
         if nbytes:
             self._vbuf.write(data)
+
+    def _draw_casters(self, vs, lm: np.ndarray) -> None:
+        """Draw the shadow casters (``meshes.shadow_caster_mesh``) of the vehicles ``vs``
+        whose caster boxes touch the frustum of the light matrix ``lm``: one instanced
+        draw per caster mesh (``shaders.VS_CASTER``)."""
+        from dashtraj.render.meshes import _params, shadow_caster_mesh
+
+        mgl = self._moderngl
+        keys = [_params(v.model) for v in vs]
+        for k, v in zip(keys, vs, strict=True):
+            if k not in self._caster_boxes:
+                p = shadow_caster_mesh(v.model).positions.astype(np.float64)
+                self._caster_boxes[k] = _box_corners(p.min(axis=0)[None], p.max(axis=0)[None])[0]
+        yaw = np.radians([v.yaw_deg for v in vs])
+        cs = np.column_stack([np.cos(yaw), np.sin(yaw)])
+        origin = np.array([(v.x, v.y, v.z) for v in vs])
+        local = np.stack([self._caster_boxes[k] for k in keys])  # (N, 8, 3)
+        corners = np.stack([origin[:, None, 0] + cs[:, None, 0] * local[..., 0]
+                            - cs[:, None, 1] * local[..., 1],
+                            origin[:, None, 1] + cs[:, None, 1] * local[..., 0]
+                            + cs[:, None, 0] * local[..., 1],
+                            origin[:, None, 2] + local[..., 2]], axis=-1)
+        inside = ~_corners_outside(corners, lm)
+        groups: dict[tuple, list[int]] = {}
+        for i in np.flatnonzero(inside):
+            groups.setdefault(keys[i], []).append(i)
+        self._prog_caster["mvp"].write(lm.T.astype("f4").tobytes())
+        inst = np.column_stack([origin, cs]).astype("f4")
+        for k, idx in groups.items():
+            d = self._caster_draws.get(k)
+            if d is None or d[2] < len(idx):
+                cap = max(64, 1 << (len(idx) - 1).bit_length())
+                if d is None:
+                    pos = shadow_caster_mesh(vs[idx[0]].model).positions
+                    mesh_buf = self.ctx.buffer(np.ascontiguousarray(pos, "f4").tobytes())
+                else:
+                    mesh_buf = d[0]
+                    d[3].release()
+                    d[1].release()
+                inst_buf = self.ctx.buffer(reserve=cap * 20, dynamic=True)
+                vao = self.ctx.vertex_array(self._prog_caster, [
+                    (mesh_buf, "3f", "in_pos"), (inst_buf, "3f 2f/i", "in_origin", "in_yaw")])
+                d = self._caster_draws[k] = [mesh_buf, inst_buf, cap, vao]
+            d[1].write(inst[idx].tobytes())
+            d[3].render(mgl.TRIANGLES, instances=len(idx))
 
     def _upload_contact_shadows(self, vs, drawn) -> int:
         """Write the contact shadows of the drawn vehicles (``vehicle_shapes.
@@ -779,7 +831,7 @@ class Renderer:
         n_shadow = self._upload_contact_shadows(vs, drawn) if n else 0
         self._runs = self._static_runs(mvp64)
         mvp = mvp64.T.astype("f4").tobytes()  # column-major for GLSL
-        self._frame_uniforms(pose, world, starts)
+        self._frame_uniforms(pose, vs)
 
         ctx.enable(mgl.DEPTH_TEST)
         ctx.disable(mgl.BLEND)
@@ -992,6 +1044,10 @@ class Renderer:
             self._vbuf.release()
         if self._sbuf is not None:
             self._sbuf.release()
+        for mesh_buf, inst_buf, _, vao in self._caster_draws.values():
+            vao.release()
+            inst_buf.release()
+            mesh_buf.release()
         for p in self._progs:
             p.release()  # the shared colour variants live as long as the context
         self._sky_buf.release()

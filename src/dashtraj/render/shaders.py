@@ -349,6 +349,21 @@ FS_DEPTH = """
 void main() { }
 """
 
+VS_CASTER = """
+#version 330
+uniform mat4 mvp;
+in vec3 in_pos;  // vehicle frame (x forward, y right, z up), metres
+in vec3 in_origin;  // per instance: the vehicle's ground point, CARLA world, metres
+in vec2 in_yaw;  // per instance: cos, sin of its yaw
+void main() {
+    vec2 xy = in_origin.xy + vec2(in_yaw.x * in_pos.x - in_yaw.y * in_pos.y,
+                                  in_yaw.y * in_pos.x + in_yaw.x * in_pos.y);
+    gl_Position = mvp * vec4(xy, in_origin.z + in_pos.z, 1.0);
+}
+"""
+"""Vertex shader of the vehicles' shadow casters in the sun's shadow map (instanced: one
+draw per caster mesh; float32 placement, which only ever touches the shadow map)."""
+
 SKY_VS = """
 #version 330
 in vec2 in_pos;

@@ -182,6 +182,15 @@ def _wheel_set(xs, W: float, r: float, tyre_w: float, zb: float, ztop: float) ->
     return parts
 
 
+def _caster_wheels(xs, W: float, r: float, tyre_w: float) -> list[Mesh]:
+    """Shadow casters of the tyres of ``_wheel_set``: one box per tyre (its bounding box,
+    lifted like ``meshes.wheel``'s flat bottom edge)."""
+    yo = W / 2 - tyre_w / 2 + 0.01
+    z0 = r * (1.0 - np.cos(np.pi / 10))
+    return [box((x - r, s * yo - tyre_w / 2, z0), (x + r, s * yo + tyre_w / 2, 2 * r), TYRE,
+                material=MAT_TYRE) for x in xs for s in (-1.0, 1.0)]
+
+
 def _front_back(L: float, w_end: float, zl0: float, zl1: float, zp: float, lamp_w: float,
                 lamp_gap: float = 0.06, grille: tuple | None = None) -> list[Mesh]:
     """Lamps (head white, tail red), plates and a grille on the end faces at x = ±L/2
@@ -214,9 +223,15 @@ _GREENHOUSE = {  # windscreen rake, rear rake (shares of the greenhouse height),
 }
 
 
-def car_mesh(body, L, W, H, wb, r, clear, hood, c0, c1, belt, paint) -> Mesh:
+def car_mesh(body, L, W, H, wb, r, clear, hood, c0, c1, belt, paint,
+             detail: bool = True) -> Mesh:
     """A rounded car of class ``body`` (sedan, hatchback, suv, coupe, van, pickup, or
-    anything else treated as a sedan) inside L × W × H metres."""
+    anything else treated as a sedan) inside L × W × H metres.
+
+    ``detail=False`` gives its shadow caster (``shadow_caster_mesh``): the same body,
+    greenhouse and bed walls, tyres as boxes, and none of the parts that lie within
+    1.5 cm of the body (pillars, lamps, plates, grille, bumper strips, arches, rims,
+    the inset rear window)."""
     zb = clear
     zbelt = min(max(zb + 0.25, belt * H), H - 0.3)
     rf, rr, taper = _GREENHOUSE.get(body, _GREENHOUSE["sedan"])
@@ -263,11 +278,11 @@ def car_mesh(body, L, W, H, wb, r, clear, hood, c0, c1, belt, paint) -> Mesh:
     for x, rg, inward in ((gx[0], grings[0], 1.0), (gx[-1], grings[-1], -1.0)):
         ct, cc = _cap(x, rg, inward)
         parts.append(_mesh(ct, paint, centre=cc, material=MAT_PAINT))
-    if lr < 0.08:  # near-vertical back: rear window inset in the painted panel
+    if lr < 0.08 and detail:  # near-vertical back: rear window inset in the painted panel
         parts.append(box((xr - 0.012, -0.7 * wt, zbelt + 0.25 * gh), (xr + 0.01, 0.7 * wt,
                          zbelt + 0.85 * gh), GLASS, material=MAT_GLASS))
     # pillars: B (and C for long cabins) as thin painted slabs across the greenhouse
-    n_p = 2 if span > 2.6 else 1
+    n_p = (2 if span > 2.6 else 1) if detail else 0
     for j in range(n_p):
         xm = xr + lr + (j + 1) * (xf - lf - xr - lr) / (n_p + 1)
         zt = H - 0.03
@@ -282,6 +297,8 @@ def car_mesh(body, L, W, H, wb, r, clear, hood, c0, c1, belt, paint) -> Mesh:
                          paint, material=MAT_PAINT))
         parts.append(box((-L / 2 + 0.1, w - 0.1, tops[2]), (xr, w - 0.02, tops[2] + 0.3),
                          paint, material=MAT_PAINT))
+    if not detail:
+        return Mesh.concat([*parts, *_caster_wheels([wb / 2, -wb / 2], W, r, 0.24)])
     # bumpers: dark strips low on both ends; lamps, plates, grille
     for sgn in (-1.0, 1.0):
         parts.append(_face_x(sgn * (L / 2 + 0.004), -(w - 0.14), w - 0.14, bots[0],
@@ -296,9 +313,13 @@ def car_mesh(body, L, W, H, wb, r, clear, hood, c0, c1, belt, paint) -> Mesh:
 
 
 # --------------------------------------------------------------------------- trucks, buses
-def big_vehicle_mesh(body, L, W, H, wb, r, clear, c1, paint) -> Mesh:
+def big_vehicle_mesh(body, L, W, H, wb, r, clear, c1, paint, detail: bool = True) -> Mesh:
     """A bus (rounded box, glazed window band, big windscreen) or a truck (rounded cab,
-    cargo box, chassis), inside L × W × H metres."""
+    cargo box, chassis), inside L × W × H metres.
+
+    ``detail=False`` gives its shadow caster: the body solids and the chassis, tyres as
+    boxes, none of the glass panels, strips, lamps, plates, grilles, arches and rims that
+    lie within 1.5 cm of the body."""
     w = W / 2
     zb = max(clear, 0.3)
     parts: list[Mesh] = []
@@ -308,23 +329,25 @@ def big_vehicle_mesh(body, L, W, H, wb, r, clear, c1, paint) -> Mesh:
                  for d in (0.06, 0.0, 0.0, 0.08)]
         parts.append(_solid(xs, rings, paint, MAT_PAINT))
         zw0, zw1 = 0.42 * H, 0.86 * H
-        for s in (-1.0, 1.0):
-            parts.append(_face_y(s * (w + 0.008), -L / 2 + 0.4, L / 2 - 1.0, zw0, zw1, GLASS, s,
-                                 MAT_GLASS))
-            parts.append(_face_y(s * (w + 0.006), -L / 2 + 0.2, L / 2 - 0.2, zb, zb + 0.25, TRIM,
-                                 s))
-            # door: glass down to the step, behind the front axle
-            parts.append(_face_y(s * (w + 0.01), wb / 2 + r + 0.15,
-                                 min(wb / 2 + r + 1.2, L / 2 - 0.3), zb + 0.1, zw1, GLASS, s,
-                                 MAT_GLASS))
-        parts.append(box((L / 2 - 0.02, -(w - 0.15), 0.32 * H), (L / 2 + 0.012, w - 0.15,
-                         0.93 * H), GLASS, material=MAT_GLASS))
-        parts.append(box((-L / 2 - 0.012, -(w - 0.3), 0.58 * H), (-L / 2 + 0.02, w - 0.3,
-                         0.86 * H), GLASS, material=MAT_GLASS))
+        if detail:
+            for s in (-1.0, 1.0):
+                parts.append(_face_y(s * (w + 0.008), -L / 2 + 0.4, L / 2 - 1.0, zw0, zw1, GLASS,
+                                     s, MAT_GLASS))
+                parts.append(_face_y(s * (w + 0.006), -L / 2 + 0.2, L / 2 - 0.2, zb, zb + 0.25,
+                                     TRIM, s))
+                # door: glass down to the step, behind the front axle
+                parts.append(_face_y(s * (w + 0.01), wb / 2 + r + 0.15,
+                                     min(wb / 2 + r + 1.2, L / 2 - 0.3), zb + 0.1, zw1, GLASS, s,
+                                     MAT_GLASS))
+            parts.append(box((L / 2 - 0.02, -(w - 0.15), 0.32 * H), (L / 2 + 0.012, w - 0.15,
+                             0.93 * H), GLASS, material=MAT_GLASS))
+            parts.append(box((-L / 2 - 0.012, -(w - 0.3), 0.58 * H), (-L / 2 + 0.02, w - 0.3,
+                             0.86 * H), GLASS, material=MAT_GLASS))
         zl = zb + 0.25
         axles = [wb / 2, -wb / 2]
         ztop = zw0
-        parts += _front_back(L, w - 0.08, zl, zl + 0.22, zb + 0.08, 0.32, 0.1)
+        if detail:
+            parts += _front_back(L, w - 0.08, zl, zl + 0.22, zb + 0.08, 0.32, 0.1)
     else:  # truck: rounded cab at the front, cargo box behind, dark chassis under it
         cab_l = c1 * L if 0.1 < c1 < 0.6 else min(2.3, 0.35 * L)
         zcab = min(H, max(2.4, 0.8 * H))
@@ -332,11 +355,12 @@ def big_vehicle_mesh(body, L, W, H, wb, r, clear, c1, paint) -> Mesh:
         rings = [_bevel_ring(w - d, zb + 0.06 * (d > 0), zcab - 0.08 * (d > 0), 0.06, 0.25)
                  for d in (0.0, 0.0, 0.1)]
         parts.append(_solid(xs, rings, paint, MAT_PAINT))
-        parts.append(box((L / 2 - 0.02, -(w - 0.2), 0.55 * zcab), (L / 2 + 0.01, w - 0.2,
-                         0.88 * zcab), GLASS, material=MAT_GLASS))
-        for s in (-1.0, 1.0):
-            parts.append(_face_y(s * (w + 0.008), L / 2 - cab_l + 0.3, L / 2 - 0.35,
-                                 0.55 * zcab, 0.86 * zcab, GLASS, s, MAT_GLASS))
+        if detail:
+            parts.append(box((L / 2 - 0.02, -(w - 0.2), 0.55 * zcab), (L / 2 + 0.01, w - 0.2,
+                             0.88 * zcab), GLASS, material=MAT_GLASS))
+            for s in (-1.0, 1.0):
+                parts.append(_face_y(s * (w + 0.008), L / 2 - cab_l + 0.3, L / 2 - 0.35,
+                                     0.55 * zcab, 0.86 * zcab, GLASS, s, MAT_GLASS))
         cargo = 0.55 * paint + 0.45 * np.array([0.9, 0.9, 0.88])
         xc = np.array([-L / 2, -L / 2 + 0.05, L / 2 - cab_l - 0.15, L / 2 - cab_l - 0.1])
         crings = [_bevel_ring(w - d, zb + 0.35, H - d, 0.02, 0.06) for d in (0.03, 0, 0, 0.03)]
@@ -346,8 +370,11 @@ def big_vehicle_mesh(body, L, W, H, wb, r, clear, c1, paint) -> Mesh:
         zl = zb + 0.3
         axles = [wb / 2, -wb / 2] + ([-wb / 2 + 2.2 * r] if L > 8.0 else [])
         ztop = zb + 0.35 + 0.5
-        parts += _front_back(L, w - 0.1, zl, zl + 0.25, zb + 0.06, 0.3, 0.08,
-                             grille=(0.3 * W, zl + 0.3, min(0.5 * zcab, zl + 0.9)))
+        if detail:
+            parts += _front_back(L, w - 0.1, zl, zl + 0.25, zb + 0.06, 0.3, 0.08,
+                                 grille=(0.3 * W, zl + 0.3, min(0.5 * zcab, zl + 0.9)))
+    if not detail:
+        return Mesh.concat([*parts, *_caster_wheels(axles, W, r, 0.32)])
     parts += _wheel_set(axles, W, r, 0.32, zb, ztop)
     return Mesh.concat(parts)
 
@@ -384,10 +411,13 @@ def _ring_wheel(cx: float, r: float, tw: float, spokes: int = 6, sides: int = 12
     return Mesh.concat(parts)
 
 
-def two_wheeler_mesh(body, L, W, H, wb, r, paint) -> Mesh:
+def two_wheeler_mesh(body, L, W, H, wb, r, paint, detail: bool = True) -> Mesh:
     """A motorcycle (fairing, tank, rims, helmeted rider) or a bicycle (spoked wheels,
     frame, rider), inside L × W × H metres (the rider's head may reach H + 0.45 m, as the
-    catalog's two-wheeler height is the vehicle's)."""
+    catalog's two-wheeler height is the vehicle's).
+
+    ``detail=False`` gives its shadow caster: a motorcycle's tyres become boxes and its
+    rims go; a bicycle keeps everything (its see-through wheels have no solid proxy)."""
     tw = 0.12 if body == "motorcycle" else 0.04
     r = min(r, 0.45 * H)
     xw = min(wb / 2, L / 2 - r)
@@ -395,6 +425,10 @@ def two_wheeler_mesh(body, L, W, H, wb, r, paint) -> Mesh:
     parts: list[Mesh] = []
     if body == "motorcycle":
         for x in (xw, -xw):
+            if not detail:
+                parts.append(box((x - r, -tw / 2, 0.0), (x + r, tw / 2, 2 * r), TYRE,
+                                 material=MAT_TYRE))
+                continue
             parts.append(wheel(x, 0.0, r, tw, 14))
             for s in (-1.0, 1.0):
                 parts.append(_disc(x, s * (tw / 2 + 0.003), r, 0.62 * r, RIM, MAT_METAL, 10, s))
