@@ -951,12 +951,13 @@ class Renderer:
         n = len(ranges)
         counts = np.zeros(n, np.int64)
         tight = np.full((n, 4), -1, np.int64)
-        todo = [i for i in range(n) if boxes[i, 2] > boxes[i, 0] and boxes[i, 3] > boxes[i, 1]]
+        bl = np.asarray(boxes).tolist()  # Python ints: cheap to index one by one
+        todo = [i for i in range(n) if bl[i][2] > bl[i][0] and bl[i][3] > bl[i][1]]
         # greedy layering: vehicles whose boxes overlap go to different layers
         layers: list[list[int]] = []
-        for i in sorted(todo, key=lambda j: (boxes[j, 0], boxes[j, 1], j)):
+        for i in sorted(todo, key=lambda j: (bl[j][0], bl[j][1], j)):
             for layer in layers:
-                if not any(_overlap(boxes[i], boxes[j]) for j in layer):
+                if not any(_overlap(bl[i], bl[j]) for j in layer):
                     layer.append(i)
                     break
             else:
@@ -995,11 +996,13 @@ class Renderer:
             ctx.enable(mgl.DEPTH_TEST)
         bits = np.empty((r1 - r0, c1 - c0), np.uint32)
         fbo.read_into(bits, viewport=vp, components=1, dtype="u4", alignment=1)
+        bl = np.asarray(boxes).tolist()
         for b, layer in enumerate(layers):
+            bit = np.uint32(1 << b)
             for j in layer:
-                sub = bits[boxes[j, 1] - r0 : boxes[j, 3] - r0, boxes[j, 0] - c0 : boxes[j, 2] - c0]
-                m = (sub & np.uint32(1 << b)) != 0
-                _count_and_box(m, boxes[j], j, counts, tight)
+                bc0, br0, bc1, br1 = bl[j]
+                m = (bits[br0 - r0 : br1 - r0, bc0 - c0 : bc1 - c0] & bit) != 0
+                _count_and_box(m, bl[j], j, counts, tight)
 
     def _silhouettes_layers(self, layers, boxes, ranges, mvp, counts, tight) -> None:
         mgl = self._moderngl
@@ -1076,6 +1079,7 @@ def _count_and_box(mask: np.ndarray, box, j: int, counts: np.ndarray, tight: np.
     rows = np.flatnonzero(mask.any(axis=1))
     if len(rows) == 0:
         return
+    mask = mask[rows[0] : rows[-1] + 1]  # the rows outside hold no pixel
     cols = np.flatnonzero(mask.any(axis=0))
     counts[j] = int(np.count_nonzero(mask))
     tight[j] = (box[0] + cols[0], box[1] + rows[0], box[0] + cols[-1] + 1, box[1] + rows[-1] + 1)
