@@ -27,6 +27,12 @@ ratio to the flat peer.
 Geometry (``--no-geometry`` skips it): the same frames without the street clutter and
 without the contact shadows under the vehicles (the cost of the new geometry), on the
 straight street and on Town01 when ``../shared/maps/carla`` is there.
+
+Passes (``--no-passes`` skips it): where a frame of the default look goes (640×360, no
+MSAA, labels included), pass by pass (``Renderer.pass_times``: each pass ends with
+``ctx.finish()``, so llvmpipe's deferred rasterization counts toward the pass that
+queued it; the fences add a little, so the passes sum to slightly more than the
+unfenced frame).
 """
 
 from __future__ import annotations
@@ -74,6 +80,7 @@ def main(argv=None) -> int:
     ap.add_argument("--no-effects", action="store_true", help="skip the per-effect costs")
     ap.add_argument("--no-geometry", action="store_true",
                     help="skip the cost of the clutter and the contact shadows")
+    ap.add_argument("--no-passes", action="store_true", help="skip the per-pass costs")
     ap.add_argument("--json", type=Path, help="write the results here")
     args = ap.parse_args(argv)
     os.environ["LP_NUM_THREADS"] = str(args.threads)
@@ -126,6 +133,8 @@ def main(argv=None) -> int:
                 f"p90 {run['ms_p90']:.2f} ms); {n_view}/{args.vehicles} vehicles visible, "
                 f"llvmpipe threads {args.threads}"
             )
+    if not args.no_passes:
+        results["passes"] = pass_costs(ctx, m, vehicles, args.frames)
     if not args.no_effects:
         results["effects"] = effect_costs(ctx, m, vehicles)
     if not args.no_geometry:
@@ -133,6 +142,30 @@ def main(argv=None) -> int:
     if args.json:
         args.json.write_text(json.dumps(results, indent=2))
     return 0
+
+
+def pass_costs(ctx, road_map, vehicles, frames: int = 60) -> list[dict]:
+    """CPU ms per frame of each pass (``Renderer.pass_times``) of the default look at
+    640x360 without MSAA, labels included; prints the table."""
+    from dashtraj.render.scene import Renderer
+
+    r = Renderer(road_map, 640, 360, 90.0, msaa=0, ctx=ctx)
+    r.render((-95.0, 1.75, 1.6, 0.0, 0.0, 0.0), vehicles)  # warm up
+    r.pass_times = {}
+    c = time.process_time()
+    for i in range(frames):
+        r.render((-95.0 + 0.05 * i, 1.75, 1.6, 0.0, 0.0, 0.0), vehicles)
+    total = 1e3 * (time.process_time() - c) / frames
+    times, r.pass_times = r.pass_times, None
+    r.release()
+    out = []
+    print("pass costs, 640x360, no MSAA, default look, labels included "
+          f"(CPU ms/frame, one core, fenced: {total:.2f} ms/frame in all):")
+    for name, sec in sorted(times.items(), key=lambda kv: -kv[1]):
+        ms = 1e3 * sec / frames
+        out.append({"pass": name, "cpu_ms": ms, "share": ms / total})
+        print(f"  {name:44s} {ms:6.2f} ms  {100 * ms / total:5.1f} %")
+    return out
 
 
 def effect_looks():

@@ -175,6 +175,27 @@ def test_renders_are_byte_identical(gl_ctx, straight_map):
     b.release()
 
 
+@pytest.mark.parametrize("msaa", [0, 4])
+def test_pass_timing_changes_no_byte(gl_ctx, straight_map, msaa):
+    """``Renderer.pass_times`` (fences between passes) times every pass of the frame and
+    leaves rgb, ids, depth and labels as they are without it."""
+    vs = [(1, identity(BUS), -75.0, -5.25, 0.0, 180.0), (2, identity(SEDAN), -82.0, 1.75, 0.0, 3.0)]
+    r = Renderer(straight_map, 320, 200, 75.0, msaa=msaa, ctx=gl_ctx)
+    try:
+        f1 = r.render(CAM, vs)
+        r.pass_times = {}
+        f2 = r.render(CAM, vs)
+        times, r.pass_times = r.pass_times, None
+    finally:
+        r.release()
+    for a in ("rgb", "instance", "depth"):
+        assert getattr(f1, a).tobytes() == getattr(f2, a).tobytes()
+    assert f1.labels == f2.labels
+    colour = "colour + ids + depth" if msaa == 0 else "colour (MSAA)"
+    for name in (colour, "shadow map", "sky", "readback", "labels: silhouette pass"):
+        assert times[name] > 0.0, times
+
+
 @pytest.mark.parametrize(
     ("w", "h", "fov"), [(1280, 720, 90.0), (333, 217, 60.0), (200, 400, 110.0)]
 )

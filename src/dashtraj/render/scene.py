@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import functools
 import math
+import time
 import zlib
 from dataclasses import dataclass, field
 from typing import Any
@@ -245,6 +246,10 @@ class Renderer:
     silhouette_mode = "bits"
     #: dark contact shadows on the road under the vehicles (colour only, never labels)
     contact_shadows = True
+    #: per-pass CPU seconds, summed over the frames drawn while it is a dict (``bench/
+    #: bench_render.py --passes``): every pass then ends with ``ctx.finish()``, so the
+    #: work llvmpipe defers counts toward the pass that queued it. None: no fences.
+    pass_times: dict | None = None
 
     def __init__(
         self,
@@ -372,6 +377,17 @@ class Renderer:
         self.set_look(look if look is not None else LookConfig())
 
     # ------------------------------------------------------------------ GL plumbing
+    def _lap(self, name: str | None) -> None:
+        """Charge the CPU time since the last lap to pass ``name`` of ``pass_times``
+        (None: start the clock); does nothing while ``pass_times`` is None."""
+        if self.pass_times is None:
+            return
+        self.ctx.finish()
+        now = time.process_time()
+        if name is not None:
+            self.pass_times[name] = self.pass_times.get(name, 0.0) + now - self._lap_t
+        self._lap_t = now
+
     def _vaos(self, buf):
         # attributes a program does not use are optimised away: skip their bytes
         ctx = self.ctx
@@ -529,6 +545,7 @@ class Renderer:
         frustum, as their shadow casters (``meshes.shadow_caster_mesh``), and the static
         caster groups by tile. Returns the light matrix (column-major float32 bytes)."""
         mgl = self._moderngl
+        self._lap("scene setup (vehicles, culling, projection)")
         lm = self.light_matrix(pose)
         lmb = lm.T.astype("f4").tobytes()
         ctx = self.ctx
@@ -546,6 +563,7 @@ class Renderer:
             for first, count in runs[i]:
                 vaos[4].render(mgl.TRIANGLES, first=first, vertices=count)
         self._shadow_tex.use(2)
+        self._lap("shadow map")
         return lmb
 
     def _draw_sky(self, pose) -> None:
@@ -789,6 +807,7 @@ class Renderer:
 
         mgl = self._moderngl
         ctx = self.ctx
+        self._lap(None)
         h, w = self.height, self.width
         vs = as_instances(vehicles)
         n = len(vs)
@@ -832,6 +851,7 @@ class Renderer:
         self._runs = self._static_runs(mvp64)
         mvp = mvp64.T.astype("f4").tobytes()  # column-major for GLSL
         self._frame_uniforms(pose, vs)
+        self._lap("scene setup (vehicles, culling, projection)")
 
         ctx.enable(mgl.DEPTH_TEST)
         ctx.disable(mgl.BLEND)
@@ -845,7 +865,9 @@ class Renderer:
             self._fbo_ms.use()
             self._fbo_ms.clear(*SKY_RGB, 1.0, depth=1.0)
             self._draw_scene(0, mvp, vruns, n_shadow)
+            self._lap("colour (MSAA)")
             self._draw_sky(pose)
+            self._lap("sky")
             region = None  # without depth, ids are only needed where vehicles can be
             if not depth:
                 if proj is None and n:
@@ -864,9 +886,12 @@ class Renderer:
                 self._clear_buffers(False, region)  # scissor stays: the rest has no vehicle
                 self._draw_scene(1, mvp, vruns)
                 ctx.scissor = None
+            self._lap("ids + depth")
             ctx.copy_framebuffer(self._fbo_rgb, self._fbo_ms)
             self._fbo_rgb.read_into(rgb, components=3, alignment=1)
+            self._lap("readback")
             rgb = self._post(rgb, pose)
+            self._lap("camera post (rain, blur, JPEG)")
             fbo, a_id, a_depth = self._fbo_id, 0, 1
             if region is not None:
                 instance[:] = 0
@@ -876,8 +901,10 @@ class Renderer:
                     fbo.read_into(sub, viewport=region, components=1, dtype="i4", alignment=1)
                     instance[r0 : r0 + rh, c0 : c0 + rw] = sub
                 frame = Frame(rgb, instance, None, self.k.copy(), pose)
+                self._lap("readback")
                 if labels:
                     frame.labels = compute_labels(self, frame, vs, proj, ranges, mvp)
+                    self._lap("labels (counts, boxes, truncation)")
                 return frame
         else:
             # one pass: colour, ids and depth (three attachments)
@@ -885,16 +912,22 @@ class Renderer:
             fbo.use()
             self._clear_buffers(True)
             self._draw_scene(2, mvp, vruns, n_shadow)
+            self._lap("colour + ids + depth")
             self._draw_sky(pose)
+            self._lap("sky")
             fbo.read_into(rgb, components=3, attachment=0, alignment=1)
+            self._lap("readback")
             rgb = self._post(rgb, pose)
+            self._lap("camera post (rain, blur, JPEG)")
             a_id, a_depth = 1, 2
         fbo.read_into(instance, components=1, attachment=a_id, dtype="i4", alignment=1)
         if dimg is not None:
             fbo.read_into(dimg, components=1, attachment=a_depth, dtype="f4", alignment=1)
         frame = Frame(rgb, instance, dimg, self.k.copy(), pose)
+        self._lap("readback")
         if labels:
             frame.labels = compute_labels(self, frame, vs, proj, ranges, mvp)
+            self._lap("labels (counts, boxes, truncation)")
         return frame
 
     def _bitwise_or(self, on: bool) -> None:
@@ -948,6 +981,7 @@ class Renderer:
         Returns:
             (N,) int64 pixel counts and (N, 4) int tight silhouette boxes (−1 if none).
         """
+        self._lap("labels (counts, boxes, truncation)")
         n = len(ranges)
         counts = np.zeros(n, np.int64)
         tight = np.full((n, 4), -1, np.int64)
@@ -970,6 +1004,7 @@ class Renderer:
             # 32 layers per pass: layer l sets bit l of a uint32 image (logic op OR)
             for k in range(0, len(layers), 32):
                 self._silhouettes_bits(layers[k : k + 32], boxes, ranges, mvp, counts, tight)
+        self._lap("labels: silhouette pass")
         return counts, tight
 
     def _silhouettes_bits(self, layers, boxes, ranges, mvp, counts, tight) -> None:
