@@ -246,9 +246,9 @@ class Renderer:
     silhouette_mode = "bits"
     #: dark contact shadows on the road under the vehicles (colour only, never labels)
     contact_shadows = True
-    #: per-pass CPU seconds, summed over the frames drawn while it is a dict (``bench/
-    #: bench_render.py --passes``): every pass then ends with ``ctx.finish()``, so the
-    #: work llvmpipe defers counts toward the pass that queued it. None: no fences.
+    #: per-pass CPU seconds, summed over the frames drawn while it is a dict (the pass
+    #: table of ``bench/bench_render.py``): every pass then ends with ``ctx.finish()``, so
+    #: the work llvmpipe defers counts toward the pass that queued it. None: no fences.
     pass_times: dict | None = None
 
     def __init__(
