@@ -69,7 +69,7 @@ def main() -> None:
               "", "## Command", "", "```", info.get("command") or "", a.export_command, "```",
               "", "## Hardware and wall time", "",
               f"- {platform.machine()} CPU, {os.cpu_count()} cores shared with other jobs "
-              "(nice 10), no GPU",
+              "(training, dataset rendering and experiments at once), no GPU",
               f"- training wall time {wall / 3600:.2f} h (steps + per-epoch evaluation)", "",
               "## Evaluation (VeRi-776 protocol: same-id same-camera gallery images "
               "excluded)", "",

@@ -346,7 +346,7 @@ CASES: list[tuple[str, list[str], str]] = [
      "not a dashtraj sightings database"),
     ("reid-embed-no-crops", ["reid", "embed", "{EMPTY_DB}"], "has no crops"),
     ("reid-embed-dim-mismatch", ["reid", "embed", "{DIM_DB}"],
-     "holds 8-d embeddings of model osnet_x0_25_cpu.onnx"),
+     "holds 8-d embeddings of model efficientnet_lite0_cpu.onnx"),
     ("reid-embed-batch-zero", ["reid", "embed", "{CROPS_DB}", "--batch", "0"],
      "argument --batch: expected an integer >= 1"),
     ("reid-embed-missing-model", ["reid", "embed", "{CROPS_DB}", "--model", "{MISSING}.onnx"],

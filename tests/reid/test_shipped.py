@@ -10,8 +10,9 @@ import pytest
 from dashtraj.reid.embed import ReidEmbedder, shipped_model_path
 from dashtraj.render.look import preset
 
-LOOK = "flat"
-"""Render look of the shipped model's training set (rendered before looks existed)."""
+LOOK = None
+"""Render look of the held-out set: None, the renderer's default (the shipped model was
+trained on per-image randomized looks around it)."""
 
 
 def test_shipped_model_is_small_and_matches_its_card():
@@ -42,9 +43,9 @@ def held_out(tmp_path_factory, gl_available):
     try:
         for iid in range(650, 660):
             ident = catalog.identities()[iid]
-            # the look the shipped model was trained on (its set predates shaded looks)
-            for cam in stage.cameras:
-                stage.renderer(stage.camera_pose(cam, ident.model)[1]).set_look(preset(LOOK))
+            if LOOK is not None:
+                for cam in stage.cameras:
+                    stage.renderer(stage.camera_pose(cam, ident.model)[1]).set_look(preset(LOOK))
             stage.identity_images(ident)
     finally:
         stage.release()
@@ -57,9 +58,8 @@ def held_out(tmp_path_factory, gl_available):
 
 def test_shipped_model_beats_chance(held_out):
     """Bar: mAP above the best of 20 random embeddings on the same queries and gallery
-    (random mean 0.115) and at least 0.3 (measured for the shipped model: mAP 0.351, rank-1
-    0.35 on today's vehicle meshes; 0.656 / 0.65 on the meshes its training set was drawn
-    with), rank-1 above the random mean. This catches a broken export, preprocessing or
+    (random mean 0.115) and at least 0.5 (measured for the shipped model: mAP 0.604, rank-1
+    0.475; the previous osnet_x0_25 scored 0.351 / 0.35), rank-1 above the random mean. This catches a broken export, preprocessing or
     weights; it is below the paper's figures (see the next test)."""
     from dashtraj.reid.evaluate import evaluate_features
 
@@ -68,13 +68,13 @@ def test_shipped_model_beats_chance(held_out):
     rand = [evaluate_features(rng.normal(size=qf.shape), rng.normal(size=gf.shape), q, g)
             for _ in range(20)]
     assert r["map"] > max(x["map"] for x in rand), r
-    assert r["map"] >= 0.3, r
+    assert r["map"] >= 0.5, r
     assert r["rank1"] > np.mean([x["rank1"] for x in rand]), r
 
 
-@pytest.mark.xfail(strict=False, reason="the shipped osnet_x0_25 is under-trained (6 + 3 "
-                   "epochs on the plain set, 4 on randomized renders, on 2 shared cores): "
-                   "per-image-look test rank-1 0.31, below the 0.8 bar; see its model card")
+@pytest.mark.xfail(strict=False, reason="the shipped efficientnet_lite0 is under-trained (4 "
+                   "epochs on one CPU thread): rank-1 0.475 on this set, 0.46 on the ring "
+                   "queries of its test ids, below the 0.8 bar; see its model card")
 def test_shipped_model_ranks_the_right_identity_first(held_out):
     """Bar: rank-1 >= 80 % of the queries under the VeRi rule (the issue: 'most queries')."""
     assert held_out[4]["rank1"] >= 0.8, held_out[4]

@@ -24,7 +24,7 @@ from dashtraj.errors import DashtrajError
 from dashtraj.reid.evaluate import l2_normalize
 from dashtraj.reid.preprocess import resize_uint8
 
-SHIPPED_MODEL = "osnet_x0_25_cpu.onnx"
+SHIPPED_MODEL = "efficientnet_lite0_cpu.onnx"
 """File name of the shipped model in ``dashtraj/data/reid/``."""
 
 
