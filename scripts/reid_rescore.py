@@ -1,0 +1,93 @@
+"""Re-identify and re-score finished from-pixels experiments with another ReID model.
+
+`dashtraj experiments --sightings vision -o EXP` keeps every run's perception
+(``EXP/<run>/recording/`` and ``sightings.db``). This script re-runs only what follows
+perception: the appearance ReID with MODEL and its calibrated threshold, the gate, the
+reconstruction and the scores, on the very same detections, tracks and positions; so two
+ReID models are compared on identical perception. Each database is copied to a temporary
+folder first (the embeddings of MODEL are added to the copy, never to EXP).
+
+Usage:
+    python scripts/reid_rescore.py EXP --reid-model M.onnx [--reid-threshold F.json] [--json]
+
+Prints one row per run (ReID precision/recall, hmm and shortest-path SSPD over the whole
+trip and the seen stretch) and the means, with the same aggregation as `experiments`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+
+def main(argv: list[str] | None = None) -> int:
+    from dashtraj.experiments import (
+        SAMPLE_S,
+        ExperimentConfig,
+        aggregate,
+        aggregate_reid,
+        reconstruct_and_score,
+    )
+    from dashtraj.reid.embed import ReidEmbedder
+    from dashtraj.reidentify.vision import load_threshold, target_from_db
+    from dashtraj.roads import RoadMap
+    from dashtraj.world.recording import Recording
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("exp", type=Path, help="an experiments output folder (--sightings vision)")
+    ap.add_argument("--reid-model", required=True, type=Path, help="ReID ONNX model")
+    ap.add_argument("--reid-threshold", type=Path, default=None,
+                    help="its threshold JSON (default: beside the model)")
+    ap.add_argument("--json", action="store_true", help="print the figures as JSON")
+    args = ap.parse_args(argv)
+
+    runs = sorted(p.parent for p in args.exp.glob("*/summary.json")
+                  if (p.parent / "sightings.db").is_file())
+    if not runs:
+        print(f"{args.exp}: no runs with summary.json and sightings.db", file=sys.stderr)
+        return 2
+    th = load_threshold(args.reid_model, args.reid_threshold)
+    embedder = ReidEmbedder(args.reid_model, threads=1)
+    summaries, rows = [], []
+    with tempfile.TemporaryDirectory(prefix="reid_rescore_") as tmp:
+        for run in runs:
+            old = json.loads((run / "summary.json").read_text())
+            config = ExperimentConfig.from_dict(old["config"])
+            rec = Recording.open(run / "recording")
+            road_map = RoadMap.from_file(rec.map_path)
+            db = Path(tmp) / f"{run.name}.db"
+            shutil.copyfile(run / "sightings.db", db)
+            tt = target_from_db(db, road_map, int(rec.meta.get("target_vehicle_id", 0)),
+                                embedder=embedder, threshold=th.calibration.threshold,
+                                recipe=th.calibration.recipe, gate=config.gate,
+                                max_distance_m=config.max_distance_m, sample_s=SAMPLE_S)
+            results, _, _ = reconstruct_and_score(road_map, rec.target_route, tt.sightings,
+                                                  config.methods)
+            summary = {**tt.summary, "methods": results}
+            summaries.append(summary)
+            row = {"run": run.name, "reid_precision": summary.get("reid_precision"),
+                   "reid_recall": summary.get("reid_recall"),
+                   **{f"{m}_{k}": r[k] for m, r in results.items()
+                      for k in ("sspd_m", "seen_sspd_m")}}
+            rows.append(row)
+            if not args.json:
+                print(" ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}"
+                               for k, v in row.items()), flush=True)
+    out = {"model": str(args.reid_model), "threshold": th.calibration.threshold,
+           "runs": rows, "methods": aggregate(summaries), "reid": aggregate_reid(summaries)}
+    if args.json:
+        print(json.dumps(out, indent=1))
+    else:
+        for m, a in out["methods"].items():
+            print(f"{m}: SSPD whole {a['sspd_whole_m']:.2f} m, seen {a['sspd_seen_m']:.2f} m, "
+                  f"Hausdorff seen {a['hausdorff_seen_m']:.1f} m")
+        print(f"ReID over all tracks: {out['reid']}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
