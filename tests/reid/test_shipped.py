@@ -59,8 +59,9 @@ def held_out(tmp_path_factory, gl_available):
 def test_shipped_model_beats_chance(held_out):
     """Bar: mAP above the best of 20 random embeddings on the same queries and gallery
     (random mean 0.115) and at least 0.5 (measured for the shipped model: mAP 0.604, rank-1
-    0.475; the previous osnet_x0_25 scored 0.351 / 0.35), rank-1 above the random mean. This catches a broken export, preprocessing or
-    weights; it is below the paper's figures (see the next test)."""
+    0.475; the previous osnet_x0_25 scored 0.351 / 0.35), rank-1 above the random mean. This
+    catches a broken export, preprocessing or weights; it is below the paper's figures (see
+    the next test)."""
     from dashtraj.reid.evaluate import evaluate_features
 
     q, g, qf, gf, r = held_out
