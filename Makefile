@@ -46,6 +46,7 @@ reid-data: $(STAMP)
 		$(REID_DATA) $(REID_DATA)_moving1 $(REID_DATA)_moving2
 
 reid-train: $(STAMP)
+	$(PY) -c 'import torch' 2>/dev/null || $(PY) -m pip install -q torch==2.13.0
 	$(PY) -m pip install -q -e '.[train]'
 	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN) --recipe cpu --seed 0 \
 		--threads $(REID_THREADS) $$(test -f $(REID_RUN)/last.pt && echo --resume)
@@ -68,6 +69,7 @@ results: $(STAMP)
 # Reproduce the shipped detector (src/dashtraj/data/detector/): recordings, YOLO set, cpu-recipe
 # training (resumes), ONNX export, held-out eval; hours on 2 CPU cores. WORK=runs/detector.
 weights: $(STAMP)
+	$(PY) -c 'import torch' 2>/dev/null || $(PY) -m pip install -q torch==2.13.0
 	$(PY) -m pip install -q -e '.[train]'
 	DASHTRAJ=$(VENV)/bin/dashtraj bash scripts/detector_weights.sh $(or $(WORK),runs/detector)
 
