@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import sys
 import warnings
 from pathlib import Path
 
@@ -610,6 +611,35 @@ def test_interrupted_simulate_keeps_partial_in_its_own_folder(tmp_path, capsys, 
     assert rec.meta["complete"] is False
     assert rec.meta["simulated_to_t"] == pytest.approx(15.0)
     assert rec.states.num_rows > 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "run.partial-1"]
+
+
+def test_sigterm_is_handled_as_ctrl_c(tmp_path):
+    """`kill`, `timeout` and job schedulers send SIGTERM: the command stops as on Ctrl-C
+    (exit 143, one line), the older output is untouched, the partial recording is kept in
+    its own folder and no temporary folder is left behind."""
+    import signal
+    import subprocess
+    import time
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "meta.json").write_text('{"complete": true}\n')
+    before = _tree(out)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "dashtraj", "simulate", "--town", "town01", "--duration", "3000",
+         "--agents", "4", "--no-until-target-arrives", "-q", "-o", str(out), "--overwrite"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not any(p.name.startswith(".run.") for p in tmp_path.iterdir()):
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        time.sleep(0.05)
+    time.sleep(1.0)  # some simulated time
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    assert "dashtraj: terminated; outputs are written whole or not at all" in err
+    assert _tree(out) == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "run.partial-1"]
 
 

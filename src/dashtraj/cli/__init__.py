@@ -19,7 +19,9 @@ import contextlib
 import importlib
 import os
 import pkgutil
+import signal
 import sys
+import threading
 import warnings
 from collections.abc import Iterator
 
@@ -74,13 +76,47 @@ def clean_warnings() -> Iterator[None]:
         warnings.showwarning = old
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, ``timeout``, a job scheduler's time limit), handled as Ctrl-C: the
+    output being written is removed (or kept as ``.partial-N`` where a command keeps partial
+    output) and what was there before is untouched."""
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """While inside, SIGTERM raises `Terminated` in this process's main thread.
+
+    Child processes forked meanwhile (perception workers) inherit the handler; in them it
+    falls back to the default action (the process ends), so a pool's ``terminate`` still
+    stops them. Outside the main thread (signals cannot be set there) it does nothing.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pid = os.getpid()
+
+    def handler(signum, frame):
+        if os.getpid() != pid:  # a forked child: die as SIGTERM's default would
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            os.kill(os.getpid(), signal.SIGTERM)
+            return
+        raise Terminated()
+
+    old = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Run one `dashtraj` command; returns the exit code (0, 2 for bad input, 130 on Ctrl-C).
+    """Run one `dashtraj` command; returns the exit code (0, 2 for bad input, 130 on Ctrl-C,
+    143 on SIGTERM).
 
     A usage error found by argparse returns 2 after printing its one line (``--help`` and
     ``--version`` return 0), so in-process callers see the same code as the shell.
     """
-    with clean_warnings():
+    with clean_warnings(), sigterm_as_interrupt():
         parser = build_parser()
         try:
             args = parser.parse_args(argv)
@@ -99,10 +135,11 @@ def main(argv: list[str] | None = None) -> int:
             where = f"{exc.filename}: " if exc.filename else ""
             print(f"dashtraj: error: {where}{exc.strerror or exc}", file=sys.stderr)
             return 2
-        except KeyboardInterrupt:
-            print("dashtraj: interrupted; outputs are written whole or not at all, so an "
+        except KeyboardInterrupt as exc:
+            how = "terminated" if isinstance(exc, Terminated) else "interrupted"
+            print(f"dashtraj: {how}; outputs are written whole or not at all, so an "
                   "existing output is unchanged", file=sys.stderr)
-            return 130
+            return 143 if isinstance(exc, Terminated) else 130
 
 
 if __name__ == "__main__":  # pragma: no cover
