@@ -8,7 +8,8 @@ ReID models are compared on identical perception. Each database is copied to a t
 folder first (the embeddings of MODEL are added to the copy, never to EXP).
 
 Usage:
-    python scripts/reid_rescore.py EXP --reid-model M.onnx [--reid-threshold F.json] [--json]
+    python scripts/reid_rescore.py EXP --reid-model M.onnx [--reid-threshold F.json]
+        [--gate | --no-gate] [--json]
 
 Prints one row per run (ReID precision/recall, hmm and shortest-path SSPD over the whole
 trip and the seen stretch) and the means, with the same aggregation as `experiments`.
@@ -42,6 +43,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--reid-model", required=True, type=Path, help="ReID ONNX model")
     ap.add_argument("--reid-threshold", type=Path, default=None,
                     help="its threshold JSON (default: beside the model)")
+    ap.add_argument("--gate", action=argparse.BooleanOptionalAction, default=None,
+                    help="the road-network gate on or off (default: as each run was made)")
     ap.add_argument("--json", action="store_true", help="print the figures as JSON")
     args = ap.parse_args(argv)
 
@@ -63,7 +66,8 @@ def main(argv: list[str] | None = None) -> int:
             shutil.copyfile(run / "sightings.db", db)
             tt = target_from_db(db, road_map, int(rec.meta.get("target_vehicle_id", 0)),
                                 embedder=embedder, threshold=th.calibration.threshold,
-                                recipe=th.calibration.recipe, gate=config.gate,
+                                recipe=th.calibration.recipe,
+                                gate=config.gate if args.gate is None else args.gate,
                                 max_distance_m=config.max_distance_m, sample_s=SAMPLE_S)
             results, _, _ = reconstruct_and_score(road_map, rec.target_route, tt.sightings,
                                                   config.methods)
