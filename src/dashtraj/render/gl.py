@@ -35,7 +35,9 @@ Threads, and why setting them often seems to do nothing:
 
 from __future__ import annotations
 
+import importlib.util
 import os
+import sys
 import warnings
 
 from dashtraj.errors import DashtrajError
@@ -45,6 +47,23 @@ _THREADS_IN_EFFECT: str | None = None  # LP_NUM_THREADS when the first context w
 
 class RenderUnavailableError(DashtrajError):
     """No headless OpenGL context could be created (moderngl, EGL or Mesa missing)."""
+
+
+def _load_triton_first() -> None:
+    """Import triton before Mesa's llvmpipe loads, where triton is installed.
+
+    torch's CUDA wheels (the training extra without the CPU wheel) bring triton, whose own
+    LLVM crashes the process (SIGSEGV in ``import triton``) when it is loaded after
+    llvmpipe's: a GL context first, then ``torch.optim`` (which imports torch._dynamo,
+    then triton) dies, in a notebook as in a pytest worker. Loaded first, both work
+    (checked: context, a draw and read-back, then AdamW). Without triton this does nothing.
+    """
+    if _THREADS_IN_EFFECT is None and "triton" not in sys.modules:
+        try:
+            if importlib.util.find_spec("triton") is not None:
+                import triton  # noqa: F401
+        except Exception:  # a broken triton install must not stop rendering
+            pass
 
 
 def create_context(threads: int | None = None):
@@ -75,6 +94,7 @@ def create_context(threads: int | None = None):
             )
     elif threads is not None:
         os.environ["LP_NUM_THREADS"] = str(int(threads))
+    _load_triton_first()
     try:
         import moderngl
     except ImportError as e:  # pragma: no cover - depends on the environment
