@@ -30,8 +30,9 @@ bench: $(STAMP)
 	for b in bench/bench_*.py; do $(PY) $$b || exit 1; done
 
 # ReID: the paper-sized VeRi-layout set (700 ids x 85 ring cameras, a domain-randomized look per
-# ring image; moving-observer queries of the test ids from two town10 recordings), then the cpu recipe: efficientnet_lite0 fine-tuned from its ImageNet weights,
-# 4 epochs of softmax + triplet (resumes from its last.pt), exported with float16 weights.
+# ring image; moving-observer queries of the test ids from two town10 recordings), then the cpu
+# recipe: efficientnet_lite0 fine-tuned from its ImageNet weights, 4 epochs of softmax + triplet
+# (resumes from its last.pt), exported with float16 weights.
 # One torch thread: on these 2 shared cores two threads ran 5x slower (barrier waits).
 REID_DATA ?= runs/reid/veri_town10_pi
 REID_RUN ?= runs/reid/efficientnet_lite0_cpu
