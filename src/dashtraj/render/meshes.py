@@ -260,19 +260,24 @@ def vehicle_mesh(model, rgb) -> Mesh:
     return _vehicle_mesh_cached(_params(model), paint)
 
 
-@lru_cache(maxsize=512)
-def _vehicle_mesh_cached(p: tuple, paint255: tuple) -> Mesh:
+def _body_mesh(p: tuple, paint: np.ndarray, detail: bool) -> Mesh:
+    """The ``vehicle_shapes`` mesh of the model parameters ``p`` (``_params``), by body."""
     body, length, width, height, wb, r, clear, hood, c0, c1, belt = p
-    paint = np.array(paint255, np.float64) / 255.0
     from dashtraj.render import vehicle_shapes as vs
 
     if body in ("motorcycle", "bicycle"):
-        mesh = vs.two_wheeler_mesh(body, length, width, height, wb, r, paint)
-    elif body in ("truck", "bus"):
-        mesh = vs.big_vehicle_mesh(body, length, width, height, wb, r, clear, c1, paint)
-    else:
-        mesh = vs.car_mesh(body, length, width, height, wb, r, clear, hood, c0, c1, belt, paint)
-    return _with_vehicle_materials(mesh, paint)
+        return vs.two_wheeler_mesh(body, length, width, height, wb, r, paint, detail=detail)
+    if body in ("truck", "bus"):
+        return vs.big_vehicle_mesh(body, length, width, height, wb, r, clear, c1, paint,
+                                   detail=detail)
+    return vs.car_mesh(body, length, width, height, wb, r, clear, hood, c0, c1, belt, paint,
+                       detail=detail)
+
+
+@lru_cache(maxsize=512)
+def _vehicle_mesh_cached(p: tuple, paint255: tuple) -> Mesh:
+    paint = np.array(paint255, np.float64) / 255.0
+    return _with_vehicle_materials(_body_mesh(p, paint, detail=True), paint)
 
 
 def shadow_caster_mesh(model) -> Mesh:
@@ -287,17 +292,7 @@ def shadow_caster_mesh(model) -> Mesh:
 
 @lru_cache(maxsize=256)
 def _shadow_caster_cached(p: tuple) -> Mesh:
-    body, length, width, height, wb, r, clear, hood, c0, c1, belt = p
-    grey = np.full(3, 0.5)
-    from dashtraj.render import vehicle_shapes as vs
-
-    if body in ("motorcycle", "bicycle"):
-        return vs.two_wheeler_mesh(body, length, width, height, wb, r, grey, detail=False)
-    if body in ("truck", "bus"):
-        return vs.big_vehicle_mesh(body, length, width, height, wb, r, clear, c1, grey,
-                                   detail=False)
-    return vs.car_mesh(body, length, width, height, wb, r, clear, hood, c0, c1, belt, grey,
-                       detail=False)
+    return _body_mesh(p, np.full(3, 0.5), detail=False)
 
 
 def _with_vehicle_materials(mesh: Mesh, paint: np.ndarray) -> Mesh:
