@@ -9,7 +9,7 @@ folder first (the embeddings of MODEL are added to the copy, never to EXP).
 
 Usage:
     python scripts/reid_rescore.py EXP --reid-model M.onnx [--reid-threshold F.json]
-        [--gate | --no-gate] [--json]
+        [--gate | --no-gate] [--same-camera-m M] [--json]
 
 Prints one row per run (ReID precision/recall, hmm and shortest-path SSPD over the whole
 trip and the seen stretch) and the means, with the same aggregation as `experiments`.
@@ -36,6 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     from dashtraj.reid.embed import ReidEmbedder
     from dashtraj.reidentify.vision import load_threshold, target_from_db
     from dashtraj.roads import RoadMap
+    from dashtraj.trajectory.gating import GateConfig
     from dashtraj.world.recording import Recording
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -45,6 +46,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="its threshold JSON (default: beside the model)")
     ap.add_argument("--gate", action=argparse.BooleanOptionalAction, default=None,
                     help="the road-network gate on or off (default: as each run was made)")
+    ap.add_argument("--same-camera-m", type=float, default=None,
+                    help="the gate's GateConfig.same_camera_m (default: the library's; 0: the "
+                         "rule before 2026-11-27, any two time-overlapping tracks of one "
+                         "camera are two vehicles)")
     ap.add_argument("--json", action="store_true", help="print the figures as JSON")
     args = ap.parse_args(argv)
 
@@ -54,6 +59,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{args.exp}: no runs with summary.json and sightings.db", file=sys.stderr)
         return 2
     th = load_threshold(args.reid_model, args.reid_threshold)
+    gate_cfg = (None if args.same_camera_m is None
+                else GateConfig(same_camera_m=args.same_camera_m))
     embedder = ReidEmbedder(args.reid_model, threads=1)
     summaries, rows = [], []
     with tempfile.TemporaryDirectory(prefix="reid_rescore_") as tmp:
@@ -63,11 +70,12 @@ def main(argv: list[str] | None = None) -> int:
             rec = Recording.open(run / "recording")
             road_map = RoadMap.from_file(rec.map_path)
             db = Path(tmp) / f"{run.name}.db"
+            gate_on = config.gate if args.gate is None else args.gate
             shutil.copyfile(run / "sightings.db", db)
             tt = target_from_db(db, road_map, int(rec.meta.get("target_vehicle_id", 0)),
                                 embedder=embedder, threshold=th.calibration.threshold,
                                 recipe=th.calibration.recipe,
-                                gate=config.gate if args.gate is None else args.gate,
+                                gate=(gate_cfg or True) if gate_on else False,
                                 max_distance_m=config.max_distance_m, sample_s=SAMPLE_S)
             results, _, _ = reconstruct_and_score(road_map, rec.target_route, tt.sightings,
                                                   config.methods)

@@ -195,3 +195,26 @@ def test_one_cameras_simultaneous_tracks_are_two_vehicles(town01):
     other_cam = [sight(town01, t, 12, 20.0 + 10.0 * t + 3.0, lane=1, obs=3, track=2)
                  for t in (2.0, 2.5)]
     assert gate_tracks(town01, [target, other_cam], anchor=0).accepted == (0, 1)
+
+
+def test_one_cameras_duplicate_track_of_one_vehicle_is_kept(town01):
+    # the same camera's second track on the target itself (a second box of another
+    # orientation class, or a track restarted while the old one coasted): seen at the
+    # same moments 0.5 m from the first track, so one vehicle, and both are the target's
+    target = drive(town01, 0.0, 6.0, 12, 20.0, obs=1, track=1)
+    dup = [sight(town01, t, 12, 20.0 + 10.0 * t + 0.5, obs=1, track=2) for t in (2.0, 2.5, 3.0)]
+    assert gate_tracks(town01, [target, dup], anchor=0).accepted == (0, 1)
+    # 4 m ahead at the same moments: another vehicle (a lane or a car length away)
+    ahead = [sight(town01, t, 12, 20.0 + 10.0 * t + 4.0, obs=1, track=2) for t in (2.0, 2.5)]
+    assert gate_tracks(town01, [target, ahead], anchor=0).accepted == (0,)
+    # same_camera_m = 0: the earlier rule, any overlap in time is two vehicles
+    old = GateConfig(same_camera_m=0.0)
+    assert gate_tracks(town01, [target, dup], anchor=0, config=old).accepted == (0,)
+    # sampled on another clock (the gate sees one sighting per 0.5 s of each track): the
+    # other track's position is interpolated at each sighting's moment
+    alt = [sight(town01, t, 12, 20.0 + 10.0 * t, obs=1, track=2) for t in (2.25, 2.75)]
+    assert gate_tracks(town01, [target, alt], anchor=0).accepted == (0, 1)
+    alt_ahead = [sight(town01, t, 12, 24.0 + 10.0 * t, obs=1, track=2) for t in (2.25, 2.75)]
+    assert gate_tracks(town01, [target, alt_ahead], anchor=0).accepted == (0,)
+    with pytest.raises(GatingError, match="same_camera_m"):
+        GateConfig(same_camera_m=-1.0)

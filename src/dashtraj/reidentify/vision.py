@@ -53,6 +53,7 @@ from dashtraj.reidentify.decision import (
 )
 from dashtraj.reidentify.scoring import reid_score
 from dashtraj.reidentify.select import DEFAULT_GATE, query_detection, select_target_tracks
+from dashtraj.trajectory.gating import GateConfig
 from dashtraj.trajectory.records import Sighting
 
 TRACKS = ("tracker", "truth")
@@ -221,7 +222,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
                    switches: StageSwitches = StageSwitches(), embedder=None,
                    threshold: float | None = None, aggregate: str = "median",
                    recipe: Recipe | None = None,
-                   gate: bool = True, max_distance_m: float = 15.0, sample_s: float = 0.5,
+                   gate: bool | GateConfig = True, max_distance_m: float = 15.0,
+                   sample_s: float = 0.5,
                    positions_of: Callable[[int, np.ndarray], np.ndarray] | None = None,
                    stages=None) -> TargetTracks:
     """The target's sightings from one perception run's database.
@@ -237,7 +239,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         recipe: the query, crop filter and aggregator (`decision.Recipe`; the
             threshold's `Calibration.recipe`); None: the paper's single crop, every
             crop, `aggregate`.
-        gate: the spatio-temporal gate after the appearance decision.
+        gate: the spatio-temporal gate after the appearance decision: True (the
+            default `GateConfig`), a `GateConfig`, or False (none).
         max_distance_m: the ReID range (detections estimated this close), metres.
         sample_s: one sighting per track every this many seconds.
         positions_of: `true_positions(recording)` (positions ``truth``).
@@ -344,7 +347,9 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
     else:
         sel = select_target_tracks(road_map, dists, keys, tracks, float(threshold),
                                    aggregate=aggregate, anchor=anchor,
-                                   gate=DEFAULT_GATE if gate else None, keep_anchor=True)
+                                   gate=(gate if isinstance(gate, GateConfig)
+                                         else DEFAULT_GATE if gate else None),
+                                   keep_anchor=True)
         accepted = [k for k in sel.accepted if k in tracks]
         candidates = list(sel.candidates)
         extra["reid_threshold"] = float(threshold)

@@ -16,8 +16,13 @@ The rule (`gate_tracks`):
 
    and, when the two tracks overlap in time, the same from B back to A's last
    sighting (both tracks describe one car at once, so each must be able to reach
-   the other). Two tracks of one observer that overlap in time are two vehicles
-   (its tracker kept them apart in the same frames), so never both the target.
+   the other). Two tracks of one observer that were both seen at one moment more
+   than ``same_camera_m`` apart (the other's position interpolated between its
+   sightings) are two vehicles (its tracker kept them apart in the same frames), so
+   never both the target. Two tracks of one observer seen at
+   one moment at (nearly) one place are one vehicle seen twice: a duplicate box (a
+   second orientation class that class-aware NMS keeps) or a track restarted while
+   the old one still coasted; they are judged by reachability like any pair.
    A sighting at most ``slack_m`` *behind* the other along the lanes
    counts as reachable (cost 0): localization jitter, not a loop around the block.
    ``route_cost`` is the lane graph's shortest route in metres with no lane-change
@@ -67,6 +72,7 @@ Units: seconds, metres, metres per second; positions in CARLA world coordinates.
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -105,6 +111,12 @@ class GateConfig:
         heading_min_m: a track that moved this far within `heading_window_s` of a
             sighting keeps only lanes driving its way there, metres (inf: never).
         heading_window_s: half-width of that time window, seconds.
+        same_camera_m: two tracks of one observer seen in one frame farther apart
+            than this are two vehicles, metres (inf: never; 0: any two tracks of
+            one observer that overlap in time, seen together or not, the rule
+            before 2026-11-27). Two boxes of one vehicle are
+            localized from nearly the same pixels; the nearest other vehicle is a
+            lane (3.5 m) or a car length away.
     """
 
     max_speed_mps: float = 15.0
@@ -112,15 +124,17 @@ class GateConfig:
     radius_m: float = 5.0
     heading_min_m: float = 8.0
     heading_window_s: float = 3.0
+    same_camera_m: float = 3.0
 
     def __post_init__(self) -> None:
         for name in ("max_speed_mps", "slack_m", "radius_m", "heading_window_s"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
                 raise GatingError(f"GateConfig.{name} must be a finite number >= 0, got {v!r}")
-        h = self.heading_min_m
-        if not (isinstance(h, int | float) and h >= 0 and not math.isnan(h)):
-            raise GatingError(f"GateConfig.heading_min_m must be a number >= 0, got {h!r}")
+        for name in ("heading_min_m", "same_camera_m"):
+            h = getattr(self, name)
+            if not (isinstance(h, int | float) and h >= 0 and not math.isnan(h)):
+                raise GatingError(f"GateConfig.{name} must be a number >= 0, got {h!r}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -245,12 +259,41 @@ def _heading(track: list[Sighting], at: Sighting, min_m: float,
     return (dx / n, dy / n) if n >= min_m and n > 0 else None
 
 
+def _apart_at_once(a_track: list[Sighting], b_track: list[Sighting], max_m: float,
+                   max_gap_s: float = 1.0) -> bool:
+    """Whether two time-overlapping tracks of one camera (each in time order) are two
+    vehicles: at some sighting of one, the other's position at that moment (its own
+    sighting then, or interpolated between two of its sightings at most `max_gap_s`
+    apart: tracks are sampled on their own clocks) is more than `max_m` metres away;
+    always when `max_m` is 0. Tracks never seen together are not judged here."""
+    if max_m == 0:
+        return True
+    for this, other in ((a_track, b_track), (b_track, a_track)):
+        ot = [o.t for o in other]
+        for s in this:
+            j = bisect.bisect_left(ot, s.t)
+            if j < len(ot) and ot[j] - s.t <= 1e-3:
+                x, y = other[j].x, other[j].y
+            elif j > 0 and s.t - ot[j - 1] <= 1e-3:
+                x, y = other[j - 1].x, other[j - 1].y
+            elif 0 < j < len(ot) and ot[j] - ot[j - 1] <= max_gap_s:
+                p, q = other[j - 1], other[j]
+                f = (s.t - p.t) / (q.t - p.t)
+                x, y = p.x + f * (q.x - p.x), p.y + f * (q.y - p.y)
+            else:
+                continue
+            if math.hypot(s.x - x, s.y - y) > max_m:
+                return True
+    return False
+
+
 def _follows(road_map, lanes, cfg, a_track: list[Sighting], b_track: list[Sighting]) -> bool:
     """One car can have made both tracks, A starting no later than B."""
     b0 = b_track[0]
     if (a_track[-1].t >= b0.t and a_track[0].observer_id == b0.observer_id
-            and a_track[0].track_id != b0.track_id):
-        return False  # one camera's two tracks at one moment are two vehicles
+            and a_track[0].track_id != b0.track_id
+            and _apart_at_once(a_track, b_track, cfg.same_camera_m)):
+        return False  # one camera's two tracks seen apart at one moment: two vehicles
     def head(track, s):
         return _heading(track, s, cfg.heading_min_m, cfg.heading_window_s)
 
