@@ -128,6 +128,7 @@ def test_version_1_file_reads_and_upgrades(tmp_path):
     _write(path)
     con = sqlite3.connect(path)  # the file as dashtraj with schema version 1 wrote it
     con.execute("DROP TABLE embeddings")
+    con.execute("ALTER TABLE detections DROP COLUMN depicted_vehicle_id")
     con.execute("UPDATE meta SET value = '1' WHERE key = 'schema_version'")
     con.commit()
     con.close()
@@ -146,6 +147,25 @@ def test_version_1_file_reads_and_upgrades(tmp_path):
     con.close()
     with SightingsDB.open(path) as db:
         assert db.count("embeddings") == 1 and len(db.detections()) == 24
+
+
+def test_version_2_file_reads_without_depicted_ids_and_upgrades(tmp_path):
+    path = tmp_path / "v2.db"
+    _write(path)
+    con = sqlite3.connect(path)  # schema version 2: no detections.depicted_vehicle_id
+    con.execute("ALTER TABLE detections DROP COLUMN depicted_vehicle_id")
+    con.execute("UPDATE meta SET value = '2' WHERE key = 'schema_version'")
+    con.commit()
+    con.close()
+    with SightingsDB.open(path) as db:
+        dets = db.detections()
+        assert len(dets) == 24 and all(d.depicted_vehicle_id is None for d in dets)
+    with SightingsDB.open(path, writable=True) as db:
+        assert db.version == SCHEMA_VERSION == 3
+        assert all(d.depicted_vehicle_id is None for d in db.detections())
+    con = sqlite3.connect(path)
+    assert "depicted_vehicle_id" in [r[1] for r in con.execute("PRAGMA table_info(detections)")]
+    con.close()
 
 
 def test_newer_schema_is_refused(tmp_path):

@@ -19,6 +19,7 @@ Two detectors exist, chosen by name with `build_detector`:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol, runtime_checkable
@@ -128,6 +129,40 @@ def match_truth(det: Detections, truth: Detections, min_iou: float = 0.5) -> np.
     r, c = linear_sum_assignment(-iou)
     ok = iou[r, c] >= min_iou
     out[r[ok]] = truth.truth_ids[c[ok]]
+    return out
+
+
+def depicted_vehicles(frame, boxes: np.ndarray, min_fraction: float = 0.25) -> np.ndarray:
+    """Vehicle id each box *shows*: the vehicle with the most pixels inside the box in the
+    renderer's instance image, when it covers at least `min_fraction` of the box; else −1.
+    Returns (N,) int64.
+
+    `match_truth` pairs detections with truth boxes one to one at IoU ≥ 0.5, the
+    detection protocol: a second box on one vehicle (a duplicate of another orientation
+    class), or a box of part of it (a motorcycle without its rider, a car's front half),
+    matches no truth box. For re-identification a crop is the target's when it shows
+    the target, which this says from the pixels (evaluation only: the renderer's
+    ground truth). `frame` is a `dashtraj.datasets.frames.RecordingFrame`.
+    """
+    b = np.asarray(boxes, np.float64).reshape(-1, 4)
+    out = np.full(len(b), -1, np.int64)
+    inst = frame.frame_data.instance
+    h, w = inst.shape
+    vid_of = {lab.instance_id: int(v) for lab, v in
+              zip(frame.frame_data.labels, frame.vehicle_ids, strict=True)}
+    for i, (x0, y0, x1, y1) in enumerate(b):
+        c0, r0 = max(0, math.floor(x0)), max(0, math.floor(y0))
+        c1, r1 = min(w, math.ceil(x1)), min(h, math.ceil(y1))
+        if c1 <= c0 or r1 <= r0:
+            continue
+        ids, n = np.unique(inst[r0:r1, c0:c1], return_counts=True)
+        keep = ids != 0
+        ids, n = ids[keep], n[keep]
+        if not len(ids):
+            continue
+        j = int(np.argmax(n))
+        if n[j] >= min_fraction * (r1 - r0) * (c1 - c0) and int(ids[j]) in vid_of:
+            out[i] = vid_of[int(ids[j])]
     return out
 
 

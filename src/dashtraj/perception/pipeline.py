@@ -25,6 +25,7 @@ from dashtraj.perception.detections import (
     ORIENTATION_OF_CLASS,
     VEHICLE_CLASS_OF_CLASS,
     build_detector,
+    depicted_vehicles,
 )
 from dashtraj.perception.localize import CameraPose, build_localizer
 from dashtraj.perception.mapmatch import map_match
@@ -173,6 +174,7 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
         ids = tracker.update(det, rf.t, pose)
         mm = map_match(road_map, loc.x, loc.y)
         rgb = rf.frame_data.rgb
+        shown = depicted_vehicles(rf, det.boxes)
         for i in range(len(det)):
             c = int(det.class_ids[i])
             tid = int(ids[i])
@@ -185,7 +187,8 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
                 vclass, ORIENTATION_OF_CLASS[c], float(loc.distance_m[i]),
                 float(loc.bearing_deg[i]), float(loc.x[i]), float(loc.y[i]), float(mm.z[i]),
                 int(mm.road_id[i]), int(mm.section_id[i]), int(mm.lane_id[i]), float(mm.s[i]),
-                float(mm.lateral_m[i]), truth if truth >= 0 else None))
+                float(mm.lateral_m[i]), truth if truth >= 0 else None,
+                truth if truth >= 0 else int(shown[i]) if shown[i] >= 0 else None))
             if tid > 0:
                 tstats.add(tid, rf.t, vclass, truth)
                 touched.add(tid)

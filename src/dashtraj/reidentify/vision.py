@@ -24,10 +24,16 @@ crop within 15 m that the filter keeps (the paper's first crop when none is); th
 query's own track is a candidate whatever its distance (the user pointed at it).
 
 Scoring: a track is the target's when most of its used sightings (one every
-`sample_s` within range) are detections matched to the target's true box; a detection
-matched to no vehicle (a false detection, or a box that overlaps no true box by IoU
-0.5) votes for "no vehicle". (The store's track truth counts matched detections only,
-so a clutter track that the target crossed once would count as the target's.)
+`sample_s` within range) are detections that show the target: matched to its true box
+(one to one, IoU 0.5), or, unmatched, with the target covering most of the box's
+vehicle pixels and at least a quarter of the box in the renderer's instance image
+(``depicted_vehicle_id``: a second box of another orientation class on it, or a box of
+part of it, is a crop of the target); a detection showing no vehicle (a false
+detection) votes for "no vehicle". (The store's track truth counts matched detections
+only, so a clutter track that the target crossed once would count as the target's.)
+Databases written before 2026-11-27 (schema 2) have no depicted ids: their unmatched
+detections vote "no vehicle", which counted duplicate and part boxes of the target as
+false matches.
 
 Embeddings come from the store's embeddings table (`crop_embeddings`; missing vectors
 of the model are computed and stored first, as ``dashtraj reid embed DB`` does).
@@ -314,7 +320,9 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
     if not by_truth:  # what the used sightings show: most of them, "no vehicle" counted
         votes: dict[Hashable, Counter] = {}
         for k, d in rows:
-            votes.setdefault(k, Counter())[d.truth_vehicle_id] += 1
+            shown = (d.depicted_vehicle_id if d.depicted_vehicle_id is not None
+                     else d.truth_vehicle_id)  # schema-2 files have no depicted id
+            votes.setdefault(k, Counter())[shown] += 1
         truth = {k: _majority(c) for k, c in votes.items()}
     if positions_of is not None and switches.positions == "truth" and rows:
         xy = np.zeros((len(rows), 2))

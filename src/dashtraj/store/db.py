@@ -18,7 +18,11 @@ Tables (units: seconds, CARLA world metres, degrees, image pixels):
                 vehicle_class, orientation, distance_m, bearing_deg (signed, + right),
                 x, y, z (estimated position), road_id, section_id, lane_id, s,
                 lateral_m (map-matched waypoint and offset from its lane centre),
-                truth_vehicle_id (evaluation only; NULL when unknown). The observer's
+                truth_vehicle_id (the truth box it matches one to one at IoU >= 0.5,
+                the detection protocol), depicted_vehicle_id (that match, else the
+                vehicle most of its box shows: a duplicate or a part box of a vehicle
+                included; what its crop is of);
+                both evaluation only, NULL when unknown. The observer's
                 pose is the ``poses`` row of the same (observer_id, frame).
 ``crops``       observer_id, frame, idx, jpeg (bytes), width, height: the image crop of
                 each detection within the ReID range (15 m by default).
@@ -38,10 +42,12 @@ Writing: `SightingsDB.create` (WAL journal) and one transaction per batch of fra
 `SightingsDB.open` checks the file (SQLite header, integrity, format, schema
 version) and raises `StoreError` naming it.
 
-Schema versions and migration: ``meta.schema_version`` is 2 (1 had no ``embeddings``).
-`SightingsDB.open` reads both read-only (a version-1 file simply has no embeddings);
-``SightingsDB.open(path, writable=True)`` upgrades a version-1 file in place, in one
-transaction (`_MIGRATIONS`). A newer version than this dashtraj knows is refused.
+Schema versions and migration: ``meta.schema_version`` is 3 (1 had no ``embeddings``,
+2 no ``detections.depicted_vehicle_id``). `SightingsDB.open` reads every version
+read-only (a version-1 file simply has no embeddings, a version-2 file reads
+``depicted_vehicle_id`` as None); ``SightingsDB.open(path, writable=True)`` upgrades an
+older file in place, in one transaction (`_MIGRATIONS`). A newer version than this
+dashtraj knows is refused.
 
 Embeddings API (appearance vectors of the crops, written by ``dashtraj reid embed``):
 
@@ -78,7 +84,7 @@ from dashtraj.errors import DashtrajError
 from dashtraj.trajectory.records import Sighting
 
 FORMAT = "dashtraj-sightings"
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 
 
@@ -132,6 +138,7 @@ class DetectionRow:
     s: float | None
     lateral_m: float | None
     truth_vehicle_id: int | None
+    depicted_vehicle_id: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -230,7 +237,7 @@ _DDL = (
     "y1 REAL, score REAL, class_id INTEGER, vehicle_class TEXT, orientation TEXT, "
     "distance_m REAL, bearing_deg REAL, x REAL, y REAL, z REAL, road_id INTEGER, "
     "section_id INTEGER, lane_id INTEGER, s REAL, lateral_m REAL, truth_vehicle_id INTEGER, "
-    "PRIMARY KEY (observer_id, frame, idx))",
+    "depicted_vehicle_id INTEGER, PRIMARY KEY (observer_id, frame, idx))",
     "CREATE INDEX detections_track ON detections (observer_id, track_id)",
     "CREATE TABLE crops (observer_id INTEGER NOT NULL, frame INTEGER NOT NULL, "
     "idx INTEGER NOT NULL, jpeg BLOB NOT NULL, width INTEGER, height INTEGER, "
@@ -244,7 +251,10 @@ _EMBEDDINGS_DDL = (
     "FOREIGN KEY (observer_id, frame, idx) REFERENCES crops (observer_id, frame, idx))",
 )
 _DDL = _DDL + _EMBEDDINGS_DDL
-_MIGRATIONS: dict[int, tuple[str, ...]] = {2: _EMBEDDINGS_DDL}
+_MIGRATIONS: dict[int, tuple[str, ...]] = {
+    2: _EMBEDDINGS_DDL,
+    3: ("ALTER TABLE detections ADD COLUMN depicted_vehicle_id INTEGER",),
+}
 """Statements that take a file from version v - 1 to v."""
 _TABLES = ("meta", "run", "observers", "poses", "tracks", "detections", "crops", "embeddings")
 _TABLES_V1 = _TABLES[:-1]
@@ -280,10 +290,11 @@ class SightingsDB:
     manager or call `close`.
     """
 
-    def __init__(self, conn, path: Path, writable: bool):
+    def __init__(self, conn, path: Path, writable: bool, version: int = SCHEMA_VERSION):
         self.conn = conn
         self.path = path
         self.writable = writable
+        self.version = version  # the file's schema version (read-only files stay as they are)
 
     # ------------------------------------------------------------------ opening
     @classmethod
@@ -354,7 +365,8 @@ class SightingsDB:
             conn.execute("PRAGMA foreign_keys=ON")
             if version < SCHEMA_VERSION:
                 _migrate(conn, p, version)
-        return cls(conn, p, writable)
+                version = SCHEMA_VERSION
+        return cls(conn, p, writable, version)
 
     def close(self) -> None:
         """Commit nothing further, fold the WAL into the file and close."""
@@ -449,7 +461,9 @@ class SightingsDB:
         return [PoseRow(*r) for r in self._query(sql + " ORDER BY observer_id, frame", args)]
 
     def detections(self, observer_id: int | None = None) -> list[DetectionRow]:
-        sql = f"SELECT {', '.join(_cols(DetectionRow))} FROM detections"
+        cols = [c if c != "depicted_vehicle_id" or self.version >= 3 else "NULL"
+                for c in _cols(DetectionRow)]  # version 2 files have no depicted_vehicle_id
+        sql = f"SELECT {', '.join(cols)} FROM detections"
         args: tuple = ()
         if observer_id is not None:
             sql += " WHERE observer_id = ?"
