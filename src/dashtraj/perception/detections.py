@@ -132,10 +132,15 @@ def match_truth(det: Detections, truth: Detections, min_iou: float = 0.5) -> np.
     return out
 
 
-def depicted_vehicles(frame, boxes: np.ndarray, min_fraction: float = 0.25) -> np.ndarray:
-    """Vehicle id each box *shows*: the vehicle with the most pixels inside the box in the
-    renderer's instance image, when it covers at least `min_fraction` of the box; else −1.
-    Returns (N,) int64.
+def depicted_vehicles(frame, boxes: np.ndarray, min_fraction: float = 0.25,
+                      min_share: float = 0.5, min_share_fraction: float = 0.05) -> np.ndarray:
+    """Vehicle id each box *shows*, from the renderer's instance image; −1 for none.
+
+    The vehicle with the most pixels inside the box shows in it when those pixels cover at
+    least `min_fraction` of the box, or when the box holds at least `min_share` of that
+    vehicle's visible pixels in the frame and they cover at least `min_share_fraction`
+    of the box (a thin vehicle, a motorcycle or bicycle seen from behind, fills little of
+    its own box). Returns (N,) int64.
 
     `match_truth` pairs detections with truth boxes one to one at IoU ≥ 0.5, the
     detection protocol: a second box on one vehicle (a duplicate of another orientation
@@ -146,10 +151,13 @@ def depicted_vehicles(frame, boxes: np.ndarray, min_fraction: float = 0.25) -> n
     """
     b = np.asarray(boxes, np.float64).reshape(-1, 4)
     out = np.full(len(b), -1, np.int64)
+    if not len(b):
+        return out
     inst = frame.frame_data.instance
     h, w = inst.shape
     vid_of = {lab.instance_id: int(v) for lab, v in
               zip(frame.frame_data.labels, frame.vehicle_ids, strict=True)}
+    visible = np.bincount(inst.ravel())
     for i, (x0, y0, x1, y1) in enumerate(b):
         c0, r0 = max(0, math.floor(x0)), max(0, math.floor(y0))
         c1, r1 = min(w, math.ceil(x1)), min(h, math.ceil(y1))
@@ -161,8 +169,11 @@ def depicted_vehicles(frame, boxes: np.ndarray, min_fraction: float = 0.25) -> n
         if not len(ids):
             continue
         j = int(np.argmax(n))
-        if n[j] >= min_fraction * (r1 - r0) * (c1 - c0) and int(ids[j]) in vid_of:
-            out[i] = vid_of[int(ids[j])]
+        v, area = int(ids[j]), (r1 - r0) * (c1 - c0)
+        if v in vid_of and (n[j] >= min_fraction * area
+                            or (n[j] >= min_share * visible[v]
+                                and n[j] >= min_share_fraction * area)):
+            out[i] = vid_of[v]
     return out
 
 

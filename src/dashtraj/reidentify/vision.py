@@ -25,12 +25,14 @@ query's own track is a candidate whatever its distance (the user pointed at it).
 
 Scoring: a track is the target's when most of its used sightings (one every
 `sample_s` within range) are detections that show the target: matched to its true box
-(one to one, IoU 0.5), or, unmatched, with the target covering most of the box's
-vehicle pixels and at least a quarter of the box in the renderer's instance image
-(``depicted_vehicle_id``: a second box of another orientation class on it, or a box of
-part of it, is a crop of the target); a detection showing no vehicle (a false
-detection) votes for "no vehicle". (The store's track truth counts matched detections
-only, so a clutter track that the target crossed once would count as the target's.)
+(one to one, IoU 0.5), or, unmatched, with the target the vehicle most of the box's
+vehicle pixels belong to in the renderer's instance image, covering a quarter of the box
+or, if the box holds most of the target, a twentieth of it (``depicted_vehicle_id``,
+`dashtraj.perception.detections.depicted_vehicles`: a second box of another orientation
+class on it, or a box of part of it, is a crop of the target); a detection showing no
+vehicle (a false detection) votes for "no vehicle". (The store's track truth counts
+matched detections only, so a clutter track that the target crossed once would count
+as the target's.)
 Databases written before 2026-11-27 (schema 2) have no depicted ids: their unmatched
 detections vote "no vehicle", which counted duplicate and part boxes of the target as
 false matches.
