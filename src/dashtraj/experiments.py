@@ -589,11 +589,16 @@ _ISSUE_KEYS = {"sspd_whole_m": "sspd_m", "sspd_seen_m": "seen_sspd_m",
 
 
 def aggregate_reid(summaries: list[dict]) -> dict:
-    """ReID precision and recall over all experiments' tracks (counts summed first)."""
+    """ReID precision and recall over all experiments' tracks (counts summed first), and
+    with appearance ReID the misses by cause (`reidentify.vision.target_from_db`)."""
     from dashtraj.reidentify.scoring import ReidScore, pool
 
-    return pool(ReidScore(s.get("reid_true_matches", 0), s.get("reid_false_matches", 0),
-                          s.get("reid_misses", 0)) for s in summaries).to_dict()
+    out = pool(ReidScore(s.get("reid_true_matches", 0), s.get("reid_false_matches", 0),
+                         s.get("reid_misses", 0)) for s in summaries).to_dict()
+    causes = [s["reid_misses_by_cause"] for s in summaries if "reid_misses_by_cause" in s]
+    if causes:  # appearance ReID: why the target's missed tracks were missed
+        out["reid_misses_by_cause"] = {k: sum(c.get(k, 0) for c in causes) for k in causes[0]}
+    return out
 
 
 def figures(name: str, summary: dict) -> dict:
@@ -602,4 +607,6 @@ def figures(name: str, summary: dict) -> dict:
             "observers_that_saw_target": summary["observers_that_saw_target"],
             "methods": {m: {k: r[k] for k in _ISSUE_KEYS} for m, r in summary["methods"].items()},
             "reid_precision": summary.get("reid_precision"),
-            "reid_recall": summary.get("reid_recall")}
+            "reid_recall": summary.get("reid_recall"),
+            **({"reid_misses_by_cause": summary["reid_misses_by_cause"]}
+               if "reid_misses_by_cause" in summary else {})}

@@ -67,6 +67,9 @@ def test_demo_from_pixels_finds_the_target_and_writes_every_file(tmp_path, gl_av
     # on this run); how many of its tracks it finds depends on the models
     assert s["reid_true_matches"] >= 1
     assert s["reid_precision"] == 1.0 and s["reid_recall"] > 0.0
+    # every missed track of the target has its cause
+    assert sum(s["reid_misses_by_cause"].values()) == s["reid_misses"]
+    assert set(s["reid_misses_by_cause"]) == {"threshold", "gate", "no_usable_crop"}
     assert s["sightings"] > 0 and set(s["methods"]) == {"shortest-path", "hmm"}
     assert s["methods"]["hmm"]["sspd_seen_m"] < 5.0
     # the one reconstruction path saw exactly the sightings written out

@@ -194,6 +194,11 @@ def run(args) -> int:
     print(f"  ReID over {reid['reid_true_matches'] + reid['reid_false_matches']} accepted "
           f"tracks: precision {'-' if p_ is None else f'{p_:.3f}'}, recall "
           f"{'-' if r_ is None else f'{r_:.3f}'} ({how})")
+    if "reid_misses_by_cause" in reid:
+        c = reid["reid_misses_by_cause"]
+        print(f"  the target's {reid['reid_misses']} missed tracks: {c['threshold']} above the "
+              f"threshold, {c['gate']} dropped by the gate, {c['no_usable_crop']} without a "
+              "usable crop")
     print(f"time: {total['wall_s']:.0f} s wall, {total['cpu_s']:.0f} CPU-s for "
           f"{len(summaries)} experiments")
     print(f"files: {out}/")

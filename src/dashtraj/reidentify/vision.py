@@ -197,6 +197,9 @@ class TargetTracks:
         sightings: the accepted tracks' sightings, time order.
         summary: reid_precision, reid_recall, their counts, reid_candidates (tracks the
             appearance decision accepted, before the gate), reid_gated_out,
+            reid_misses_by_cause (the target's tracks not accepted: above the
+            ``threshold``, dropped by the ``gate``, or ``no_usable_crop``; appearance
+            ReID only),
             reid_tracks (tracks in the ReID range), query (observer, frame, t) and
             threshold entries.
         true_match: accepted track key → True when its truth is the target.
@@ -366,6 +369,13 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         extra["reid_aggregate"] = aggregate
         extra["reid_query"] = recipe.query
         extra["reid_crops_used"] = len(keys)
+        decided = {d.key for d in sel.decisions}
+        causes = Counter(("no_usable_crop" if k not in decided else
+                          "gate" if k in sel.candidates else "threshold")
+                         for k, v in truth.items()
+                         if v == target_vehicle_id and k not in set(accepted))
+        extra["reid_misses_by_cause"] = {c: causes.get(c, 0)
+                                         for c in ("threshold", "gate", "no_usable_crop")}
     for k in candidates:
         truth.setdefault(k, None)
     sightings = sorted((s for k in accepted for s in tracks[k]),
