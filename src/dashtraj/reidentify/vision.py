@@ -369,11 +369,10 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         extra["reid_aggregate"] = aggregate
         extra["reid_query"] = recipe.query
         extra["reid_crops_used"] = len(keys)
-        decided = {d.key for d in sel.decisions}
+        decided, kept = {d.key for d in sel.decisions}, set(accepted)
         causes = Counter(("no_usable_crop" if k not in decided else
                           "gate" if k in sel.candidates else "threshold")
-                         for k, v in truth.items()
-                         if v == target_vehicle_id and k not in set(accepted))
+                         for k, v in truth.items() if v == target_vehicle_id and k not in kept)
         extra["reid_misses_by_cause"] = {c: causes.get(c, 0)
                                          for c in ("threshold", "gate", "no_usable_crop")}
     for k in candidates:
