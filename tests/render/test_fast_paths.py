@@ -39,11 +39,21 @@ def random_scene(rng: np.random.Generator, n: int):
 
 @pytest.fixture(scope="module")
 def pair(gl_ctx, straight_map):
-    a = Renderer(straight_map, 320, 180, 90.0, msaa=0, ctx=gl_ctx)
-    b = Renderer(straight_map, 320, 180, 90.0, msaa=2, ctx=gl_ctx)
+    # A context of their own, not the session's: after the perception tests had created
+    # and released renderers on the shared context, the one-pass renderer drew a few
+    # hundred pixels of a stray near-camera surface with garbage ids (seen with
+    # `pytest -p no:xdist tests/perception tests/render/test_fast_paths.py`, also at
+    # d3d1c7c; not yet explained: an open bug of renderers sharing a context, not of the
+    # fast paths this module compares).
+    from dashtraj.render.gl import create_context
+
+    ctx = create_context()
+    a = Renderer(straight_map, 320, 180, 90.0, msaa=0, ctx=ctx)
+    b = Renderer(straight_map, 320, 180, 90.0, msaa=2, ctx=ctx)
     yield a, b
     a.release()
     b.release()
+    ctx.release()
 
 
 def _reference_visible(instance, vehicles):
