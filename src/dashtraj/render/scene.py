@@ -274,6 +274,7 @@ class Renderer:
         self._proj = _gl_projection(self.k, self.width, self.height)
         self._owns_ctx = ctx is None
         self.ctx = ctx if ctx is not None else create_context(threads)
+        self.ctx.__enter__()  # a given context may not be the current one (`_make_current`)
         ctx = self.ctx
         vs = shaders.VS
         # the same vertex shader in every pass: identical positions, so the pixels of a
@@ -462,6 +463,7 @@ class Renderer:
         only); changes pixels, never labels, ids or depth."""
         if not isinstance(look, LookConfig):
             raise TypeError(f"look must be a LookConfig, got {type(look).__name__}")
+        self._make_current()
         self.look = look
         lt = lighting(look)
         mat, cam = look.materials, look.camera
@@ -807,6 +809,7 @@ class Renderer:
 
         mgl = self._moderngl
         ctx = self.ctx
+        self._make_current()
         self._lap(None)
         h, w = self.height, self.width
         vs = as_instances(vehicles)
@@ -1060,8 +1063,16 @@ class Renderer:
                 _count_and_box(sub != 0, boxes[j], j, counts, tight)
         self.ctx.enable(mgl.DEPTH_TEST)
 
+    def _make_current(self) -> None:
+        """Make this renderer's context the thread's current one (about 1 µs). GL calls
+        go to the current context, which is the last one created or made current: without
+        this, a renderer whose context was not the newest drew into another renderer's
+        context (stray surfaces and garbage ids in its frames)."""
+        self.ctx.__enter__()
+
     def release(self) -> None:
         """Free this renderer's GL objects, and the context if the renderer created it."""
+        self._make_current()
         if self._owns_ctx:
             self.ctx.release()
             return
