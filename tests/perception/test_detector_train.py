@@ -35,7 +35,7 @@ def _tiny_set(root, n=4):
 
 def test_one_epoch_trains_resumes_and_exports(tmp_path):
     from dashtraj.perception.detect import YoloDetector
-    from dashtraj.perception.detector_train import (
+    from dashtraj.train.detector_train import (
         augment,
         export_checkpoint,
         get_recipe,

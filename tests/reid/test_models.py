@@ -16,6 +16,9 @@ from dashtraj.reid.models import PAPER_MODELS, UnknownModelError, build_model, m
 def test_registry_and_unknown_name():
     assert set(PAPER_MODELS) <= set(model_names())
     assert {"osnet_x0_25", "osnet_x0_5"} <= set(model_names())
+    from dashtraj.train.reid_nets import BACKBONES  # the torch-free list names every network
+
+    assert model_names() == sorted(BACKBONES)
     with pytest.raises(KeyError) as e:
         build_model("osnet_x9", 10)
     assert isinstance(e.value, UnknownModelError)
@@ -118,8 +121,8 @@ def test_onnx_export_equals_torch(tmp_path):
     pytest.importorskip("onnx")
     pytest.importorskip("onnxruntime")
     from dashtraj.reid.embed import ReidEmbedder
-    from dashtraj.reid.export import export_onnx
     from dashtraj.reid.train import RECIPES, _to_tensor
+    from dashtraj.train.reid_export import export_onnx
 
     torch.manual_seed(0)
     m = build_model("osnet_x0_25", 11)
@@ -195,8 +198,8 @@ def test_lite0_onnx_export_with_fp16_weights(tmp_path):
     from dataclasses import asdict
 
     from dashtraj.reid.embed import ReidEmbedder
-    from dashtraj.reid.export import export_onnx
     from dashtraj.reid.train import RECIPES
+    from dashtraj.train.reid_export import export_onnx
 
     torch.manual_seed(0)
     m = build_model("efficientnet_lite0", 9, pretrained=False)

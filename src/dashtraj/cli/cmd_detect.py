@@ -89,7 +89,7 @@ def run_train(args: argparse.Namespace) -> int:
         raise DashtrajError(f"{args.data}: no images/train/ (expected a YOLO set made by "
                             "'dashtraj detection-dataset')")
     try:
-        from dashtraj.perception.detector_train import get_recipe, train
+        from dashtraj.train.detector_train import get_recipe, train
     except ImportError as exc:
         raise DashtrajError(f"detector train needs the training extra ({exc.name} is "
                             "missing): pip install -e '.[train]'") from None
@@ -123,7 +123,7 @@ def run_export(args: argparse.Namespace) -> int:
                             "DIR/last.pt of 'dashtraj detector train')")
     check_output(args.output, overwrite=args.overwrite, kind="file")
     try:
-        from dashtraj.perception.detector_train import export_checkpoint
+        from dashtraj.train.detector_train import export_checkpoint
     except ImportError as exc:
         raise DashtrajError(f"detector export needs the training extra ({exc.name} is "
                             "missing): pip install -e '.[train]'") from None

@@ -105,12 +105,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _need_torch():
+    import importlib.util
+
     from dashtraj.errors import DashtrajError
 
-    try:
-        import torch  # noqa: F401
-    except ImportError as e:
-        raise DashtrajError("this command needs torch: pip install -e '.[train]'") from e
+    if importlib.util.find_spec("torch") is None:  # looks, does not import it
+        raise DashtrajError("this command needs torch: pip install -e '.[train]'")
 
 
 def run_train(args: argparse.Namespace) -> int:
@@ -178,7 +178,7 @@ def run_export(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from dashtraj.outputs import atomic_output
-    from dashtraj.reid.export import export_onnx
+    from dashtraj.train.reid_export import export_onnx
 
     with atomic_output(args.output, overwrite=args.overwrite, kind="file") as tmp:
         meta = export_onnx(args.checkpoint, tmp, fp16=args.fp16_weights)

@@ -432,7 +432,7 @@ def train(data_dir, out_dir, recipe: Recipe, seed: int = 0, epochs: int | None =
     Returns:
         a summary dict (epochs, steps, best map50 and map50_95, wall time, paths).
     """
-    from dashtraj.perception.detector_model import build_detector
+    from dashtraj.train.detector_model import build_detector
     from dashtraj.world.camera import DETECTION_CLASSES
 
     data_dir, out = Path(data_dir), Path(out_dir)
@@ -594,7 +594,7 @@ def write_curves(run_dir) -> Path:
 def export_checkpoint(ckpt_path, onnx_path, meta: dict | None = None) -> dict:
     """Export a checkpoint's EMA weights (or its model weights) to ONNX; returns the
     metadata written."""
-    from dashtraj.perception.detector_model import build_detector, export_onnx
+    from dashtraj.train.detector_model import build_detector, export_onnx
 
     ck = torch.load(ckpt_path, map_location="cpu", weights_only=False)
     names = ck["names"]
