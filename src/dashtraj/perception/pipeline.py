@@ -174,7 +174,10 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
         ids = tracker.update(det, rf.t, pose)
         mm = map_match(road_map, loc.x, loc.y)
         rgb = rf.frame_data.rgb
-        shown = depicted_vehicles(rf, det.boxes)
+        shown = det.truth_ids.copy()  # matched: its truth; unmatched: what the box shows
+        unmatched = shown < 0
+        if unmatched.any():
+            shown[unmatched] = depicted_vehicles(rf, det.boxes[unmatched])
         for i in range(len(det)):
             c = int(det.class_ids[i])
             tid = int(ids[i])
@@ -188,7 +191,7 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
                 float(loc.bearing_deg[i]), float(loc.x[i]), float(loc.y[i]), float(mm.z[i]),
                 int(mm.road_id[i]), int(mm.section_id[i]), int(mm.lane_id[i]), float(mm.s[i]),
                 float(mm.lateral_m[i]), truth if truth >= 0 else None,
-                truth if truth >= 0 else int(shown[i]) if shown[i] >= 0 else None))
+                int(shown[i]) if shown[i] >= 0 else None))
             if tid > 0:
                 tstats.add(tid, rf.t, vclass, truth)
                 touched.add(tid)

@@ -274,7 +274,7 @@ class Renderer:
         self._proj = _gl_projection(self.k, self.width, self.height)
         self._owns_ctx = ctx is None
         self.ctx = ctx if ctx is not None else create_context(threads)
-        self.ctx.__enter__()  # a given context may not be the current one (`_make_current`)
+        self._make_current()  # a given context may not be the current one
         ctx = self.ctx
         vs = shaders.VS
         # the same vertex shader in every pass: identical positions, so the pixels of a
