@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from dashtraj.reid.embed import shipped_model_path
 from dashtraj.reidentify.vision import (
     StageSwitches,
     VisionReidError,
+    expansion_crops,
     load_threshold,
     sha256_of,
     threshold_path,
@@ -49,3 +51,25 @@ def test_switch_names_are_checked():
     with pytest.raises(VisionReidError,
                        match="unknown tracks switch 'sort'; valid: tracker, truth"):
         StageSwitches(tracks="sort")
+
+
+def _unit(v):
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v)
+
+
+def test_query_expansion_keeps_only_the_crops_the_query_crop_accepts():
+    # a query track that the tracker carried from the scenery onto the target: the
+    # scenery's crops are far from the query crop and must not enter the mean
+    q = _unit([1.0, 0.0, 0.0])
+    emb = np.stack([
+        q,                           # 0: the query crop itself (distance 0)
+        _unit([0.95, 0.31, 0.0]),    # 1: the target, another view: 1 - 0.95 = 0.05
+        _unit([0.0, 1.0, 0.0]),      # 2: scenery before the switch: distance 1.0
+        _unit([0.7, 0.0, 0.714]),    # 3: distance 0.30, just above a 0.256 threshold
+    ])
+    assert expansion_crops(q, emb, [0, 1, 2, 3], 0.256) == [0, 1]
+    assert expansion_crops(q, emb, [2, 3, 1], 0.31) == [3, 1]
+    assert expansion_crops(q, emb, [], 0.256) == []
+    # a pure track keeps every crop within the threshold: the mean is the old one
+    assert expansion_crops(q, emb, [0, 1], 0.256) == [0, 1]

@@ -34,7 +34,10 @@ the run decides exactly as the threshold was calibrated):
 - the query (`QUERIES`): ``crop``, the target's first crop within 15 m as in
   ``calc_traj`` (``veh_t1.image``); or ``track``, *query expansion*: the mean of the
   L2-normalised embeddings of the adequate crops of the query's own track (the crops
-  the tracker joined to the query crop; with it if it is adequate), re-normalised.
+  the tracker joined to the query crop; with it if it is adequate), re-normalised. In
+  a run only the track's crops within the threshold of the query crop are averaged
+  (`dashtraj.reidentify.vision.expansion_crops`: a tracker can switch vehicles);
+  calibration's groups are truth-pure and are averaged whole.
   Averaging cancels what differs from crop to crop (viewpoint, blur, truncation) and
   keeps the vehicle's appearance, so a weak embedding separates tracks better than
   it separates crops.

@@ -13,7 +13,8 @@ target's sightings, with each stage after detection either real or an oracle
 
 Appearance ReID, the paper's ``calc_traj`` per track: the query is the target's
 first crop estimated within 15 m (`select.query_detection`, as ``calc_traj`` takes
-``veh_t1.image``), or with query expansion the mean of its track's crops; the gallery
+``veh_t1.image``), or with query expansion the mean of its track's crops that the
+query crop accepts (`expansion_crops`); the gallery
 is every crop of every observer (those of adequate size and not cut by the frame, as
 the `decision.Recipe` says); each detection's cosine distance to the query is
 aggregated per track and the track is the target when that is at most the threshold
@@ -210,6 +211,31 @@ class TargetTracks:
     true_match: dict[Hashable, bool]
 
 
+def expansion_crops(query: np.ndarray, embeddings: np.ndarray, rows: list[int],
+                    threshold: float) -> list[int]:
+    """The crops of the query's track that expand the query: those within `threshold`
+    (cosine distance) of the query crop, in the given order.
+
+    Calibration (`decision.pair_distances`) averages a truth-pure group of one
+    identity; a run's track is what the tracker joined, and it can hold boxes of another
+    vehicle or of the scenery before or after an identity switch. Averaging those in
+    pulls the query toward them (a query track that was mostly scenery once made every
+    crop of the target fail the threshold). Keeping only the crops the query crop itself
+    accepts restores the purity that calibration assumed; a pure track keeps all of its
+    crops that look like the query.
+
+    Args:
+        query: (D,) the query crop's L2-normalised embedding.
+        embeddings: (N, D) L2-normalised embeddings.
+        rows: rows of `embeddings` of the query track's adequate crops.
+        threshold: the calibrated decision threshold.
+    """
+    if not rows:
+        return []
+    d = cosine_distances(query, embeddings[rows])
+    return [i for i, di in zip(rows, d.tolist(), strict=True) if di <= threshold]
+
+
 def _sample(rows: list, sample_s: float) -> list:
     """Per key (rows sorted by key, t, idx): the first row of every `sample_s` seconds."""
     kept, key, t0, last = [], object(), 0.0, -1
@@ -314,7 +340,11 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
             q = emb[row[(query.observer_id, query.frame, query.idx)]]
             if recipe.query == "track":
                 own = [i for k, i in gal if k == key_of(query)]
-                if own:  # query expansion: the query track's adequate crops
+                # query expansion with the query track's adequate crops that the query
+                # crop itself would accept (``expansion_crops``): a tracker can join
+                # another vehicle's or the scenery's boxes to the query's track
+                own = expansion_crops(q, emb, own, float(threshold))
+                if own:
                     m = emb[own].astype(np.float64).mean(axis=0)
                     q = m / max(float(np.linalg.norm(m)), 1e-12)
             keys = [k for k, _ in gal]
