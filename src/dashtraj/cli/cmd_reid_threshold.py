@@ -19,9 +19,11 @@ expansion, the default) or one crop (--query crop: the paper's), and its distanc
 of another observer the median (--aggregate) of its cosine distances to that track's crops
 (`dashtraj.reidentify.decision.calibrate_threshold`). Only crops at least --min-box-px tall
 and at least --border-px from the image border are used, as in the run. The threshold is the
-highest recall with --target-precision on those pairs (--rule precision) or the equal error
-rate point (--rule eer); the query and crop filter are stored with it, and the run decides
-the same way.
+highest recall with --target-precision on those pairs (--rule precision), with at most
+--max-far of the negative pairs accepted (--rule far: what `make reid-threshold` uses) or the
+equal error rate point (--rule eer); the query and crop filter are stored with it, and the run decides
+the same way (a run's query track, which a tracker can carry across vehicles, is averaged only
+over its crops within the threshold of the query crop; the calibration's tracks are pure).
 
 Writes M.threshold.json beside the model (-o to write elsewhere) with the model's sha256 and
 the provenance (databases, recordings, towns, seeds, look, pair counts); `experiments
