@@ -21,9 +21,10 @@ of another observer the median (--aggregate) of its cosine distances to that tra
 and at least --border-px from the image border are used, as in the run. The threshold is the
 highest recall with --target-precision on those pairs (--rule precision), with at most
 --max-far of the negative pairs accepted (--rule far: what `make reid-threshold` uses) or the
-equal error rate point (--rule eer); the query and crop filter are stored with it, and the run decides
-the same way (a run's query track, which a tracker can carry across vehicles, is averaged only
-over its crops within the threshold of the query crop; the calibration's tracks are pure).
+equal error rate point (--rule eer); the query and crop filter are stored with it, and the
+run decides the same way (a run's query track, which a tracker can carry across vehicles, is
+averaged only over its crops within the threshold of the query crop; the calibration's tracks
+are pure).
 
 Writes M.threshold.json beside the model (-o to write elsewhere) with the model's sha256 and
 the provenance (databases, recordings, towns, seeds, look, pair counts); `experiments
