@@ -207,13 +207,20 @@ def as_instances(vehicles) -> list[VehicleInstance]:
     return out
 
 
+def place(x, y, z, c, s, p: np.ndarray) -> tuple:
+    """World coordinates of vehicle-frame points: ``x + c·px − s·py``, ``y + s·px + c·py``,
+    ``z + pz`` for points ``p`` (..., 3) of a vehicle at (x, y, z) whose yaw has cosine ``c``
+    and sine ``s`` (scalars, or arrays broadcast against ``p[..., 0]``). The one placement of
+    every vehicle-frame mesh the renderer draws (meshes, shadow casters, contact shadows)
+    and of the labels' vertices, so all of them agree to the bit."""
+    px, py = p[..., 0], p[..., 1]
+    return x + c * px - s * py, y + s * px + c * py, z + p[..., 2]
+
+
 def vehicle_world_positions(v: VehicleInstance, mesh: Mesh) -> np.ndarray:
     """(N, 3) mesh vertices of vehicle ``v`` in the CARLA world frame, metres."""
     c, s = math.cos(math.radians(v.yaw_deg)), math.sin(math.radians(v.yaw_deg))
-    p = mesh.positions.astype(np.float64)
-    return np.column_stack(
-        [v.x + c * p[:, 0] - s * p[:, 1], v.y + s * p[:, 0] + c * p[:, 1], v.z + p[:, 2]]
-    )
+    return np.column_stack(place(v.x, v.y, v.z, c, s, mesh.positions.astype(np.float64)))
 
 
 class Renderer:
@@ -646,11 +653,8 @@ class Renderer:
         cs = np.column_stack([np.cos(yaw), np.sin(yaw)])
         origin = np.array([(v.x, v.y, v.z) for v in vs])
         local = np.stack([self._caster_boxes[k] for k in keys])  # (N, 8, 3)
-        corners = np.stack([origin[:, None, 0] + cs[:, None, 0] * local[..., 0]
-                            - cs[:, None, 1] * local[..., 1],
-                            origin[:, None, 1] + cs[:, None, 1] * local[..., 0]
-                            + cs[:, None, 0] * local[..., 1],
-                            origin[:, None, 2] + local[..., 2]], axis=-1)
+        corners = np.stack(place(origin[:, None, 0], origin[:, None, 1], origin[:, None, 2],
+                                 cs[:, None, 0], cs[:, None, 1], local), axis=-1)
         inside = ~_corners_outside(corners, lm)
         groups: dict[tuple, list[int]] = {}
         for i in np.flatnonzero(inside):
@@ -697,10 +701,9 @@ class Renderer:
         cnt = [p[4] for p in poses]
         c = np.repeat([math.cos(p[3]) for p in poses], cnt)
         s = np.repeat([math.sin(p[3]) for p in poses], cnt)
-        px, py = data[:, 0].astype(np.float64), data[:, 1].astype(np.float64)
-        data[:, 0] = np.repeat([p[0] for p in poses], cnt) + c * px - s * py
-        data[:, 1] = np.repeat([p[1] for p in poses], cnt) + s * px + c * py
-        data[:, 2] += np.repeat([p[2] for p in poses], cnt)
+        data[:, :3] = np.column_stack(place(*(np.repeat([p[j] for p in poses], cnt)
+                                              for j in range(3)),
+                                            c, s, data[:, :3].astype(np.float64)))
         nbytes = data.nbytes
         if self._sbuf is None or nbytes > self._sbuf_bytes:
             cap = 1 << (max(nbytes, 1 << 15) - 1).bit_length()
@@ -825,14 +828,10 @@ class Renderer:
             yaw = np.radians([v.yaw_deg for v in vs])
             c = np.repeat(np.cos(yaw), counts)
             s = np.repeat(np.sin(yaw), counts)
-            p = data[:, :3].astype(np.float64)
-            world = np.column_stack(
-                [
-                    np.repeat([v.x for v in vs], counts) + c * p[:, 0] - s * p[:, 1],
-                    np.repeat([v.y for v in vs], counts) + s * p[:, 0] + c * p[:, 1],
-                    np.repeat([v.z for v in vs], counts) + p[:, 2],
-                ]
-            )
+            world = np.column_stack(place(np.repeat([v.x for v in vs], counts),
+                                          np.repeat([v.y for v in vs], counts),
+                                          np.repeat([v.z for v in vs], counts),
+                                          c, s, data[:, :3].astype(np.float64)))
             data[:, :3] = world
             nx, ny = data[:, 3].astype(np.float64), data[:, 4].astype(np.float64)
             data[:, 3] = c * nx - s * ny
