@@ -13,7 +13,7 @@ import pytest
 
 from dashtraj.render.labels import DETECTION_CLASSES, relative_yaw, truncation
 from dashtraj.render.meshes import scene_meshes, vehicle_mesh
-from dashtraj.render.scene import Renderer, intrinsics, project_points
+from dashtraj.render.scene import Renderer, intrinsics, place, project_points
 from render_scene import BIKE, BUS, MOTO, SEDAN, SUV, TRUCK, VAN, identity
 
 CAM = (-95.0, 1.75, 1.6, 0.0, 0.0, 0.0)
@@ -34,6 +34,18 @@ def test_intrinsics_follow_carla():
     k = intrinsics(1280, 720, 90.0)
     assert k[0, 0] == pytest.approx(640.0) and k[1, 1] == pytest.approx(640.0)
     assert (k[0, 2], k[1, 2]) == (640.0, 360.0)
+
+
+def test_place_turns_vehicle_frame_points_by_the_yaw():
+    # a vehicle at (10, 20, 1) facing +y (yaw 90 deg): its nose (x forward) points along +y,
+    # its right side (y right in CARLA's left-handed frame) along -x
+    p = np.array([[2.0, 0.0, 0.5], [0.0, 1.0, 0.0]])
+    x, y, z = place(10.0, 20.0, 1.0, math.cos(math.pi / 2), math.sin(math.pi / 2), p)
+    assert np.allclose(np.column_stack([x, y, z]), [[10.0, 22.0, 1.5], [9.0, 20.0, 1.0]])
+    # per-point poses broadcast (as the renderer places many vehicles in one product)
+    x, y, z = place(np.array([0.0, 5.0]), np.zeros(2), np.zeros(2), np.array([1.0, -1.0]),
+                    np.zeros(2), np.array([[1.0, 2.0, 3.0], [1.0, 2.0, 3.0]]))
+    assert np.allclose(np.column_stack([x, y, z]), [[1.0, 2.0, 3.0], [4.0, -2.0, 3.0]])
 
 
 def test_known_point_projects_to_the_k_pixel(gl_ctx, straight_map, monkeypatch):
