@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
 
 from dashtraj.outputs import OutputExistsError, OutputPathError, atomic_output, check_output
@@ -121,3 +123,50 @@ def test_unwritable_parent_refused_up_front(tmp_path):
             check_output(ro / "new" / "out.csv", overwrite=False, kind="file")
     finally:
         ro.chmod(0o755)
+
+
+def _dead_pid() -> int:
+    import subprocess
+    import sys
+
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()
+    return p.pid
+
+
+def test_stale_temporaries_of_killed_processes_are_swept(tmp_path):
+    # a process of this host killed outright (SIGKILL) leaves its temporary sibling behind;
+    # the next write to the same output removes it, and nothing else
+    from dashtraj.outputs import _HOST
+
+    dead, live = _dead_pid(), os.getppid()
+    out = tmp_path / "run"
+    stale = [tmp_path / f".run.tmp-{dead}@{_HOST}", tmp_path / f".run.tmp-{dead}@{_HOST}-2"]
+    kept = [
+        tmp_path / f".run.tmp-{live}@{_HOST}",          # a live writer
+        tmp_path / f".run.tmp-{dead}@not-{_HOST}",      # another host's (shared disk)
+        tmp_path / f".run.tmp-{dead}",                  # an older name without the host
+        tmp_path / f".run.old-{dead}",                  # a replacement's backup: user data
+        tmp_path / f".runs.tmp-{dead}@{_HOST}",         # another output's
+    ]
+    for d in stale + kept:
+        d.mkdir()
+        _fill(d, ["part.txt"])
+    with atomic_output(out) as tmp:
+        _fill(tmp, ["x.txt"])
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert left == sorted(["run"] + [d.name for d in kept])
+
+    db = tmp_path / "s.db"
+    stale_file = tmp_path / f".s.db.tmp-{dead}@{_HOST}.db"
+    stale_file.write_bytes(b"half a database")
+    with atomic_output(db, kind="file") as tmp:
+        tmp.write_bytes(b"whole")
+    assert not stale_file.exists() and db.read_bytes() == b"whole"
+
+
+def test_temporary_sibling_names_its_process_and_host(tmp_path):
+    from dashtraj.outputs import _HOST
+
+    with atomic_output(tmp_path / "run") as tmp:
+        assert tmp.name == f".run.tmp-{os.getpid()}@{_HOST}"

@@ -13,6 +13,8 @@ A command writes into a temporary sibling of its output (same folder, so the fin
   kept under its own new name ``<name>.partial-<n>`` beside the output, never inside an older
   one, and stderr says where.
 - Missing parent folders are created.
+- A temporary sibling left by a process of this host that was killed outright (SIGKILL, power
+  loss) is removed by the next write to the same output (`_sweep_stale`).
 
 The replacement of an existing output is two renames (old → backup, new → output) followed by
 removing the backup; if the second rename fails the backup is renamed back, so at every instant
@@ -24,7 +26,9 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import re
 import shutil
+import socket
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -91,14 +95,50 @@ def _remove(path: Path) -> None:
             path.unlink()
 
 
-def _free_sibling(path: Path, tag: str) -> Path:
-    """``.<name>.<tag>-<pid>`` beside ``path``, or the same with a counter if taken."""
-    base = path.parent / f".{path.name}.{tag}-{os.getpid()}"
+_HOST = socket.gethostname().replace(os.sep, "_") or "localhost"
+
+
+def _free_sibling(path: Path, tag: str, host: bool = False) -> Path:
+    """``.<name>.<tag>-<pid>`` (with ``host``: ``.<name>.<tag>-<pid>@<host>``) beside
+    ``path``, or the same with a counter if taken."""
+    base = path.parent / f".{path.name}.{tag}-{os.getpid()}{'@' + _HOST if host else ''}"
     cand, n = base, 0
     while cand.exists() or cand.is_symlink():
         n += 1
         cand = base.with_name(f"{base.name}-{n}")
     return cand
+
+
+def _alive(pid: int) -> bool:
+    """Whether a process of this id exists on this machine (one we may not signal counts)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True
+    return True
+
+
+def _sweep_stale(path: Path) -> None:
+    """Remove the temporary siblings of ``path`` that a process of this host left behind
+    when it was killed outright (SIGKILL, power loss: no cleanup runs): names
+    ``.<name>.tmp-<pid>@<host>[-<n>][<suffixes>]`` with this host's name and a process id
+    that no longer exists. Anything else is left alone: another host's writer (a shared
+    file system), a live process, older names without the host, and the ``.old-`` backup
+    of a replacement (it holds the user's previous output)."""
+    if os.name != "posix":
+        return
+    prefix = f".{path.name}.tmp-"
+    pat = re.compile(rf"(\d+)@{re.escape(_HOST)}(?:-\d+)?(?:{re.escape(''.join(path.suffixes))})?")
+    try:
+        entries = [e for e in path.parent.iterdir() if e.name.startswith(prefix)]
+    except OSError:
+        return
+    for e in entries:
+        m = pat.fullmatch(e.name[len(prefix):])
+        if m and int(m.group(1)) != os.getpid() and not _alive(int(m.group(1))):
+            _remove(e)
 
 
 def _partial_name(path: Path) -> Path:
@@ -147,7 +187,8 @@ def atomic_output(path: str | os.PathLike[str], *, overwrite: bool = False,
     """
     p = check_output(path, overwrite=overwrite, kind=kind)
     p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _free_sibling(p, "tmp")
+    _sweep_stale(p)
+    tmp = _free_sibling(p, "tmp", host=True)
     if kind == "dir":
         tmp.mkdir()
     else:
