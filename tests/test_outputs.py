@@ -158,11 +158,12 @@ def test_stale_temporaries_of_killed_processes_are_swept(tmp_path):
     assert left == sorted(["run"] + [d.name for d in kept])
 
     db = tmp_path / "s.db"
-    stale_file = tmp_path / f".s.db.tmp-{dead}@{_HOST}.db"
-    stale_file.write_bytes(b"half a database")
+    stale_files = [tmp_path / f".s.db.tmp-{dead}@{_HOST}.db{j}" for j in ("", "-wal", "-shm")]
+    for f in stale_files:
+        f.write_bytes(b"half a database")
     with atomic_output(db, kind="file") as tmp:
         tmp.write_bytes(b"whole")
-    assert not stale_file.exists() and db.read_bytes() == b"whole"
+    assert not any(f.exists() for f in stale_files) and db.read_bytes() == b"whole"
 
 
 def test_temporary_sibling_names_its_process_and_host(tmp_path):

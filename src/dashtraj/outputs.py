@@ -123,14 +123,16 @@ def _alive(pid: int) -> bool:
 def _sweep_stale(path: Path) -> None:
     """Remove the temporary siblings of ``path`` that a process of this host left behind
     when it was killed outright (SIGKILL, power loss: no cleanup runs): names
-    ``.<name>.tmp-<pid>@<host>[-<n>][<suffixes>]`` with this host's name and a process id
-    that no longer exists. Anything else is left alone: another host's writer (a shared
-    file system), a live process, older names without the host, and the ``.old-`` backup
-    of a replacement (it holds the user's previous output)."""
+    ``.<name>.tmp-<pid>@<host>[-<n>][<suffixes>][-wal|-shm|-journal]`` with this host's name
+    and a process id that no longer exists. Anything else is left alone: another host's
+    writer (a shared file system), a live process, older names without the host, and the
+    ``.old-`` backup of a replacement (it holds the user's previous output)."""
     if os.name != "posix":
         return
     prefix = f".{path.name}.tmp-"
-    pat = re.compile(rf"(\d+)@{re.escape(_HOST)}(?:-\d+)?(?:{re.escape(''.join(path.suffixes))})?")
+    sfx = re.escape("".join(path.suffixes))
+    # SQLite writes its journal beside a database: <tmp>-wal, <tmp>-shm, <tmp>-journal
+    pat = re.compile(rf"(\d+)@{re.escape(_HOST)}(?:-\d+)?(?:{sfx})?(?:-wal|-shm|-journal)?")
     try:
         entries = [e for e in path.parent.iterdir() if e.name.startswith(prefix)]
     except OSError:
