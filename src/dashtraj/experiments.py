@@ -431,9 +431,12 @@ def vision_sightings(config: ExperimentConfig, rec, out: Path, road_map,
                         gate=config.gate, max_distance_m=config.max_distance_m,
                         sample_s=SAMPLE_S, stages=stages)
     s = tt.summary
+    qc = s.get("reid_query_crops")
     stages.note(f"re-identify: {s['reid_candidates']} of {s['reid_tracks']} tracks within "
                 f"{config.max_distance_m:g} m pass the threshold, the gate keeps "
-                f"{s['reid_candidates'] - s['reid_gated_out']}")
+                f"{s['reid_candidates'] - s['reid_gated_out']}"
+                + (f" (query: the mean of {qc['used']} of its track's {qc['of']} crops)"
+                   if qc else ""))
     return tt.sightings, {**tt.summary, "look": look, "reid_model": embedder.path.name,
                           "reid_threshold_calibration": th.calibration.to_dict(),
                           "_true_match": tt.true_match}

@@ -201,8 +201,9 @@ class TargetTracks:
             reid_misses_by_cause (the target's tracks not accepted: above the
             ``threshold``, dropped by the ``gate``, or ``no_usable_crop``; appearance
             ReID only),
-            reid_tracks (tracks in the ReID range), query (observer, frame, t) and
-            threshold entries.
+            reid_tracks (tracks in the ReID range), query (observer, frame, t),
+            reid_query_crops (with query expansion: how many of the query track's
+            adequate crops were averaged, ``used`` of ``of``) and threshold entries.
         true_match: accepted track key → True when its truth is the target.
     """
 
@@ -319,7 +320,7 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
 
         query = query_detection(db, target_vehicle_id, max_distance_m,
                                 usable if switches.reid == "appearance" else None)
-        dists = keys = None
+        dists = keys = query_crops = None
         if switches.reid == "appearance" and query is not None:
             if stages is not None:
                 stages.start("embed", f"embed: {db.count('crops')} crops with "
@@ -343,7 +344,9 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
                 # query expansion with the query track's adequate crops that the query
                 # crop itself would accept (``expansion_crops``): a tracker can join
                 # another vehicle's or the scenery's boxes to the query's track
+                n_own = len(own)
                 own = expansion_crops(q, emb, own, float(threshold))
+                query_crops = {"used": len(own), "of": n_own}
                 if own:
                     m = emb[own].astype(np.float64).mean(axis=0)
                     q = m / max(float(np.linalg.norm(m)), 1e-12)
@@ -399,6 +402,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         extra["reid_aggregate"] = aggregate
         extra["reid_query"] = recipe.query
         extra["reid_crops_used"] = len(keys)
+        if query_crops is not None:  # query expansion: the query track's crops averaged
+            extra["reid_query_crops"] = query_crops
         decided, kept = {d.key for d in sel.decisions}, set(accepted)
         causes = Counter(("no_usable_crop" if k not in decided else
                           "gate" if k in sel.candidates else "threshold")
