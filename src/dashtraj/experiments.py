@@ -435,8 +435,10 @@ def vision_sightings(config: ExperimentConfig, rec, out: Path, road_map,
     stages.note(f"re-identify: {s['reid_candidates']} of {s['reid_tracks']} tracks within "
                 f"{config.max_distance_m:g} m pass the threshold, the gate keeps "
                 f"{s['reid_candidates'] - s['reid_gated_out']}"
-                + (f" (query: the mean of {qc['used']} of its track's {qc['of']} crops)"
-                   if qc else ""))
+                + ("" if not qc else
+                   f" (query: the mean of {qc['used']} of its track's {qc['of']} crops)"
+                   if qc["used"] else f" (query: the one crop; none of its track's "
+                                      f"{qc['of']} usable crops is within the threshold)"))
     return tt.sightings, {**tt.summary, "look": look, "reid_model": embedder.path.name,
                           "reid_threshold_calibration": th.calibration.to_dict(),
                           "_true_match": tt.true_match}

@@ -63,8 +63,9 @@ def test_demo_from_pixels_finds_the_target_and_writes_every_file(tmp_path, gl_av
     assert s["reid_query"] == th.calibration.query
     assert {src["seed"] for src in th.provenance["sources"]}.isdisjoint(range(5))
     assert s["query"]["observer_id"] > 0 and s["reid_tracks"] >= 2
-    # query expansion averaged the query crop and those of its track that it accepts
-    assert 1 <= s["reid_query_crops"]["used"] <= s["reid_query_crops"]["of"]
+    # query expansion averaged those of its track's crops that the query crop accepts (none
+    # when the query crop is too small or cut by the frame: then it stays the one crop)
+    assert 0 <= s["reid_query_crops"]["used"] <= s["reid_query_crops"]["of"], s["reid_query_crops"]
     # it finds the target: every accepted track is the target's (the precision 1.0
     # on this run); how many of its tracks it finds depends on the models
     assert s["reid_true_matches"] >= 1
