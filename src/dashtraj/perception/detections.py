@@ -155,9 +155,9 @@ def depicted_vehicles(frame, boxes: np.ndarray, min_fraction: float = 0.25,
         return out
     inst = frame.frame_data.instance
     h, w = inst.shape
-    vid_of = {lab.instance_id: int(v) for lab, v in
-              zip(frame.frame_data.labels, frame.vehicle_ids, strict=True)}
-    visible = np.bincount(inst.ravel())
+    labels = frame.frame_data.labels
+    vid_of = {lab.instance_id: int(v) for lab, v in zip(labels, frame.vehicle_ids, strict=True)}
+    visible = {lab.instance_id: lab.visible_pixels for lab in labels}  # pixels in the frame
     for i, (x0, y0, x1, y1) in enumerate(b):
         c0, r0 = max(0, math.floor(x0)), max(0, math.floor(y0))
         c1, r1 = min(w, math.ceil(x1)), min(h, math.ceil(y1))
