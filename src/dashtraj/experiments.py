@@ -431,14 +431,16 @@ def vision_sightings(config: ExperimentConfig, rec, out: Path, road_map,
                         gate=config.gate, max_distance_m=config.max_distance_m,
                         sample_s=SAMPLE_S, stages=stages)
     s = tt.summary
+    line = (f"re-identify: {s['reid_candidates']} of {s['reid_tracks']} tracks within "
+            f"{config.max_distance_m:g} m pass the threshold, the gate keeps "
+            f"{s['reid_candidates'] - s['reid_gated_out']}")
     qc = s.get("reid_query_crops")
-    stages.note(f"re-identify: {s['reid_candidates']} of {s['reid_tracks']} tracks within "
-                f"{config.max_distance_m:g} m pass the threshold, the gate keeps "
-                f"{s['reid_candidates'] - s['reid_gated_out']}"
-                + ("" if not qc else
-                   f" (query: the mean of {qc['used']} of its track's {qc['of']} crops)"
-                   if qc["used"] else f" (query: the one crop; none of its track's "
-                                      f"{qc['of']} usable crops is within the threshold)"))
+    if qc and qc["used"]:
+        line += f" (query: the mean of {qc['used']} of its track's {qc['of']} crops)"
+    elif qc:
+        line += (f" (query: the one crop; none of its track's {qc['of']} usable crops is "
+                 "within the threshold)")
+    stages.note(line)
     return tt.sightings, {**tt.summary, "look": look, "reid_model": embedder.path.name,
                           "reid_threshold_calibration": th.calibration.to_dict(),
                           "_true_match": tt.true_match}
