@@ -240,3 +240,44 @@ def test_rounded_car_is_not_a_box():
     roof = p[p[:, 2] > SEDAN.height_m - 0.05]
     assert np.abs(roof[:, 1]).max() < SEDAN.width_m / 2 - 0.1
     assert len(np.unique(p.round(3), axis=0)) > 200
+
+
+def test_trims_tell_models_of_one_shape_apart():
+    """The VW T2 and T2 2021 share every dimension; their trims (a white roof; dark rims,
+    tinted glass and a tail light bar) make their meshes differ, and each feature is drawn
+    where it belongs."""
+    from dashtraj.render.vehicle_shapes import GLASS_TINTED, RIM_DARK, ROOF_COLORS
+    from dashtraj.world.catalog import get_model
+
+    t2, t2n = get_model("vehicle.volkswagen.t2"), get_model("vehicle.volkswagen.t2_2021")
+    a, b = vehicle_mesh(t2, (118, 120, 124)), vehicle_mesh(t2n, (118, 120, 124))
+    assert a.positions.shape != b.positions.shape or not np.array_equal(a.colors, b.colors)
+
+    def has(mesh, rgb):
+        return np.abs(mesh.colors[:, :3] - np.array(rgb)).max(axis=1) < 1e-6
+
+    white = has(a, ROOF_COLORS["white"])  # the roof: on top, at the full height
+    assert white.sum() >= 18 and a.positions[white, 2].min() > t2.height_m - 0.08
+    assert not has(b, ROOF_COLORS["white"]).any()
+    assert has(b, RIM_DARK).sum() >= 4 * 3 * 8 and not has(a, RIM_DARK).any()
+    assert has(b, GLASS_TINTED).any() and not has(a, GLASS_TINTED).any()
+    code = b.colors[:, 3].round().astype(int)
+    red = (code == MAT_LAMP) & (b.colors[:, 0] - b.colors[:, 1] > 0.5)
+    tri = b.positions[red].reshape(-1, 3, 3)  # the bar: one quad across the back
+    assert (tri[:, :, 0] < 0).all() and tri[:, :, 1].min() < -0.5 < 0.5 < tri[:, :, 1].max()
+    assert len(tri) == 2
+
+
+def test_roof_rails_stay_inside_the_height_and_dark_roofs_replace_paint():
+    from dashtraj.world.catalog import get_model
+
+    rav4 = get_model("vehicle.toyota.rav4")  # rails
+    p = vehicle_mesh(rav4, (190, 22, 30)).positions
+    assert abs(p[:, 2].max() - rav4.height_m) < 0.005
+    mini = get_model("vehicle.mini.cooper_s")  # black roof over red paint
+    m = vehicle_mesh(mini, (190, 22, 30))
+    red = np.abs(m.colors[:, :3] - np.array([190, 22, 30]) / 255).max(axis=1) < 1e-6
+    top = m.positions.reshape(-1, 3, 3)[:, :, 2].min(axis=1) > mini.height_m - 0.02
+    assert not (red.reshape(-1, 3).all(axis=1) & top).any()  # no paint on the roof
+    black = np.abs(m.colors[:, :3] - np.array((0.02, 0.02, 0.022))).max(axis=1) < 1e-6
+    assert (black.reshape(-1, 3).all(axis=1) & top).sum() >= 2  # the flat roof quad

@@ -130,3 +130,32 @@ def test_sample_identities():
         sample_identities(np.random.default_rng(1), len(buses) + 1, classes=["bus"])
     with pytest.raises(ValueError, match="unknown vehicle classes"):
         sample_identities(np.random.default_rng(1), 1, classes=["tank"])
+
+
+def test_models_of_a_similar_shape_differ_in_at_least_two_trim_features():
+    """No two recolorable models of one class may look alike in one colour: where their
+    dimensions lie within 15 cm of each other, their trims differ in two features or
+    more (the T2 and T2 2021 share every dimension)."""
+    def shape(m):
+        return np.array([m.length_m, m.width_m, m.height_m, m.wheelbase_m, m.wheel_radius_m,
+                         m.ground_clearance_m, m.hood_fraction * m.length_m,
+                         m.cabin_start_fraction * m.length_m,
+                         m.cabin_end_fraction * m.length_m, m.beltline_fraction * m.height_m])
+
+    ms = [m for m in models() if m.recolorable]
+    close = 0
+    for i, a in enumerate(ms):
+        for b in ms[i + 1:]:
+            if a.vehicle_class == b.vehicle_class and \
+                    np.abs(shape(a) - shape(b)).max() < 0.15:
+                close += 1
+                assert a.trim.differences(b.trim) >= 2, (a.blueprint_id, b.blueprint_id)
+    assert close >= 15  # the rule is not vacuous
+
+
+def test_trim_refuses_unknown_features():
+    from dashtraj.world.catalog import Trim
+
+    with pytest.raises(ValueError, match="trim roof 'chrome'"):
+        Trim(roof="chrome")
+    assert Trim().differences(Trim(rims="dark", tail="bar")) == 2

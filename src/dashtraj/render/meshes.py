@@ -237,7 +237,18 @@ def _params(model) -> tuple:
         float(g(model, "cabin_start_fraction", 0.3)),
         float(g(model, "cabin_end_fraction", 0.85)),
         float(g(model, "beltline_fraction", 0.55)),
+        _trim(g(model, "trim", None)),
     )
+
+
+def _trim(trim) -> tuple:
+    """The catalog ``Trim`` as ``vehicle_shapes``' tuple (its defaults when None)."""
+    from dashtraj.render.vehicle_shapes import DEFAULT_TRIM
+
+    if trim is None:
+        return DEFAULT_TRIM
+    return (str(trim.roof), str(trim.rims), str(trim.glass), str(trim.tail),
+            bool(trim.cladding), str(trim.rider))
 
 
 def vehicle_mesh(model, rgb) -> Mesh:
@@ -262,16 +273,17 @@ def vehicle_mesh(model, rgb) -> Mesh:
 
 def _body_mesh(p: tuple, paint: np.ndarray, detail: bool) -> Mesh:
     """The ``vehicle_shapes`` mesh of the model parameters ``p`` (``_params``), by body."""
-    body, length, width, height, wb, r, clear, hood, c0, c1, belt = p
+    body, length, width, height, wb, r, clear, hood, c0, c1, belt, trim = p
     from dashtraj.render import vehicle_shapes as vs
 
     if body in ("motorcycle", "bicycle"):
-        return vs.two_wheeler_mesh(body, length, width, height, wb, r, paint, detail=detail)
+        return vs.two_wheeler_mesh(body, length, width, height, wb, r, paint, detail=detail,
+                                   trim=trim)
     if body in ("truck", "bus"):
         return vs.big_vehicle_mesh(body, length, width, height, wb, r, clear, c1, paint,
-                                   detail=detail)
+                                   detail=detail, trim=trim)
     return vs.car_mesh(body, length, width, height, wb, r, clear, hood, c0, c1, belt, paint,
-                       detail=detail)
+                       detail=detail, trim=trim)
 
 
 @lru_cache(maxsize=512)

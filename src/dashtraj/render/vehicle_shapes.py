@@ -45,6 +45,15 @@ from dashtraj.render.meshes import (
 
 ARCH = (0.025, 0.025, 0.027)  # wheel wells: near black
 RIM = (0.62, 0.63, 0.65)
+RIM_DARK = (0.09, 0.09, 0.10)
+GLASS_TINTED = (0.025, 0.03, 0.04)
+ROOF_COLORS = {"black": (0.02, 0.02, 0.022), "white": (0.86, 0.86, 0.84)}
+RIDERS = {"navy": RIDER_BODY, "black": (0.02, 0.02, 0.025), "brown": (0.30, 0.17, 0.08),
+          "red": (0.60, 0.05, 0.05), "hivis": (0.85, 0.80, 0.05)}
+DEFAULT_TRIM = ("paint", "silver", "clear", "pair", False, "navy")
+"""(roof, rims, glass, tail, cladding, rider): the catalog's ``Trim`` as a tuple."""
+RAIL_M = 0.04
+"""Height of roof rails; the roof under them is lowered by as much (inside H)."""
 PLATE = (0.88, 0.88, 0.84)
 TRIM = (0.07, 0.07, 0.08)  # bumper strips, sills
 HELMET = (0.10, 0.10, 0.11)
@@ -170,15 +179,16 @@ def _arch(xw: float, y: float, r: float, zb: float, ztop: float, side: float) ->
     return _mesh(np.concatenate(tris), ARCH, centre=(xw, y - side, r), material=MAT_TYRE)
 
 
-def _wheel_set(xs, W: float, r: float, tyre_w: float, zb: float, ztop: float) -> list[Mesh]:
-    """Tyres (outer face at W/2 + 1 cm), arches behind them and rims on them."""
+def _wheel_set(xs, W: float, r: float, tyre_w: float, zb: float, ztop: float,
+               rim=RIM) -> list[Mesh]:
+    """Tyres (outer face at W/2 + 1 cm), arches behind them and rims (colour ``rim``)."""
     parts: list[Mesh] = []
     yo = W / 2 - tyre_w / 2 + 0.01
     for x in xs:
         for s in (-1.0, 1.0):
             parts.append(_arch(x, s * (W / 2 + 0.003), r, zb, ztop, s))
             parts.append(_tyre(x, s * yo, r, tyre_w))
-            parts.append(_disc(x, s * (W / 2 + 0.013), r, 0.6 * r, RIM, MAT_METAL, 8, side=s))
+            parts.append(_disc(x, s * (W / 2 + 0.013), r, 0.6 * r, rim, MAT_METAL, 8, side=s))
     return parts
 
 
@@ -192,15 +202,21 @@ def _caster_wheels(xs, W: float, r: float, tyre_w: float) -> list[Mesh]:
 
 
 def _front_back(L: float, w_end: float, zl0: float, zl1: float, zp: float, lamp_w: float,
-                lamp_gap: float = 0.06, grille: tuple | None = None) -> list[Mesh]:
-    """Lamps (head white, tail red), plates and a grille on the end faces at x = ±L/2
-    (each protruding ≤ 1.5 cm)."""
+                lamp_gap: float = 0.06, grille: tuple | None = None,
+                tail_bar: bool = False) -> list[Mesh]:
+    """Lamps (head white, tail red: a pair, or one light bar across the back when
+    ``tail_bar``), plates and a grille on the end faces at x = ±L/2 (each protruding
+    ≤ 1.5 cm)."""
     parts: list[Mesh] = []
     yo = w_end - lamp_gap - lamp_w / 2
     for front in (True, False):
         sgn = 1.0 if front else -1.0
         col = HEADLIGHT if front else TAILLIGHT
-        for s in (-1.0, 1.0):
+        if tail_bar and not front:
+            zb0 = max(zl0, zl1 - 0.08)
+            parts.append(_face_x(-(L / 2 + 0.008), -(yo + lamp_w / 2), yo + lamp_w / 2, zb0,
+                                 zl1, col, -1.0, 1.0))
+        for s in ((-1.0, 1.0) if front or not tail_bar else ()):
             parts.append(_face_x(sgn * (L / 2 + 0.008), s * yo - lamp_w / 2, s * yo + lamp_w / 2,
                                  zl0, zl1, col, sgn, 1.0))
         pw = min(0.26, 0.3 * w_end)
@@ -224,16 +240,21 @@ _GREENHOUSE = {  # windscreen rake, rear rake (shares of the greenhouse height),
 
 
 def car_mesh(body, L, W, H, wb, r, clear, hood, c0, c1, belt, paint,
-             detail: bool = True) -> Mesh:
+             detail: bool = True, trim: tuple = DEFAULT_TRIM) -> Mesh:
     """A rounded car of class ``body`` (sedan, hatchback, suv, coupe, van, pickup, or
-    anything else treated as a sedan) inside L × W × H metres.
+    anything else treated as a sedan) inside L × W × H metres, in its ``trim``
+    (``DEFAULT_TRIM``'s fields: a two-tone or glass roof or roof rails, dark rims, tinted
+    windows, a tail light bar, dark cladding on the sills and bumpers).
 
     ``detail=False`` gives its shadow caster (``shadow_caster_mesh``): the same body,
     greenhouse and bed walls, tyres as boxes, and none of the parts that lie within
     1.5 cm of the body (pillars, lamps, plates, grille, bumper strips, arches, rims,
     the inset rear window)."""
+    roof, rims, tint, tail, cladding, _ = trim
+    glass_col = GLASS_TINTED if tint == "tinted" else GLASS
+    Hc = H - RAIL_M if roof == "rails" else H  # the roof's height (rails reach H)
     zb = clear
-    zbelt = min(max(zb + 0.25, belt * H), H - 0.3)
+    zbelt = min(max(zb + 0.25, belt * Hc), Hc - 0.3)
     rf, rr, taper = _GREENHOUSE.get(body, _GREENHOUSE["sedan"])
     w = W / 2
     # lower body: stations rear → front; the hood drops to the nose, the boot to the tail
@@ -250,7 +271,7 @@ def car_mesh(body, L, W, H, wb, r, clear, hood, c0, c1, belt, paint,
     xf = L / 2 - min(max(c0, hood, 0.03), 0.6) * L
     xr = L / 2 - min(max(c1, c0 + 0.25), 0.99) * L
     xr = max(xr, -L / 2 + 0.05)
-    gh = H - zbelt
+    gh = Hc - zbelt
     span = xf - xr
     lf = min(rf * gh * 1.2, 0.4 * span)
     lr = min(rr * gh * 1.2, 0.35 * span)
@@ -269,23 +290,36 @@ def car_mesh(body, L, W, H, wb, r, clear, hood, c0, c1, belt, paint,
         grings.append([(-(w - 0.03), zbelt - 0.01), (-wz, z - rail), (-wz + 0.04, z),
                        (wz - 0.04, z), (wz, z - rail), (w - 0.03, zbelt - 0.01)])
     tris, cen, seg, edge = _loft(gx, grings, closed=False)
-    roof_seg = np.array([abs(gz[i] - H) < 1e-9 and abs(gz[i + 1] - H) < 1e-9
+    roof_seg = np.array([abs(gz[i] - Hc) < 1e-9 and abs(gz[i + 1] - Hc) < 1e-9
                          for i in range(len(gx) - 1)])
+    on_roof = (edge >= 1) & (edge <= 3) & roof_seg[seg]  # the roof and its rounded edges
     glass = (edge == 0) | (edge == 4) | ((edge == 2) & ~roof_seg[seg])
-    parts.append(_mesh(tris[glass], GLASS, centre=cen[glass], material=MAT_GLASS))
-    parts.append(_mesh(tris[~glass], paint, centre=cen[~glass], material=MAT_PAINT))
+    if roof == "glass":
+        glass = glass | on_roof
+    painted = ~glass
+    if roof in ROOF_COLORS:
+        painted = painted & ~on_roof
+        parts.append(_mesh(tris[on_roof], ROOF_COLORS[roof], centre=cen[on_roof],
+                           material=MAT_PAINT))
+    parts.append(_mesh(tris[glass], glass_col, centre=cen[glass], material=MAT_GLASS))
+    parts.append(_mesh(tris[painted], paint, centre=cen[painted], material=MAT_PAINT))
+    if roof == "rails":  # two dark rails along the roof's edges, RAIL_M tall
+        yr = wt - 0.04 - 0.06
+        for s in (-1.0, 1.0):
+            parts.append(box((xr + lr + 0.05, s * yr - 0.025, Hc - 0.01),
+                             (xf - lf - 0.05, s * yr + 0.025, H), TRIM))
     # end caps of the greenhouse (flat-backed vans/pickups: a glass rear window panel)
     for x, rg, inward in ((gx[0], grings[0], 1.0), (gx[-1], grings[-1], -1.0)):
         ct, cc = _cap(x, rg, inward)
         parts.append(_mesh(ct, paint, centre=cc, material=MAT_PAINT))
     if lr < 0.08 and detail:  # near-vertical back: rear window inset in the painted panel
         parts.append(box((xr - 0.012, -0.7 * wt, zbelt + 0.25 * gh), (xr + 0.01, 0.7 * wt,
-                         zbelt + 0.85 * gh), GLASS, material=MAT_GLASS))
+                         zbelt + 0.85 * gh), glass_col, material=MAT_GLASS))
     # pillars: B (and C for long cabins) as thin painted slabs across the greenhouse
     n_p = (2 if span > 2.6 else 1) if detail else 0
     for j in range(n_p):
         xm = xr + lr + (j + 1) * (xf - lf - xr - lr) / (n_p + 1)
-        zt = H - 0.03
+        zt = Hc - 0.03
         wz = w - 0.03 - (w - 0.03 - wt) * (zt - zbelt) / gh + 0.006  # follows the taper
         yb = w - 0.025
         parts.append(hexahedron(np.array(
@@ -300,22 +334,29 @@ def car_mesh(body, L, W, H, wb, r, clear, hood, c0, c1, belt, paint,
     if not detail:
         return Mesh.concat([*parts, *_caster_wheels([wb / 2, -wb / 2], W, r, 0.24)])
     # bumpers: dark strips low on both ends; lamps, plates, grille
+    bumper = 0.2 if cladding else 0.1
     for sgn in (-1.0, 1.0):
         parts.append(_face_x(sgn * (L / 2 + 0.004), -(w - 0.14), w - 0.14, bots[0],
-                             bots[0] + 0.1, TRIM, sgn))
+                             bots[0] + bumper, TRIM, sgn))
+        if cladding:  # dark sills between the wheel arches
+            parts.append(_face_y(sgn * (w + 0.004), -wb / 2 + r + 0.06, wb / 2 - r - 0.06,
+                                 zb + 0.05, zb + 0.2, TRIM, sgn))
     zl1 = tops[-1] - 0.05
     zl0 = max(zl1 - 0.16, bots[-1] + 0.2)
-    zp = bots[0] + 0.13
+    zp = bots[0] + 0.13 + (0.06 if cladding else 0.0)
     parts += _front_back(L, wid[0], zl0, zl1, zp, 0.3, 0.05,
-                         grille=(0.3 * W, zp + 0.13, max(zp + 0.2, zl0)))
-    parts += _wheel_set([wb / 2, -wb / 2], W, r, 0.24, zb, tops[2])
+                         grille=(0.3 * W, zp + 0.13, max(zp + 0.2, zl0)),
+                         tail_bar=tail == "bar")
+    parts += _wheel_set([wb / 2, -wb / 2], W, r, 0.24, zb, tops[2],
+                        rim=RIM_DARK if rims == "dark" else RIM)
     return Mesh.concat(parts)
 
 
 # --------------------------------------------------------------------------- trucks, buses
-def big_vehicle_mesh(body, L, W, H, wb, r, clear, c1, paint, detail: bool = True) -> Mesh:
+def big_vehicle_mesh(body, L, W, H, wb, r, clear, c1, paint, detail: bool = True,
+                     trim: tuple = DEFAULT_TRIM) -> Mesh:
     """A bus (rounded box, glazed window band, big windscreen) or a truck (rounded cab,
-    cargo box, chassis), inside L × W × H metres.
+    cargo box, chassis), inside L × W × H metres; of its ``trim`` only the rims apply.
 
     ``detail=False`` gives its shadow caster: the body solids and the chassis, tyres as
     boxes, none of the glass panels, strips, lamps, plates, grilles, arches and rims that
@@ -375,13 +416,15 @@ def big_vehicle_mesh(body, L, W, H, wb, r, clear, c1, paint, detail: bool = True
                                  grille=(0.3 * W, zl + 0.3, min(0.5 * zcab, zl + 0.9)))
     if not detail:
         return Mesh.concat([*parts, *_caster_wheels(axles, W, r, 0.32)])
-    parts += _wheel_set(axles, W, r, 0.32, zb, ztop)
+    parts += _wheel_set(axles, W, r, 0.32, zb, ztop, rim=RIM_DARK if trim[1] == "dark" else RIM)
     return Mesh.concat(parts)
 
 
 # --------------------------------------------------------------------------- two-wheelers
-def _ring_wheel(cx: float, r: float, tw: float, spokes: int = 6, sides: int = 12) -> Mesh:
-    """A see-through bicycle wheel: a tyre ring (outer r, inner 0.86 r) and thin spokes."""
+def _ring_wheel(cx: float, r: float, tw: float, spokes: int = 6, sides: int = 12,
+                rim=RIM) -> Mesh:
+    """A see-through bicycle wheel: a tyre ring (outer r, inner 0.86 r) and thin spokes
+    (colour ``rim``)."""
     a = np.arange(sides) * (2 * np.pi / sides) + np.pi / sides  # flat edge at the bottom
     j = (np.arange(sides) + 1) % sides
     parts = []
@@ -405,20 +448,24 @@ def _ring_wheel(cx: float, r: float, tw: float, spokes: int = 6, sides: int = 12
         q = np.array([c - d - n, c + d - n, c + d + n, c - d + n])
         for yy in (-0.004, 0.004):
             qq = q + np.array([0.0, yy, 0.0])
-            parts.append(_mesh(np.stack([qq[[0, 1, 2]], qq[[0, 2, 3]]]), RIM,
+            parts.append(_mesh(np.stack([qq[[0, 1, 2]], qq[[0, 2, 3]]]), rim,
                                centre=(cx, -np.sign(yy), r), material=MAT_METAL))
     parts.append(_disc(cx, 0.0, r, 0.05, GRILLE, MAT_METAL, 6))
     return Mesh.concat(parts)
 
 
-def two_wheeler_mesh(body, L, W, H, wb, r, paint, detail: bool = True) -> Mesh:
+def two_wheeler_mesh(body, L, W, H, wb, r, paint, detail: bool = True,
+                     trim: tuple = DEFAULT_TRIM) -> Mesh:
     """A motorcycle (fairing, tank, rims, helmeted rider) or a bicycle (spoked wheels,
     frame, rider), inside L × W × H metres (the rider's head may reach H + 0.45 m, as the
-    catalog's two-wheeler height is the vehicle's).
+    catalog's two-wheeler height is the vehicle's); of its ``trim`` the rims (a
+    motorcycle's) and the rider's jacket apply.
 
     ``detail=False`` gives its shadow caster: a motorcycle's tyres become boxes and its
     rims go; a bicycle keeps everything (its see-through wheels have no solid proxy)."""
     tw = 0.12 if body == "motorcycle" else 0.04
+    rim = RIM_DARK if trim[1] == "dark" else RIM
+    jacket = RIDERS[trim[5]]
     r = min(r, 0.45 * H)
     xw = min(wb / 2, L / 2 - r)
     zf = r + 0.05
@@ -431,7 +478,7 @@ def two_wheeler_mesh(body, L, W, H, wb, r, paint, detail: bool = True) -> Mesh:
                 continue
             parts.append(wheel(x, 0.0, r, tw, 14))
             for s in (-1.0, 1.0):
-                parts.append(_disc(x, s * (tw / 2 + 0.003), r, 0.62 * r, RIM, MAT_METAL, 10, s))
+                parts.append(_disc(x, s * (tw / 2 + 0.003), r, 0.62 * r, rim, MAT_METAL, 10, s))
         # engine block (dark), tank + fairing (paint), seat (dark), exhaust (metal)
         parts.append(box((-0.25, -0.16, r - 0.05), (0.35, 0.16, zf + 0.2), GRILLE))
         xs = np.array([-xw + 0.05, -0.1, 0.25, xw - 0.12])
@@ -452,7 +499,7 @@ def two_wheeler_mesh(body, L, W, H, wb, r, paint, detail: bool = True) -> Mesh:
         seat = zf + 0.45
         head = HELMET
     else:
-        parts += [_ring_wheel(xw, r, tw), _ring_wheel(-xw, r, tw)]
+        parts += [_ring_wheel(xw, r, tw, rim=rim), _ring_wheel(-xw, r, tw, rim=rim)]
         parts.append(box((-xw, -0.02, r - 0.02), (0.0, 0.02, r + 0.03), paint,
                          material=MAT_PAINT))  # chain stay
         down = np.array([[-0.05, -0.02, r - 0.02], [0.02, -0.02, r - 0.02],
@@ -464,7 +511,7 @@ def two_wheeler_mesh(body, L, W, H, wb, r, paint, detail: bool = True) -> Mesh:
                          material=MAT_PAINT))  # top tube
         parts.append(box((-0.12, -0.02, r), (-0.06, 0.02, zf + 0.4), paint,
                          material=MAT_PAINT))  # seat tube
-        parts.append(box((xw - 0.06, -0.02, r), (xw - 0.02, 0.02, zf + 0.45), RIM,
+        parts.append(box((xw - 0.06, -0.02, r), (xw - 0.02, 0.02, zf + 0.45), rim,
                          material=MAT_METAL))  # fork
         parts.append(box((xw - 0.12, -0.25, zf + 0.42), (xw - 0.04, 0.25, zf + 0.47), GRILLE))
         parts.append(box((-xw - 0.02, -0.04, r + 0.15), (-xw + 0.03, 0.04, r + 0.23),
@@ -474,7 +521,7 @@ def two_wheeler_mesh(body, L, W, H, wb, r, paint, detail: bool = True) -> Mesh:
     # rider: legs, torso leaning forward, head (helmet on a motorcycle), arms to the bars
     hip_x = -0.15
     parts.append(box((hip_x - 0.12, -0.2, seat - 0.35), (hip_x + 0.25, 0.2, seat + 0.05),
-                     RIDER_BODY))
+                     jacket))
     for s in (-1.0, 1.0):  # shins down to the pegs / pedals
         parts.append(box((hip_x + 0.15, s * 0.2 - 0.06, r - 0.05),
                          (hip_x + 0.27, s * 0.2 + 0.06, seat - 0.3), TRIM))
@@ -487,7 +534,7 @@ def two_wheeler_mesh(body, L, W, H, wb, r, paint, detail: bool = True) -> Mesh:
             [hip_x + 0.3, 0.21, top - 0.25], [hip_x + 0.0, 0.21, top - 0.25],
         ]
     )
-    parts.append(hexahedron(torso, RIDER_BODY))
+    parts.append(hexahedron(torso, jacket))
     hx = hip_x + 0.16
     hr = 0.13 if body == "motorcycle" else 0.11
     hrings = [_bevel_ring(hr * f, top - 0.26, top - 0.26 + 0.26 * g, 0.03, 0.06)
@@ -496,7 +543,7 @@ def two_wheeler_mesh(body, L, W, H, wb, r, paint, detail: bool = True) -> Mesh:
                         head, MAT_LIT))
     for s in (-1.0, 1.0):
         parts.append(box((hip_x + 0.2, s * 0.21 - 0.04, top - 0.45),
-                         (xw - 0.05, s * 0.21 + 0.04, top - 0.37), RIDER_BODY))
+                         (xw - 0.05, s * 0.21 + 0.04, top - 0.37), jacket))
     return Mesh.concat(parts)
 
 

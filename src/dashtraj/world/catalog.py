@@ -29,6 +29,7 @@ __all__ = [
     "CATALOG_VERSION",
     "COLORS",
     "VEHICLE_CLASSES",
+    "Trim",
     "UnknownBlueprintError",
     "VehicleIdentity",
     "VehicleModel",
@@ -38,8 +39,9 @@ __all__ = [
     "sample_identities",
 ]
 
-CATALOG_VERSION = "1.0"
-"""Bumped whenever a model, a dimension, a colour or the identity order changes."""
+CATALOG_VERSION = "1.1"
+"""Bumped whenever a model, a dimension, a trim, a colour or the identity order changes
+(1.1: every model got its trim, so that no two identities look the same)."""
 
 VEHICLE_CLASSES = ("car", "truck", "bus", "motorcycle", "bicycle")
 """The detector's vehicle classes (a van is a "car")."""
@@ -57,6 +59,46 @@ class UnknownBlueprintError(DashtrajError, ValueError):
 
 
 @dataclass(frozen=True)
+class Trim:
+    """What tells two models of one shape apart, as CARLA's blueprints differ in lamps,
+    rims and roofs: without it the Volkswagen T2 and T2 2021 (identical dimensions), or
+    the Lincoln MKZ 2017 and 2020 (1 cm apart), would render pixel for pixel alike in one
+    colour, and re-identification could not tell those identities apart.
+
+    roof: "paint", "black" (two-tone), "white" (two-tone), "glass" (a glass roof) or
+    "rails" (paint with dark roof rails); cars only. rims: "silver" or "dark".
+    glass: "clear" or "tinted" windows; cars only. tail: "pair" (two tail lamps) or "bar"
+    (one light bar across the back); cars only. cladding: dark plastic sills and
+    bumpers (an SUV's); cars only. rider: the jacket of a two-wheeler's rider, "navy",
+    "black", "brown", "red" or "hivis".
+    """
+
+    roof: str = "paint"
+    rims: str = "silver"
+    glass: str = "clear"
+    tail: str = "pair"
+    cladding: bool = False
+    rider: str = "navy"
+
+    def __post_init__(self) -> None:
+        for name, allowed in (("roof", TRIM_ROOFS), ("rims", ("silver", "dark")),
+                              ("glass", ("clear", "tinted")), ("tail", ("pair", "bar")),
+                              ("rider", TRIM_RIDERS)):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"trim {name} {getattr(self, name)!r}; valid: "
+                                 f"{', '.join(allowed)}")
+
+    def differences(self, other: Trim) -> int:
+        """How many of the six trim features differ from ``other``'s."""
+        return sum(getattr(self, f) != getattr(other, f)
+                   for f in ("roof", "rims", "glass", "tail", "cladding", "rider"))
+
+
+TRIM_ROOFS = ("paint", "black", "white", "glass", "rails")
+TRIM_RIDERS = ("navy", "black", "brown", "red", "hivis")
+
+
+@dataclass(frozen=True)
 class VehicleModel:
     """One vehicle model (a CARLA-style blueprint).
 
@@ -68,7 +110,8 @@ class VehicleModel:
     ends, fractions of the length from the front. beltline_fraction: height of the
     window line over height_m. recolorable: whether the paint can be any colour of
     COLORS; otherwise the model only comes in ``default_color`` (a livery: taxi,
-    police, fire engine, bus).
+    police, fire engine, bus). trim: the details that tell it from models of a similar
+    shape (:class:`Trim`).
     """
 
     blueprint_id: str
@@ -88,6 +131,7 @@ class VehicleModel:
     beltline_fraction: float
     recolorable: bool = True
     default_color: str = "white"
+    trim: Trim = Trim()
 
     def __post_init__(self) -> None:
         if BODY_TYPES.get(self.body_type) != self.vehicle_class:
@@ -171,6 +215,7 @@ def _m(blueprint_id: str, make: str, model: str, body: str, length: float, width
        height: float, wheelbase: float, *, recolorable: bool = True,
        default_color: str = "white", **shape: float) -> VehicleModel:
     wr, gc, hood, c0, c1, belt = _SHAPE[body]
+    trim = _TRIMS.get(blueprint_id, Trim())
     return VehicleModel(
         blueprint_id=blueprint_id, make=make, model=model, vehicle_class=BODY_TYPES[body],
         body_type=body, length_m=length, width_m=width, height_m=height,
@@ -180,8 +225,54 @@ def _m(blueprint_id: str, make: str, model: str, body: str, length: float, width
         cabin_start_fraction=shape.get("cabin_start_fraction", c0),
         cabin_end_fraction=shape.get("cabin_end_fraction", c1),
         beltline_fraction=shape.get("beltline_fraction", belt),
-        recolorable=recolorable, default_color=default_color,
+        recolorable=recolorable, default_color=default_color, trim=trim,
     )
+
+
+def _t(**kw) -> Trim:
+    return Trim(**kw)
+
+
+# Trims, chosen after the real cars where they have one (a MINI's black roof, a Tesla's
+# glass roof, an SUV's rails and cladding) and so that every two models of one class
+# whose dimensions lie within 15 cm differ in at least two features (test_catalog).
+_TRIMS: dict[str, Trim] = {
+    "vehicle.audi.tt": _t(rims="dark", tail="bar"),
+    "vehicle.audi.etron": _t(roof="rails", cladding=True, tail="bar", glass="tinted"),
+    "vehicle.bmw.grandtourer": _t(roof="rails"),
+    "vehicle.bmw.x5": _t(roof="rails", cladding=True, rims="dark"),
+    "vehicle.citroen.c3": _t(roof="black", cladding=True),
+    "vehicle.dodge.charger_2020": _t(tail="bar", rims="dark", roof="black"),
+    "vehicle.dodge.charger_police_2020": _t(roof="white", rims="dark"),
+    "vehicle.ford.mustang": _t(rims="dark", glass="tinted"),
+    "vehicle.ford.f150": _t(cladding=True),
+    "vehicle.honda.civic": _t(tail="bar", glass="tinted"),
+    "vehicle.jeep.wrangler_rubicon": _t(roof="black", cladding=True, rims="dark"),
+    "vehicle.lincoln.mkz_2020": _t(tail="bar", rims="dark", glass="tinted"),
+    "vehicle.mercedes.coupe": _t(roof="black"),
+    "vehicle.mercedes.coupe_2020": _t(rims="dark", tail="bar"),
+    "vehicle.audi.a2": _t(glass="tinted"),
+    "vehicle.mini.cooper_s": _t(roof="black", tail="bar"),
+    "vehicle.mini.cooper_s_2021": _t(roof="black", rims="dark", tail="bar", glass="tinted"),
+    "vehicle.nissan.micra": _t(roof="black", glass="tinted", cladding=True),
+    "vehicle.nissan.patrol": _t(roof="rails", cladding=True),
+    "vehicle.nissan.patrol_2021": _t(rims="dark", tail="bar", glass="tinted", cladding=True),
+    "vehicle.renault.clio": _t(rims="dark"),
+    "vehicle.seat.leon": _t(tail="bar", rims="dark"),
+    "vehicle.volkswagen.golf": _t(glass="tinted"),
+    "vehicle.tesla.model3": _t(roof="glass", rims="dark", tail="bar"),
+    "vehicle.toyota.prius": _t(tail="bar", glass="tinted"),
+    "vehicle.toyota.rav4": _t(roof="rails", cladding=True, rims="dark", tail="bar"),
+    "vehicle.mercedes.sprinter": _t(glass="tinted"),
+    "vehicle.volkswagen.t2": _t(roof="white"),
+    "vehicle.volkswagen.t2_2021": _t(rims="dark", glass="tinted", tail="bar"),
+    "vehicle.carlamotors.european_hgv": _t(rims="dark"),
+    "vehicle.kawasaki.ninja": _t(rims="dark", rider="red"),
+    "vehicle.harley-davidson.low_rider": _t(rider="brown"),
+    "vehicle.vespa.zx125": _t(rider="black"),
+    "vehicle.bh.crossbike": _t(rims="dark", rider="black"),
+    "vehicle.diamondback.century": _t(rider="hivis"),
+}
 
 
 def _models() -> tuple[VehicleModel, ...]:
