@@ -33,7 +33,13 @@ def _sha256(path):
 # Cases the shipped model of this commit FAILS (see MODEL.md), keyed by its sha256 prefix:
 # skipped for this file only, with the measured figure; a retrained detector.onnx runs every
 # case with the bars unchanged.
-KNOWN_BELOW_BAR: dict[str, dict[str, str]] = {}
+KNOWN_BELOW_BAR: dict[str, dict[str, str]] = {
+    "07f1709b4868": {
+        "recall": "recall 0.880 (44 of 50 boxes >= 24 px) since the catalog's trims (catalog "
+                  "1.1: roofs, rims, tinted glass, light bars), which this model never saw in "
+                  "training; 0.900 on the renders before them (commit 6576d7d)",
+    },
+}
 _SHIPPED = (_sha256(default_model_path()) or "")[:12]
 
 
