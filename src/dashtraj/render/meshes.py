@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 import weakref
-from dataclasses import dataclass
+from dataclasses import astuple, dataclass
 from functools import lru_cache
 from typing import Protocol
 
@@ -26,6 +26,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from dashtraj.roads.types import LaneType
+from dashtraj.world.catalog import Trim
 
 # --------------------------------------------------------------------------- colours (linear 0..1)
 ASPHALT = (0.20, 0.20, 0.21)
@@ -243,12 +244,7 @@ def _params(model) -> tuple:
 
 def _trim(trim) -> tuple:
     """The catalog ``Trim`` as ``vehicle_shapes``' tuple (its defaults when None)."""
-    from dashtraj.render.vehicle_shapes import DEFAULT_TRIM
-
-    if trim is None:
-        return DEFAULT_TRIM
-    return (str(trim.roof), str(trim.rims), str(trim.glass), str(trim.tail),
-            bool(trim.cladding), str(trim.rider))
+    return astuple(trim if trim is not None else Trim())
 
 
 def vehicle_mesh(model, rgb) -> Mesh:

@@ -19,6 +19,7 @@ Deterministic: no randomness.
 
 from __future__ import annotations
 
+from dataclasses import astuple
 from functools import lru_cache
 
 import numpy as np
@@ -42,6 +43,7 @@ from dashtraj.render.meshes import (
     hexahedron,
     wheel,
 )
+from dashtraj.world.catalog import Trim
 
 ARCH = (0.025, 0.025, 0.027)  # wheel wells: near black
 RIM = (0.62, 0.63, 0.65)
@@ -50,8 +52,8 @@ GLASS_TINTED = (0.025, 0.03, 0.04)
 ROOF_COLORS = {"black": (0.02, 0.02, 0.022), "white": (0.86, 0.86, 0.84)}
 RIDERS = {"navy": RIDER_BODY, "black": (0.02, 0.02, 0.025), "brown": (0.30, 0.17, 0.08),
           "red": (0.60, 0.05, 0.05), "hivis": (0.85, 0.80, 0.05)}
-DEFAULT_TRIM = ("paint", "silver", "clear", "pair", False, "navy")
-"""(roof, rims, glass, tail, cladding, rider): the catalog's ``Trim`` as a tuple."""
+DEFAULT_TRIM = astuple(Trim())
+"""(roof, rims, glass, tail, cladding, rider): the catalog's default ``Trim`` as a tuple."""
 RAIL_M = 0.04
 """Height of roof rails; the roof under them is lowered by as much (inside H)."""
 PLATE = (0.88, 0.88, 0.84)
@@ -216,9 +218,10 @@ def _front_back(L: float, w_end: float, zl0: float, zl1: float, zp: float, lamp_
             zb0 = max(zl0, zl1 - 0.08)
             parts.append(_face_x(-(L / 2 + 0.008), -(yo + lamp_w / 2), yo + lamp_w / 2, zb0,
                                  zl1, col, -1.0, 1.0))
-        for s in ((-1.0, 1.0) if front or not tail_bar else ()):
-            parts.append(_face_x(sgn * (L / 2 + 0.008), s * yo - lamp_w / 2, s * yo + lamp_w / 2,
-                                 zl0, zl1, col, sgn, 1.0))
+        else:
+            for s in (-1.0, 1.0):
+                parts.append(_face_x(sgn * (L / 2 + 0.008), s * yo - lamp_w / 2,
+                                     s * yo + lamp_w / 2, zl0, zl1, col, sgn, 1.0))
         pw = min(0.26, 0.3 * w_end)
         parts.append(_face_x(sgn * (L / 2 + 0.011), -pw, pw, zp, zp + 0.12, PLATE, sgn,
                              material=MAT_LIT))

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -90,8 +90,7 @@ class Trim:
 
     def differences(self, other: Trim) -> int:
         """How many of the six trim features differ from ``other``'s."""
-        return sum(getattr(self, f) != getattr(other, f)
-                   for f in ("roof", "rims", "glass", "tail", "cladding", "rider"))
+        return sum(getattr(self, f.name) != getattr(other, f.name) for f in fields(self))
 
 
 TRIM_ROOFS = ("paint", "black", "white", "glass", "rails")
@@ -229,49 +228,45 @@ def _m(blueprint_id: str, make: str, model: str, body: str, length: float, width
     )
 
 
-def _t(**kw) -> Trim:
-    return Trim(**kw)
-
-
 # Trims, chosen after the real cars where they have one (a MINI's black roof, a Tesla's
 # glass roof, an SUV's rails and cladding) and so that every two models of one class
 # whose dimensions lie within 15 cm differ in at least two features (test_catalog).
 _TRIMS: dict[str, Trim] = {
-    "vehicle.audi.tt": _t(rims="dark", tail="bar"),
-    "vehicle.audi.etron": _t(roof="rails", cladding=True, tail="bar", glass="tinted"),
-    "vehicle.bmw.grandtourer": _t(roof="rails"),
-    "vehicle.bmw.x5": _t(roof="rails", cladding=True, rims="dark"),
-    "vehicle.citroen.c3": _t(roof="black", cladding=True),
-    "vehicle.dodge.charger_2020": _t(tail="bar", rims="dark", roof="black"),
-    "vehicle.dodge.charger_police_2020": _t(roof="white", rims="dark"),
-    "vehicle.ford.mustang": _t(rims="dark", glass="tinted"),
-    "vehicle.ford.f150": _t(cladding=True),
-    "vehicle.honda.civic": _t(tail="bar", glass="tinted"),
-    "vehicle.jeep.wrangler_rubicon": _t(roof="black", cladding=True, rims="dark"),
-    "vehicle.lincoln.mkz_2020": _t(tail="bar", rims="dark", glass="tinted"),
-    "vehicle.mercedes.coupe": _t(roof="black"),
-    "vehicle.mercedes.coupe_2020": _t(rims="dark", tail="bar"),
-    "vehicle.audi.a2": _t(glass="tinted"),
-    "vehicle.mini.cooper_s": _t(roof="black", tail="bar"),
-    "vehicle.mini.cooper_s_2021": _t(roof="black", rims="dark", tail="bar", glass="tinted"),
-    "vehicle.nissan.micra": _t(roof="black", glass="tinted", cladding=True),
-    "vehicle.nissan.patrol": _t(roof="rails", cladding=True),
-    "vehicle.nissan.patrol_2021": _t(rims="dark", tail="bar", glass="tinted", cladding=True),
-    "vehicle.renault.clio": _t(rims="dark"),
-    "vehicle.seat.leon": _t(tail="bar", rims="dark"),
-    "vehicle.volkswagen.golf": _t(glass="tinted"),
-    "vehicle.tesla.model3": _t(roof="glass", rims="dark", tail="bar"),
-    "vehicle.toyota.prius": _t(tail="bar", glass="tinted"),
-    "vehicle.toyota.rav4": _t(roof="rails", cladding=True, rims="dark", tail="bar"),
-    "vehicle.mercedes.sprinter": _t(glass="tinted"),
-    "vehicle.volkswagen.t2": _t(roof="white"),
-    "vehicle.volkswagen.t2_2021": _t(rims="dark", glass="tinted", tail="bar"),
-    "vehicle.carlamotors.european_hgv": _t(rims="dark"),
-    "vehicle.kawasaki.ninja": _t(rims="dark", rider="red"),
-    "vehicle.harley-davidson.low_rider": _t(rider="brown"),
-    "vehicle.vespa.zx125": _t(rider="black"),
-    "vehicle.bh.crossbike": _t(rims="dark", rider="black"),
-    "vehicle.diamondback.century": _t(rider="hivis"),
+    "vehicle.audi.tt": Trim(rims="dark", tail="bar"),
+    "vehicle.audi.etron": Trim(roof="rails", cladding=True, tail="bar", glass="tinted"),
+    "vehicle.bmw.grandtourer": Trim(roof="rails"),
+    "vehicle.bmw.x5": Trim(roof="rails", cladding=True, rims="dark"),
+    "vehicle.citroen.c3": Trim(roof="black", cladding=True),
+    "vehicle.dodge.charger_2020": Trim(tail="bar", rims="dark", roof="black"),
+    "vehicle.dodge.charger_police_2020": Trim(roof="white", rims="dark"),
+    "vehicle.ford.mustang": Trim(rims="dark", glass="tinted"),
+    "vehicle.ford.f150": Trim(cladding=True),
+    "vehicle.honda.civic": Trim(tail="bar", glass="tinted"),
+    "vehicle.jeep.wrangler_rubicon": Trim(roof="black", cladding=True, rims="dark"),
+    "vehicle.lincoln.mkz_2020": Trim(tail="bar", rims="dark", glass="tinted"),
+    "vehicle.mercedes.coupe": Trim(roof="black"),
+    "vehicle.mercedes.coupe_2020": Trim(rims="dark", tail="bar"),
+    "vehicle.audi.a2": Trim(glass="tinted"),
+    "vehicle.mini.cooper_s": Trim(roof="black", tail="bar"),
+    "vehicle.mini.cooper_s_2021": Trim(roof="black", rims="dark", tail="bar", glass="tinted"),
+    "vehicle.nissan.micra": Trim(roof="black", glass="tinted", cladding=True),
+    "vehicle.nissan.patrol": Trim(roof="rails", cladding=True),
+    "vehicle.nissan.patrol_2021": Trim(rims="dark", tail="bar", glass="tinted", cladding=True),
+    "vehicle.renault.clio": Trim(rims="dark"),
+    "vehicle.seat.leon": Trim(tail="bar", rims="dark"),
+    "vehicle.volkswagen.golf": Trim(glass="tinted"),
+    "vehicle.tesla.model3": Trim(roof="glass", rims="dark", tail="bar"),
+    "vehicle.toyota.prius": Trim(tail="bar", glass="tinted"),
+    "vehicle.toyota.rav4": Trim(roof="rails", cladding=True, rims="dark", tail="bar"),
+    "vehicle.mercedes.sprinter": Trim(glass="tinted"),
+    "vehicle.volkswagen.t2": Trim(roof="white"),
+    "vehicle.volkswagen.t2_2021": Trim(rims="dark", glass="tinted", tail="bar"),
+    "vehicle.carlamotors.european_hgv": Trim(rims="dark"),
+    "vehicle.kawasaki.ninja": Trim(rims="dark", rider="red"),
+    "vehicle.harley-davidson.low_rider": Trim(rider="brown"),
+    "vehicle.vespa.zx125": Trim(rider="black"),
+    "vehicle.bh.crossbike": Trim(rims="dark", rider="black"),
+    "vehicle.diamondback.century": Trim(rider="hivis"),
 }
 
 
