@@ -281,3 +281,21 @@ def test_roof_rails_stay_inside_the_height_and_dark_roofs_replace_paint():
     assert not (red.reshape(-1, 3).all(axis=1) & top).any()  # no paint on the roof
     black = np.abs(m.colors[:, :3] - np.array((0.02, 0.02, 0.022))).max(axis=1) < 1e-6
     assert (black.reshape(-1, 3).all(axis=1) & top).sum() >= 2  # the flat roof quad
+
+
+def test_mesh_keys_are_the_trim_fields_and_cached_per_model():
+    """``meshes._params`` (the mesh cache key, asked for every vehicle of every frame)
+    carries each model's trim exactly as ``dataclasses.astuple`` would, and returns the
+    same tuple for the same model object without recomputing it."""
+    from dataclasses import astuple, replace
+
+    from dashtraj.render.meshes import _params
+    from dashtraj.world.catalog import Trim
+
+    for m in catalog_models():
+        p = _params(m)
+        assert p[-1] == astuple(m.trim if m.trim is not None else Trim())
+        assert _params(m) is p
+    m = catalog_models()[0]
+    other = replace(m, trim=Trim(roof="white", rims="dark"))
+    assert _params(other)[-1] == astuple(other.trim) != _params(m)[-1]

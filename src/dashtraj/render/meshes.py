@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 import weakref
-from dataclasses import astuple, dataclass
+from dataclasses import dataclass, fields
 from functools import lru_cache
 from typing import Protocol
 
@@ -224,9 +224,18 @@ class VehicleModelLike(Protocol):
     wheel_radius_m: float
 
 
+_PARAMS: dict[int, tuple] = {}  # id(model) -> (model, its _params tuple)
+
+
 def _params(model) -> tuple:
+    """The shape parameters of a model (the key of its meshes), cached per model object
+    (models are frozen dataclasses; the cache holds the model, so its id stays its own):
+    every vehicle of every frame asks for them."""
+    hit = _PARAMS.get(id(model))
+    if hit is not None and hit[0] is model:
+        return hit[1]
     g = getattr
-    return (
+    p = (
         str(g(model, "body_type", "sedan")),
         float(model.length_m),
         float(model.width_m),
@@ -240,11 +249,21 @@ def _params(model) -> tuple:
         float(g(model, "beltline_fraction", 0.55)),
         _trim(g(model, "trim", None)),
     )
+    if len(_PARAMS) > 4096:
+        _PARAMS.clear()
+    _PARAMS[id(model)] = (model, p)
+    return p
+
+
+_TRIM_FIELDS = tuple(f.name for f in fields(Trim))
 
 
 def _trim(trim) -> tuple:
-    """The catalog ``Trim`` as ``vehicle_shapes``' tuple (its defaults when None)."""
-    return astuple(trim if trim is not None else Trim())
+    """The catalog ``Trim`` as ``vehicle_shapes``' tuple (its defaults when None): its
+    fields in order, as ``dataclasses.astuple`` gives them (scalars), without astuple's
+    deep copy."""
+    t = trim if trim is not None else Trim()
+    return tuple(getattr(t, name) for name in _TRIM_FIELDS)
 
 
 def vehicle_mesh(model, rgb) -> Mesh:
