@@ -77,7 +77,7 @@ class Recipe:
     imgsz: tuple[int, int] = (384, 640)
     crop: tuple[int, int] | None = (192, 320)
     scale: tuple[float, float] = (0.6, 1.25)
-    epochs: int = 3
+    epochs: int = 20
     batch: int = 8
     lr: float = 2e-3
     lr_final: float = 2e-5
