@@ -197,3 +197,19 @@ def test_detect_cli_writes_yolo_labels_and_previews(tmp_path, capsys):
         assert main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("dashtraj: error:"), err
+
+
+def test_the_cpu_recipe_is_the_one_the_shipped_model_was_trained_with():
+    """`make weights` trains `detector train --recipe cpu` with no overrides: the recipe must
+    be the one the shipped model's card records (it once said 3 epochs while the model had
+    been trained for 20), or the command would not reproduce the model it ships."""
+    from dataclasses import asdict
+
+    from dashtraj.train.detector_recipes import get_recipe
+
+    card = json.loads(MODEL_CARD.read_text())["training"]
+    recipe = {k: list(v) if isinstance(v, tuple) else v
+              for k, v in asdict(get_recipe("cpu")).items()}
+    assert recipe == card["recipe"]
+    assert card["epochs_done"] == recipe["epochs"]
+    assert card["steps_done"] == card["steps_planned"]

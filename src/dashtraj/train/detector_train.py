@@ -40,72 +40,19 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch.nn import functional as F
 
-from dashtraj.errors import DashtrajError
-
-
-class TrainError(DashtrajError):
-    """A training set or run directory that cannot be used."""
-
-
-@dataclass(frozen=True)
-class Recipe:
-    """Training settings; written to ``DIR/recipe.json``.
-
-    Attributes:
-        name: recipe name. imgsz: (H, W) of the network input at run time, pixels.
-        crop: (H, W) of the training crops, pixels, or None for whole letterboxed frames.
-        scale: (lo, hi) random rescale factor of a training image.
-        epochs: passes over the training images. batch: images per step.
-        lr, lr_final: AdamW learning rate at the start (after warm-up) and the end.
-        schedule: "cosine" or "step" (lr until ``epochs - step_last``, then lr_final).
-        warmup: linear warm-up steps. weight_decay: AdamW decay of conv weights.
-        freeze_blocks: backbone blocks (0..15, stem counted with block 0) kept frozen.
-        ema: EMA decay (0 = off). focus_p: share of crops centred on a labelled vehicle.
-        min_box_px: boxes smaller than this (height, after augmentation) are dropped.
-        val_images: validation images scored after each epoch (0 = all).
-        threads: torch threads.
-    """
-
-    name: str = "cpu"
-    imgsz: tuple[int, int] = (384, 640)
-    crop: tuple[int, int] | None = (192, 320)
-    scale: tuple[float, float] = (0.6, 1.25)
-    epochs: int = 20
-    batch: int = 8
-    lr: float = 2e-3
-    lr_final: float = 2e-5
-    schedule: str = "cosine"
-    step_last: int = 10
-    warmup: int = 100
-    weight_decay: float = 5e-4
-    freeze_blocks: int = 11
-    ema: float = 0.999
-    focus_p: float = 0.8
-    min_box_px: float = 4.0
-    val_images: int = 150
-    threads: int = 2
-
-
-RECIPES = {
-    "cpu": Recipe(),
-    "paper": Recipe(name="paper", crop=None, scale=(0.9, 1.1), epochs=110, batch=16,
-                    lr=1e-3, lr_final=1e-4, schedule="step", step_last=10, warmup=500,
-                    freeze_blocks=0, val_images=0),
-}
-
-
-def get_recipe(name: str) -> Recipe:
-    """The recipe of this name; TrainError lists the valid ones."""
-    if name not in RECIPES:
-        raise TrainError(f"unknown recipe {name!r}; valid: {', '.join(RECIPES)}")
-    return RECIPES[name]
+from dashtraj.train.detector_recipes import (  # noqa: F401 (RECIPES, get_recipe: re-exported)
+    RECIPES,
+    Recipe,
+    TrainError,
+    get_recipe,
+)
 
 
 # ----------------------------------------------------------------------------- data
