@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 import weakref
-from dataclasses import dataclass, fields
+from dataclasses import astuple, dataclass
 from functools import lru_cache
 from typing import Protocol
 
@@ -255,15 +255,9 @@ def _params(model) -> tuple:
     return p
 
 
-_TRIM_FIELDS = tuple(f.name for f in fields(Trim))
-
-
 def _trim(trim) -> tuple:
-    """The catalog ``Trim`` as ``vehicle_shapes``' tuple (its defaults when None): its
-    fields in order, as ``dataclasses.astuple`` gives them (scalars), without astuple's
-    deep copy."""
-    t = trim if trim is not None else Trim()
-    return tuple(getattr(t, name) for name in _TRIM_FIELDS)
+    """The catalog ``Trim`` as ``vehicle_shapes``' tuple (its defaults when None)."""
+    return astuple(trim if trim is not None else Trim())
 
 
 def vehicle_mesh(model, rgb) -> Mesh:
