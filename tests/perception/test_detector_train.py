@@ -35,10 +35,10 @@ def _tiny_set(root, n=4):
 
 def test_one_epoch_trains_resumes_and_exports(tmp_path):
     from dashtraj.perception.detect import YoloDetector
+    from dashtraj.train.detector_recipes import get_recipe
     from dashtraj.train.detector_train import (
         augment,
         export_checkpoint,
-        get_recipe,
         read_yolo_set,
         train,
     )

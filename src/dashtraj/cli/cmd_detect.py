@@ -89,10 +89,12 @@ def run_train(args: argparse.Namespace) -> int:
         raise DashtrajError(f"{args.data}: no images/train/ (expected a YOLO set made by "
                             "'dashtraj detection-dataset')")
     try:
-        from dashtraj.train.detector_train import get_recipe, train
+        from dashtraj.train.detector_train import train
     except ImportError as exc:
         raise DashtrajError(f"detector train needs the training extra ({exc.name} is "
                             "missing): pip install -e '.[train]'") from None
+    from dashtraj.train.detector_recipes import get_recipe
+
     recipe = get_recipe(args.recipe)
 
     def log(msg: str) -> None:

@@ -1,6 +1,6 @@
 """Training of the vehicle detector (torch; the ``.[train]`` extra only).
 
-Recipes (``RECIPES``, chosen by name):
+Recipes (``dashtraj.train.detector_recipes.RECIPES``, chosen by name):
 
 - ``cpu``: what produced the shipped weights on a 2-core machine. The network sees
   random 320×192 crops of the 640×360 renders, rescaled by a random factor in
@@ -47,12 +47,7 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
-from dashtraj.train.detector_recipes import (  # noqa: F401 (RECIPES, get_recipe: re-exported)
-    RECIPES,
-    Recipe,
-    TrainError,
-    get_recipe,
-)
+from dashtraj.train.detector_recipes import Recipe, TrainError
 
 
 # ----------------------------------------------------------------------------- data
