@@ -33,11 +33,13 @@ def test_localization_eval_json_and_scatter(small_run, gl_available, tmp_path, c
     assert main(["localization", "eval", str(small_run.path), "--json", "--plot",
                  str(png), "--track-every", "0.5"]) == 0
     r = json.loads(capsys.readouterr().out)
-    for n in ("paper", "ground", "fused", "tracked"):
+    for n in ("paper", "ground", "fused", "tracked", "smoothed"):
         assert {"rmse_lt20_m", "rmse_20_60_m", "median_lt20_m", "n_lt20"} <= set(r[n])
     assert r["fused"]["rmse_lt20_m"] < 1.5  # 320 x 180 pixels
     assert r["fused"]["rmse_lt20_m"] < r["paper"]["rmse_lt20_m"]
     assert r["tracked"]["rmse_lt20_m"] < r["paper"]["rmse_lt20_m"]
+    assert r["smoothed"]["rmse_lt20_m"] < r["paper"]["rmse_lt20_m"]
+    assert r["smoothed"]["n_lt20"] == r["tracked"]["n_lt20"] == r["paper"]["n_lt20"]
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert main(["localization", "eval", str(small_run.path), "--plot", str(png)]) == 2
 

@@ -182,3 +182,47 @@ def test_tracked_keeps_the_position_through_an_occlusion(crossing_occluder):
     assert np.allclose(err_t[~flagged][:10], err_f[~flagged][:10])
     with pytest.raises(LocalizationError, match="time"):
         build_localizer("tracked").localize(d.boxes, d.class_ids, SPEC, f.pose)
+
+
+def test_smoothed_carries_later_clean_boxes_back_to_a_track_born_occluded(crossing_occluder):
+    """The same scene from t = 1.6 s: car 1's track is *born* with its bottom edge hidden
+    by car 2, so the forward filter has no clean history and ``tracked`` follows the
+    flagged boxes (measured on the 7 flagged boxes: up to 4.31 m off, RMS 2.61 m;
+    ``fused`` 4.20 m, 2.67 m); ``smoothed`` runs the filter backward too, where the clean
+    boxes after t = 2.4 s are the history (measured: at most 2.44 m off, RMS 1.90 m); on
+    clean, consistent boxes it keeps ``fused``."""
+    rendered, truth = crossing_occluder
+    rendered, truth = rendered[16:], truth[16:]
+    fused, tracked = build_localizer("fused"), build_localizer("tracked")
+    smoothed = build_localizer("smoothed")
+    rows = []
+    for f in rendered:
+        d = OracleDetector().detect(f)
+        a = fused.localize(d.boxes, d.class_ids, SPEC, f.pose)
+        b = tracked.localize(d.boxes, d.class_ids, SPEC, f.pose, t=f.t)
+        smoothed.localize(d.boxes, d.class_ids, SPEC, f.pose, t=f.t)
+        rows.append((d, a, b))
+    out = smoothed.smoothed()
+    assert len(out) == len(rendered)
+    err_f, err_t, err_s, flagged = [], [], [], []
+    for (d, a, b), s, (tx, ty) in zip(rows, out, truth, strict=True):
+        if 1 not in d.truth_ids:
+            continue
+        i = list(d.truth_ids).index(1)
+        err_f.append(np.hypot(a.x[i] - tx, a.y[i] - ty))
+        err_t.append(np.hypot(b.x[i] - tx, b.y[i] - ty))
+        err_s.append(np.hypot(s.x[i] - tx, s.y[i] - ty))
+        flagged.append(a.evidence[i] != 0)
+    err_f, err_t, err_s = np.array(err_f), np.array(err_t), np.array(err_s)
+    flagged = np.array(flagged)
+    assert flagged[:7].all() and (~flagged).sum() >= 10
+
+    def rms(e):
+        return float(np.sqrt(np.mean(e[flagged] ** 2)))
+
+    assert err_t[flagged].max() > 4.0 and err_f[flagged].max() > 4.0
+    assert err_s[flagged].max() < 2.6, np.round(err_s, 2)
+    assert rms(err_s) < 0.8 * min(rms(err_t), rms(err_f)), (rms(err_s), rms(err_t))
+    assert np.allclose(err_s[~flagged][-10:], err_f[~flagged][-10:])
+    smoothed.reset()
+    assert smoothed.smoothed() == []

@@ -154,3 +154,32 @@ def test_create_refuses_an_existing_file_and_reads_are_read_only(tmp_path):
         SightingsDB.create(path)
     with SightingsDB.open(path) as db, pytest.raises(StoreError, match="read-only"):
         db.finish_run()
+
+
+def test_location_updates_rewrite_positions_in_the_batch_or_refuse_it_whole(tmp_path):
+    from dataclasses import replace
+
+    from dashtraj.store import LocationUpdate
+
+    path = tmp_path / "run.db"
+    with SightingsDB.create(path) as db:
+        db.write_run("runs/x", "town01", "ab" * 32, {}, {}, [(1, None)])
+        poses, dets, crops, tracks = _rows(1, range(4))
+        db.add_frames(poses[:2], [d for d in dets if d.frame < 2], crops[:2], tracks)
+        rest = [d for d in dets if d.frame >= 2]
+        up = [LocationUpdate(1, 0, 1, 30.0, 4.5, 40.0, 41.0, 0.5, 9, 0, 1, 2.5, -0.1),
+              LocationUpdate(1, 3, 0, 31.0, -4.5, 50.0, 51.0, 0.0, None, None, None, None,
+                             None)]
+        bad = [*up, LocationUpdate(1, 9, 0, 1.0, 0.0, 0.0, 0.0, 0.0, 1, 0, 1, 0.0, 0.0)]
+        with pytest.raises(StoreError, match="not in the file"):
+            db.add_frames(poses[2:], rest, crops[2:], tracks, bad)
+        assert db.count("poses") == 2 and db.count("detections") == 4  # rolled back whole
+        db.add_frames(poses[2:], rest, crops[2:], tracks, up)
+        got = {(d.frame, d.idx): d for d in db.detections(1)}
+    want = {(d.frame, d.idx): d for d in dets}
+    want[(0, 1)] = replace(want[(0, 1)], distance_m=30.0, bearing_deg=4.5, x=40.0, y=41.0,
+                           z=0.5, road_id=9, section_id=0, lane_id=1, s=2.5, lateral_m=-0.1)
+    want[(3, 0)] = replace(want[(3, 0)], distance_m=31.0, bearing_deg=-4.5, x=50.0, y=51.0,
+                           z=0.0, road_id=None, section_id=None, lane_id=None, s=None,
+                           lateral_m=None)
+    assert got == want

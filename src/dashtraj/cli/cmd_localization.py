@@ -30,10 +30,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "true distance with --plot."),
     )
     add_frame_source_args(e, every_s=0.5)
-    e.add_argument("--localizers", nargs="+", default=["paper", "ground", "fused", "tracked"],
-                   metavar="NAME")
+    e.add_argument("--localizers", nargs="+", metavar="NAME",
+                   default=["paper", "ground", "fused", "tracked", "smoothed"],
+                   help="estimators (default all: paper ground fused tracked smoothed)")
     e.add_argument("--track-every", type=positive_float, default=0.1, metavar="S",
-                   help="frame period fed to the sequential estimator (tracked), scored "
+                   help="frame period fed to the sequential estimators (tracked, smoothed), scored "
                         "every --every seconds like the others (default 0.1, perceive's)")
     e.add_argument("--mu-h", type=positive_float, metavar="PX",
                    help="Eq. 3's constant (default ours)")

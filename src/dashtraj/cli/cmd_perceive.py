@@ -21,7 +21,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "vehicles (the renderer's exact boxes with --detector oracle, or an ONNX model), "
             "track them (sort, or ego: ground-plane tracking with the observer's odometry), "
             "localize them (paper: Eq. 3; ground: bottom edge on the road; fused; tracked: "
-            "fused, or the track's ground-plane filter for truncated or occluded boxes), map-match "
+            "fused, or the track's ground-plane filter for truncated or occluded boxes; smoothed: "
+            "the same filter forward and backward in time, positions rewritten when the "
+            "observer's frames end), map-match "
             "them to waypoints, and write the SQLite sightings database (with the crops of "
             "the detections within the ReID range)."
         ),
@@ -32,7 +34,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="detector (default oracle: the renderer's exact visible boxes)")
     p.add_argument("--tracker", default="ego", help="sort or ego (default ego)")
     p.add_argument("--localizer", default="tracked",
-                   help="paper, ground, fused or tracked (default tracked)")
+                   help="paper, ground, fused, tracked or smoothed (default tracked)")
     p.add_argument("--mu-h", type=positive_float, metavar="PX",
                    help="Eq. 3's calibrated sensor constant (dashtraj localization calibrate)")
     p.add_argument("--every", type=positive_float, default=0.1, metavar="S",

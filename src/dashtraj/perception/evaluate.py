@@ -7,7 +7,7 @@
   the silhouette visible). The tracker's output for a detection is the detection's box
   with the track id (−1, unconfirmed, is no output).
 - `localization_eval`: every estimator localizes the same detections (a sequential one,
-  ``tracked``, sees every frame at perceive's rate as well); errors against
+  ``tracked`` or ``smoothed``, sees every frame at perceive's rate as well); errors against
   the true vehicle centre (CARLA world, ground plane) and the true ground distance from
   the camera; RMSE and median in the bands < 20 m and 20–60 m of true distance.
 """
@@ -164,9 +164,10 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
     """Position and distance errors per estimator, in bands of true distance.
 
     Only detections matched to a vehicle count (all, with the oracle), in the frames every
-    ``every_s`` seconds. A sequential estimator (``tracked``) is fed every frame at
-    ``track_every_s`` (perceive's default period), a new one per observer, and scored on
-    the same frames as the others. Returns
+    ``every_s`` seconds. A sequential estimator (``tracked``, ``smoothed``) is fed every
+    frame at ``track_every_s`` (perceive's default period), a new one per observer, and
+    scored on the same frames as the others (an offline one, ``smoothed``, once the
+    observer's frames ended). Returns
     (summary {estimator: {"rmse_lt20_m", "median_lt20_m", "rmse_20_60_m",
     "median_20_60_m", "dist_rmse_lt20_m", "dist_rmse_20_60_m", "n_lt20", "n_20_60"}},
     samples {"true_m": (N,), estimator: (N,) estimated distance, estimator + "_err":
@@ -174,21 +175,38 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
     """
     locs = {n: build_localizer(n, mu_h) for n in localizers}
     seq = [n for n, loc in locs.items() if getattr(loc, "sequential", False)]
+    offline = [n for n in seq if getattr(locs[n], "offline", False)]
     period = min(track_every_s, every_s) if seq else every_s
     true_d: list = []
     est: dict = {n: [] for n in localizers}
     err: dict = {n: [] for n in localizers}
+    scored: list = []  # this observer's scored frames: (index in its sequence, mask, tx, ty)
+
+    def flush() -> None:  # an offline estimator scores an observer once it has all frames
+        if not scored:
+            return
+        for n in offline:
+            out = locs[n].smoothed()
+            for i, m, tx, ty in scored:
+                err[n].append(np.hypot(out[i].x[m] - tx, out[i].y[m] - ty))
+                est[n].append(out[i].distance_m[m])
+        scored.clear()
+
     for rec in recordings:
         spec = image_camera(rec, size)
         keys, xs, ys, n_v = _truth_positions(rec)
         current = None
+        index = 0
         for ef in eval_frames(rec, detector, period, size):
             d = ef.detections
             if ef.observer_id != current:
+                flush()
                 current = ef.observer_id
+                index = 0
                 locs.update({n: build_localizer(n, mu_h) for n in seq})
             seq_out = {n: locs[n].localize(d.boxes, d.class_ids, spec, ef.pose, t=ef.t)
                        for n in seq}  # every frame, all detections: the tracks need them
+            index += 1
             m = d.truth_ids >= 0
             k = ef.t / every_s
             if not m.any() or abs(k - round(k)) > 1e-6:
@@ -197,7 +215,10 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
             j = np.searchsorted(keys, q)
             tx, ty = xs[j], ys[j]
             true_d.append(np.hypot(tx - ef.pose.x, ty - ef.pose.y))
+            scored.append((index - 1, m, tx, ty))
             for n, loc in locs.items():
+                if n in offline:
+                    continue
                 if n in seq_out:
                     o = seq_out[n]
                     err[n].append(np.hypot(o.x[m] - tx, o.y[m] - ty))
@@ -206,6 +227,7 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
                 r = loc.localize(d.boxes[m], d.class_ids[m], spec, ef.pose)
                 est[n].append(r.distance_m)
                 err[n].append(np.hypot(r.x - tx, r.y - ty))
+        flush()
     td = np.concatenate(true_d) if true_d else np.zeros(0)
     summary: dict = {}
     samples: dict = {"true_m": td}

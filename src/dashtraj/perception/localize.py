@@ -44,12 +44,19 @@ Estimators (`LOCALIZERS`, chosen by name with `build_localizer`):
 - ``tracked``: track-level (`TrackedLocalizer`, sequential: one per camera, fed every
   frame with its time): ``fused`` where the box is clean and consistent with its track,
   else the ``ego`` tracker's ground-plane filter of the track (observer odometry).
+- ``smoothed``: ``tracked`` run forward *and backward* in time over one camera's whole
+  sequence (`SmoothedLocalizer`; offline: fed every frame like ``tracked``, the
+  smoothed positions come from `SmoothedLocalizer.smoothed` once the sequence ended).
+  A detection keeps its ``fused`` position only where the box is clean and consistent
+  with its track in both directions; else it takes the two filters' inverse-covariance
+  fusion (the other direction alone where one has no history: a track *born* truncated
+  or occluded gets its later, clean boxes' evidence carried back).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -352,7 +359,7 @@ class TrackedLocalizer:
         from dashtraj.perception.track import EgoTracker
 
         if t is None:
-            raise LocalizationError("the tracked localizer needs each frame's time t")
+            raise LocalizationError(f"the {self.name} localizer needs each frame's time t")
         boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
         class_ids = np.asarray(class_ids, np.int64)
         if self._tracker is None:
@@ -371,8 +378,105 @@ class TrackedLocalizer:
                          m.evidence)
 
 
+@dataclass(frozen=True, slots=True, eq=False)
+class _Pass:
+    """One frame as one direction's filter saw it: every detection's filtered position
+    (N, 2), its covariance (N, 2, 2) and squared innovation (N,; inf: a new track)."""
+
+    xy: np.ndarray
+    cov: np.ndarray
+    d2: np.ndarray
+
+
+def _pass_of(tracker) -> _Pass:
+    return _Pass(tracker.positions.copy(), tracker.position_cov.copy(),
+                 tracker.innovation_d2.copy())
+
+
+@dataclass
+class SmoothedLocalizer(TrackedLocalizer):
+    """Forward-backward (offline) track-level estimation of one camera's sequence.
+
+    `localize` is `TrackedLocalizer`'s (the forward, causal estimate; fed every frame in
+    time order with ``t``) and keeps the frame. `smoothed` then runs the same ``ego``
+    filter backward in time (the frames reversed, time negated: the constant-velocity
+    model holds either way; the observer's odometry is its pose in each frame) and
+    combines, per detection:
+
+    - the ``fused`` position where the box is clean (`box_evidence` 0) and consistent
+      with its track in both directions (squared Mahalanobis distance to each
+      direction's prediction ≤ ``consistent_chi2``, or the first box of a track);
+    - else the inverse-covariance fusion of the two directions' filtered positions;
+      where one direction has no history (the detection starts its track there) the
+      other direction's alone, where neither has (a track of one box) the measurement.
+
+    A track born truncated or occluded (a vehicle overtaking the observer enters the
+    image cut by its border; a far vehicle first seen behind an undetected occluder) has
+    no history forward, and its clean boxes later are its history backward. Frames are
+    kept (detections and poses only) until `reset`."""
+
+    name: str = "smoothed"
+    offline: bool = True
+    _frames: list = field(default_factory=list, repr=False)
+
+    def localize(self, boxes, class_ids, spec: CameraSpec, pose: CameraPose,
+                 t: float | None = None) -> Localized:
+        out = TrackedLocalizer.localize(self, boxes, class_ids, spec, pose, t)
+        tr = self._tracker
+        self._frames.append((np.asarray(boxes, np.float64).reshape(-1, 4),
+                             np.asarray(class_ids, np.int64), spec, pose, float(t),
+                             tr.measured, _pass_of(tr)))
+        return out
+
+    def smoothed(self) -> list[Localized]:
+        """The smoothed `Localized` of every frame fed since the last `reset`, in order."""
+        from dashtraj.perception.detections import Detections
+        from dashtraj.perception.track import EgoTracker
+
+        if not self._frames:
+            return []
+        back = EgoTracker(spec=self._frames[0][2], mu_h=self.mu_h)
+        backward: list[_Pass] = []
+        for boxes, class_ids, _, pose, t, _, _ in reversed(self._frames):
+            n = len(boxes)
+            back.update(Detections(boxes, np.ones(n), class_ids, np.full(n, -1, np.int64)),
+                        -t, pose)
+            backward.append(_pass_of(back))
+        backward.reverse()
+        return [self._combine(pose, m, f, b)
+                for (_, _, _, pose, _, m, f), b in zip(self._frames, backward, strict=True)]
+
+    def reset(self) -> None:
+        """Forget the frames and the forward filter (a new camera's sequence)."""
+        self._frames = []
+        self._tracker = None
+
+    def _combine(self, pose: CameraPose, m: Localized, f: _Pass, b: _Pass) -> Localized:
+        n = len(m.x)
+        z = np.column_stack([m.x, m.y])
+        f_new, b_new = ~np.isfinite(f.d2), ~np.isfinite(b.d2)
+        trust = ((m.evidence == 0) & ((f.d2 <= self.consistent_chi2) | f_new)
+                 & ((b.d2 <= self.consistent_chi2) | b_new))
+        xy = z.copy()
+        both = ~trust & ~f_new & ~b_new
+        if both.any():
+            ia, ib = np.linalg.inv(f.cov[both]), np.linalg.inv(b.cov[both])
+            p = np.linalg.inv(ia + ib)
+            xy[both] = np.einsum("nij,nj->ni", p, np.einsum("nij,nj->ni", ia, f.xy[both])
+                                 + np.einsum("nij,nj->ni", ib, b.xy[both]))
+        only_b = ~trust & f_new & ~b_new
+        only_f = ~trust & b_new & ~f_new
+        xy[only_b] = b.xy[only_b]
+        xy[only_f] = f.xy[only_f]
+        dx, dy = xy[:, 0] - pose.x, xy[:, 1] - pose.y
+        bearing = (np.degrees(np.arctan2(dy, dx)) - pose.yaw_deg + 180.0) % 360.0 - 180.0
+        return Localized(np.hypot(dx, dy), bearing, xy[:, 0], xy[:, 1], m.sigma_m,
+                         np.ones(n, bool), m.evidence)
+
+
 LOCALIZERS: dict[str, type] = {"paper": PaperLocalizer, "ground": GroundLocalizer,
-                               "fused": FusedLocalizer, "tracked": TrackedLocalizer}
+                               "fused": FusedLocalizer, "tracked": TrackedLocalizer,
+                               "smoothed": SmoothedLocalizer}
 """Estimators by name (see the module docstring)."""
 
 

@@ -4,7 +4,11 @@ Per observer, frame by frame (every `PerceiveConfig.every_s` seconds): render th
 frame (`dashtraj.datasets.frames.recording_frames`; nothing is written to disk),
 detect, localize, track, map-match, and crop the detections within the ReID range.
 Batches of `batch_frames` frames are sent to the single writer (the calling process),
-which commits each batch in one transaction (`SightingsDB.add_frames`). With
+which commits each batch in one transaction (`SightingsDB.add_frames`). With an offline
+localizer (``smoothed``) the frames are written with its forward (causal) estimate and
+the observer's last batch rewrites every detection's position with the smoothed one
+(same transaction as its last frames; the crops, cut while the frame was in memory,
+are those within the ReID range by the forward estimate). With
 ``workers > 1`` observers are processed in parallel processes (spawned; each opens
 its own renderer), and the database content is the same as with one worker.
 """
@@ -30,7 +34,14 @@ from dashtraj.perception.detections import (
 from dashtraj.perception.localize import CameraPose, build_localizer
 from dashtraj.perception.mapmatch import map_match
 from dashtraj.perception.track import build_tracker
-from dashtraj.store import CropRow, DetectionRow, PoseRow, SightingsDB, TrackRow
+from dashtraj.store import (
+    CropRow,
+    DetectionRow,
+    LocationUpdate,
+    PoseRow,
+    SightingsDB,
+    TrackRow,
+)
 
 
 class PerceiveError(DashtrajError):
@@ -43,8 +54,8 @@ class PerceiveConfig:
 
     Attributes:
         detector: "oracle" or a path to an .onnx model. tracker: "sort" or "ego".
-        localizer: "paper", "ground", "fused" or "tracked". mu_h: Eq. 3's constant (None:
-            default).
+        localizer: "paper", "ground", "fused", "tracked" or "smoothed". mu_h: Eq. 3's
+            constant (None: default).
         every_s: frame period, seconds (a multiple of the recording's step).
         size: (W, H) of the rendered images, pixels, or None for the recording's camera.
         msaa: colour-pass samples of the renderer (0 = none; boxes do not depend on it).
@@ -98,6 +109,9 @@ class Batch:
     detections: list = field(default_factory=list)
     crops: list = field(default_factory=list)
     tracks: list = field(default_factory=list)
+    updates: list = field(default_factory=list)
+    """`LocationUpdate` rows: detections written earlier get new positions (an offline
+    localizer's, when the observer's frames ended)."""
 
 
 def image_camera(recording, size: tuple[int, int] | None):
@@ -153,6 +167,7 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
     batch = Batch(observer_id)
     touched: set[int] = set()
     n = 0
+    frames: list[int] = []
     for rf in recording_frames(recording, config.every_s, config.size, [observer_id],
                                msaa=config.msaa, renderer=renderer):
         pose = camera_pose_of(rf, spec)
@@ -171,6 +186,7 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
             loc = localizer.localize(det.boxes, det.class_ids, spec, pose, t=rf.t)
         else:
             loc = localizer.localize(det.boxes, det.class_ids, spec, pose)
+        frames.append(rf.frame)
         ids = tracker.update(det, rf.t, pose)
         mm = map_match(road_map, loc.x, loc.y)
         rgb = rf.frame_data.rgb
@@ -209,7 +225,25 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
             yield batch
             batch = Batch(observer_id)
     batch.tracks = tstats.rows(observer_id, touched)
+    if getattr(localizer, "offline", False):
+        batch.updates = _location_updates(observer_id, frames, localizer.smoothed(), road_map)
     yield batch
+
+
+def _location_updates(observer_id: int, frames: list[int], locs, road_map
+                      ) -> list[LocationUpdate]:
+    """Rows rewriting each detection's position (frame by frame, ``locs[i]`` of
+    ``frames[i]``), map-matched again."""
+    out = []
+    for frame, loc in zip(frames, locs, strict=True):
+        mm = map_match(road_map, loc.x, loc.y)
+        for i in range(len(loc.x)):
+            out.append(LocationUpdate(
+                observer_id, frame, i, float(loc.distance_m[i]), float(loc.bearing_deg[i]),
+                float(loc.x[i]), float(loc.y[i]), float(mm.z[i]), int(mm.road_id[i]),
+                int(mm.section_id[i]), int(mm.lane_id[i]), float(mm.s[i]),
+                float(mm.lateral_m[i])))
+    return out
 
 
 def _set_look(renderer, look: str | None) -> None:
@@ -311,7 +345,7 @@ def perceive(recording, db_path: str | Path, config: PerceiveConfig = PerceiveCo
             try:
                 for o in obs:
                     for b in observer_batches(recording, o, config, road_map, renderer, fdir):
-                        db.add_frames(b.poses, b.detections, b.crops, b.tracks)
+                        db.add_frames(b.poses, b.detections, b.crops, b.tracks, b.updates)
                         if progress is not None:
                             progress(len(b.poses))
                     db.finish_observer(o)
@@ -344,7 +378,8 @@ def _run_workers(recording, obs, config, workers, db, progress, fdir) -> None:
                     raise PerceiveError("a perception worker died without a word") from None
                 continue
             if kind == "batch":
-                db.add_frames(item.poses, item.detections, item.crops, item.tracks)
+                db.add_frames(item.poses, item.detections, item.crops, item.tracks,
+                             item.updates)
                 if progress is not None:
                     progress(len(item.poses))
             elif kind == "done":

@@ -236,6 +236,9 @@ class EgoTracker:
     innovation_d2: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     """After each `update`, (N,): squared Mahalanobis distance of each detection's measured
     position to its track's prediction (inf for a detection that started a track)."""
+    position_cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 2)), repr=False)
+    """After each `update`, (N, 2, 2): the covariance of `positions` (m²; a new track's is
+    its measurement's)."""
     measured: object = field(default=None, repr=False)
     """After each `update`: the ``fused`` localizer's `Localized` of the frame's detections."""
 
@@ -340,9 +343,11 @@ class EgoTracker:
             self._hidden = np.concatenate([self._hidden, np.zeros(k)])
         self.measured = loc
         self.positions = zx.copy()
+        self.position_cov = r_det.copy()
         self.innovation_d2 = np.full(n, np.inf)
         if len(matches):
             self.positions[matches[:, 0]] = self._x[matches[:, 1], :2]
+            self.position_cov[matches[:, 0]] = self._p[matches[:, 1], :2, :2]
             self.innovation_d2[matches[:, 0]] = d2[matches[:, 0], matches[:, 1]]
         out = np.full(n, -1, np.int64)
         if len(matches):

@@ -13,6 +13,7 @@ from dashtraj.store.db import (
     DetectionRow,
     EmbeddingModel,
     EmbeddingSet,
+    LocationUpdate,
     PoseRow,
     SightingsDB,
     StoreError,
@@ -20,4 +21,5 @@ from dashtraj.store.db import (
 )
 
 __all__ = ["FORMAT", "SCHEMA_VERSION", "CropRow", "DetectionRow", "EmbeddingModel",
-           "EmbeddingSet", "PoseRow", "SightingsDB", "StoreError", "TrackRow"]
+           "EmbeddingSet", "LocationUpdate",
+           "PoseRow", "SightingsDB", "StoreError", "TrackRow"]

@@ -155,6 +155,26 @@ class TrackRow:
 
 
 @dataclass(frozen=True, slots=True)
+class LocationUpdate:
+    """A new position of a written detection (observer_id, frame, idx): the ``detections``
+    columns distance_m … lateral_m (an offline localizer's smoothed estimate)."""
+
+    observer_id: int
+    frame: int
+    idx: int
+    distance_m: float
+    bearing_deg: float
+    x: float
+    y: float
+    z: float
+    road_id: int | None
+    section_id: int | None
+    lane_id: int | None
+    s: float | None
+    lateral_m: float | None
+
+
+@dataclass(frozen=True, slots=True)
 class CropRow:
     """The JPEG crop of one detection (``crops``)."""
 
@@ -408,8 +428,11 @@ class SightingsDB:
                                   [(int(o), r) for o, r in observers])
 
     def add_frames(self, poses: Sequence[PoseRow], detections: Sequence[DetectionRow],
-                   crops: Sequence[CropRow] = (), tracks: Sequence[TrackRow] = ()) -> None:
-        """Write a batch of frames in one transaction (tracks are inserted or replaced)."""
+                   crops: Sequence[CropRow] = (), tracks: Sequence[TrackRow] = (),
+                   updates: Sequence[LocationUpdate] = ()) -> None:
+        """Write a batch of frames in one transaction (tracks are inserted or replaced;
+        ``updates`` rewrite the positions of detections written before or in the batch;
+        `StoreError` names one that has no detection)."""
         self._need_writable()
         with self.conn:
             self.conn.executemany(_insert("poses", _cols(PoseRow)), [astuple(r) for r in poses])
@@ -418,6 +441,15 @@ class SightingsDB:
             self.conn.executemany(_insert("crops", _cols(CropRow)), [astuple(r) for r in crops])
             self.conn.executemany(_insert("tracks", _cols(TrackRow), upsert=True),
                                   [astuple(r) for r in tracks])
+            if updates:
+                cols = _cols(LocationUpdate)[3:]
+                sql = (f"UPDATE detections SET {', '.join(c + ' = ?' for c in cols)} "
+                       "WHERE observer_id = ? AND frame = ? AND idx = ?")
+                before = self.conn.total_changes
+                self.conn.executemany(sql, [astuple(r)[3:] + astuple(r)[:3] for r in updates])
+                if self.conn.total_changes - before != len(updates):
+                    raise StoreError(f"{self.path}: a location update names a detection "
+                                     "that is not in the file")
             by_obs: dict[int, int] = {}
             for r in poses:
                 by_obs[r.observer_id] = by_obs.get(r.observer_id, 0) + 1
