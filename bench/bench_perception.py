@@ -5,7 +5,8 @@ A 20 s town01 recording (seed 0, 4 observers, 20 agents, the paper's 1280 x 720
 camera) is simulated; observer frames at 10 fps. Stages, timed on one observer's
 frames: render (with exact labels), detect (``--detector``: oracle, or an ONNX model
 such as the shipped ``src/dashtraj/data/detector/detector.onnx``, timed as its own
-stage ``detect_model`` beside the oracle), localize (fused), track (sort, ego),
+stage ``detect_model`` beside the oracle), localize (fused; and smoothed, the whole
+sequence forward then both directions, per frame), track (sort, ego),
 map-match, crops (JPEG of the detections within 15 m), and the database write. Then
 `perceive` with that detector of one observer (one process) and of two observers with
 2 workers, frames/s per observer (render included). Trackers: updates/s on the cached detections
@@ -84,6 +85,12 @@ def stages(rec, observer: int, model: str | None = None) -> tuple[dict, list]:
         t["crops"] += time.perf_counter() - t0
         frames.append((rf.t, pose, d))
     r.release()
+    sm = build_localizer("smoothed")  # offline: every frame forward, then both directions
+    t0 = time.perf_counter()
+    for ft, pose, d in frames:
+        sm.localize(d.boxes, d.class_ids, spec, pose, t=ft)
+    sm.smoothed()
+    t["localize_smoothed"] = time.perf_counter() - t0
     return {k: round(n / v, 1) if v > 0 else None for k, v in t.items()} | {"frames": n}, frames
 
 

@@ -25,7 +25,8 @@ def small_run(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def small_db(small_run, gl_available, tmp_path_factory):
-    """`dashtraj perceive` of observers 1 and 3 of `small_run` (oracle, ego, fused)."""
+    """`dashtraj perceive` of observers 1 and 3 of `small_run` (the defaults: oracle, ego,
+    smoothed)."""
     from dashtraj.perception.pipeline import PerceiveConfig, perceive
 
     path = tmp_path_factory.mktemp("percdb") / "run.db"

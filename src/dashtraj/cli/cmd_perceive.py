@@ -33,8 +33,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--detector", default="oracle", metavar="oracle|M.onnx",
                    help="detector (default oracle: the renderer's exact visible boxes)")
     p.add_argument("--tracker", default="ego", help="sort or ego (default ego)")
-    p.add_argument("--localizer", default="tracked",
-                   help="paper, ground, fused, tracked or smoothed (default tracked)")
+    p.add_argument("--localizer", default="smoothed",
+                   help="paper, ground, fused, tracked or smoothed (default smoothed)")
     p.add_argument("--mu-h", type=positive_float, metavar="PX",
                    help="Eq. 3's calibrated sensor constant (dashtraj localization calibrate)")
     p.add_argument("--every", type=positive_float, default=0.1, metavar="S",

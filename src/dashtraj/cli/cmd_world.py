@@ -88,8 +88,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="run the camera pipeline with this detector instead (see perceive)")
     s.add_argument("--tracker", choices=("sort", "ego"), default="ego",
                    help="with --detector: the tracker (default ego)")
-    s.add_argument("--localizer", default="tracked",
-                   help="with --detector: paper, ground, fused or tracked (default tracked)")
+    s.add_argument("--localizer", default="smoothed",
+                   help="with --detector: paper, ground, fused, tracked or smoothed (default "
+                        "smoothed)")
     s.add_argument("--noise", choices=("none", "paper"), default="none",
                    help="oracle localization noise: none or paper (default none)")
     s.add_argument("--vehicle", default="target", metavar="ID|target|all",

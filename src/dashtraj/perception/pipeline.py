@@ -73,7 +73,7 @@ class PerceiveConfig:
 
     detector: str = "oracle"
     tracker: str = "ego"
-    localizer: str = "tracked"
+    localizer: str = "smoothed"
     mu_h: float | None = None
     every_s: float = 0.1
     size: tuple[int, int] | None = None
