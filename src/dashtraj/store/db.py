@@ -38,7 +38,10 @@ whole; crops are small (≈5–30 kB), where SQLite reads blobs as fast as a fil
 and PostgreSQL stores them the same way (``bytea``).
 
 Writing: `SightingsDB.create` (WAL journal) and one transaction per batch of frames
-(`add_frames`): a killed run leaves every committed frame readable. Reading:
+(`add_frames`): a killed run leaves every committed frame readable. A batch may also carry
+`LocationUpdate` rows that rewrite the position columns of detections written before
+(``perceive``'s offline ``smoothed`` localizer, in each observer's last batch: an observer
+whose ``complete`` is 0 still has its forward estimates). Reading:
 `SightingsDB.open` checks the file (SQLite header, integrity, format, schema
 version) and raises `StoreError` naming it.
 
