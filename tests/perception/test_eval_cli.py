@@ -25,6 +25,12 @@ def test_tracker_eval_json_has_the_metrics_per_tracker(small_run, gl_available, 
         assert ig["num_tracked"] <= r[n]["num_tracked"]
     assert r["ego"]["idf1"] >= 0.8
     assert r["ego"]["idf1"] >= r["sort"]["idf1"]
+    # offline confirmation: the same tracks, their first (min_hits - 1) boxes reported too
+    off = r["ego+backfill"]
+    assert "sort+backfill" not in r  # sort does not report unconfirmed tracks
+    assert off["num_gt"] == r["ego"]["num_gt"]
+    assert off["num_tracked"] > r["ego"]["num_tracked"]
+    assert off["mota"] > r["ego"]["mota"] and off["idf1"] >= r["ego"]["idf1"]
 
 
 def test_localization_eval_json_and_scatter(small_run, gl_available, tmp_path, capsys):

@@ -12,7 +12,14 @@ import numpy as np
 import pytest
 
 from dashtraj.perception.detections import Detections, OracleDetector
-from dashtraj.perception.track import EgoTracker, TrackerError, build_tracker, mot_rows
+from dashtraj.perception.track import (
+    Backfill,
+    EgoTracker,
+    TrackerError,
+    backfill,
+    build_tracker,
+    mot_rows,
+)
 from dashtraj.world.camera import CameraSpec
 from perception_scenes import look_away_scene, pass_scene, render_scene, turn_scene
 
@@ -164,3 +171,30 @@ def test_mot_rows_are_motchallenge_lines():
     d = Detections(np.array([[10.0, 20.0, 40.0, 60.0], [0, 0, 5, 5]]), np.array([0.9, 0.5]),
                    np.array([0, 1]), np.array([-1, -1]))
     assert mot_rows(7, d, np.array([3, -1])) == ["7,3,10.00,20.00,30.00,40.00,0.900,-1,-1,-1"]
+
+
+def test_backfill_gives_a_confirmed_tracks_first_boxes_its_id():
+    """Track 5 is confirmed at its third box: its first two get id 5; track 6 never is."""
+    ids = [np.array([-1]), np.array([-1, -1]), np.array([5, -1]), np.array([5])]
+    raw = [np.array([5]), np.array([5, 6]), np.array([5, -1]), np.array([5])]
+    bf = Backfill()
+    got = [bf.add(k, i, r) for k, (i, r) in enumerate(zip(ids, raw, strict=True))]
+    assert got == [[], [], [(0, 0, 5), (1, 0, 5)], []]
+    out = backfill(ids, raw)
+    assert [x.tolist() for x in out] == [[5], [5, -1], [5, -1], [5]]
+    assert ids[0].tolist() == [-1]  # the input is not changed
+
+
+def test_ego_reports_the_track_of_every_detection(pass10):
+    """``track_of`` names the track of every box, also before min_hits confirms it; the
+    confirmed id is the same number."""
+    tracker = build_tracker("ego", SPEC)
+    det = OracleDetector()
+    unconfirmed = 0
+    for f in pass10:
+        d = det.detect(f)
+        ids = tracker.update(d, f.t, f.pose)
+        assert len(tracker.track_of) == len(d) and (tracker.track_of > 0).all()
+        assert (ids[ids > 0] == tracker.track_of[ids > 0]).all()
+        unconfirmed += int((ids < 0).sum())
+    assert unconfirmed >= 2 * 3  # min_hits - 1 boxes of each of the three vehicles

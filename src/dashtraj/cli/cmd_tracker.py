@@ -61,10 +61,11 @@ def run_eval(args: argparse.Namespace) -> int:
         return 0
     print(f"{len(recs)} recordings, {res['sequences']} observer videos, {res['frames']} frames, "
           f"detector {args.detector}")
-    for n in [*args.trackers, *peers]:
+    offline = [f"{n}+backfill" for n in args.trackers if f"{n}+backfill" in res]
+    for n in [*args.trackers, *offline, *peers]:
         r = res[n]
         ig = r["ignore_regions"]
-        print(f"  {n:10s} HOTA {r['hota']:.3f}  IDF1 {r['idf1']:.3f}  MOTA {r['mota']:.3f}  "
+        print(f"  {n:13s} HOTA {r['hota']:.3f}  IDF1 {r['idf1']:.3f}  MOTA {r['mota']:.3f}  "
               f"IDSW {r['idsw']:4d}  {r['updates_per_s'] or 0:,.0f} updates/s  "
               f"(ignore regions: HOTA {ig['hota']:.3f}  IDF1 {ig['idf1']:.3f}  "
               f"MOTA {ig['mota']:.3f})")

@@ -236,6 +236,9 @@ class EgoTracker:
     innovation_d2: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     """After each `update`, (N,): squared Mahalanobis distance of each detection's measured
     position to its track's prediction (inf for a detection that started a track)."""
+    track_of: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
+    """After each `update`, (N,): the track of every detection, confirmed or not (the id
+    `update` reports once the track has ``min_hits`` hits; see `backfill`)."""
     position_cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 2)), repr=False)
     """After each `update`, (N, 2, 2): the covariance of `positions` (m²; a new track's is
     its measurement's)."""
@@ -343,6 +346,11 @@ class EgoTracker:
             self._hidden = np.concatenate([self._hidden, np.zeros(k)])
         self.measured = loc
         self.positions = zx.copy()
+        self.track_of = np.full(n, -1, np.int64)
+        if len(matches):
+            self.track_of[matches[:, 0]] = self._ids[matches[:, 1]]
+        if len(ud):
+            self.track_of[ud] = self._ids[len(self._ids) - len(ud):]
         self.position_cov = r_det.copy()
         self.innovation_d2 = np.full(n, np.inf)
         if len(matches):
@@ -380,6 +388,39 @@ class EgoTracker:
         sc = np.maximum(loc.distance_m * self.cross_px / self.spec.focal_px, 0.3) ** 2
         return (sr[:, None, None] * u[:, :, None] * u[:, None, :]
                 + sc[:, None, None] * w[:, :, None] * w[:, None, :])
+
+class Backfill:
+    """Offline confirmation for a tracker that reports each detection's track
+    (``track_of``, `EgoTracker`): a track's first boxes, reported −1 while it had fewer
+    than ``min_hits`` hits, get its id once it is confirmed. Feed `add` every frame after
+    the tracker's update; it returns, for the boxes of earlier frames that now get an id,
+    (frame key, index in that frame, id). Tracks never confirmed stay −1 (what min_hits
+    is for: one-off false detections)."""
+
+    def __init__(self):
+        self._pending: dict[int, list] = {}
+
+    def add(self, key, ids: np.ndarray, track_of: np.ndarray) -> list[tuple]:
+        out = []
+        for i, (tid, raw) in enumerate(zip(ids.tolist(), track_of.tolist(), strict=True)):
+            if raw <= 0:
+                continue
+            if tid > 0:
+                out.extend((k, j, tid) for k, j in self._pending.pop(raw, ()))
+            else:
+                self._pending.setdefault(raw, []).append((key, i))
+        return out
+
+
+def backfill(ids_per_frame, track_of_per_frame) -> list[np.ndarray]:
+    """Every frame's reported ids with `Backfill` applied (a whole sequence at once)."""
+    out = [np.array(ids, np.int64, copy=True) for ids in ids_per_frame]
+    bf = Backfill()
+    for k, (ids, raw) in enumerate(zip(ids_per_frame, track_of_per_frame, strict=True)):
+        for f, j, tid in bf.add(k, np.asarray(ids), np.asarray(raw)):
+            out[f][j] = tid
+    return out
+
 
 TRACKERS: tuple[str, ...] = ("sort", "ego")
 """Tracker names (module docstring)."""

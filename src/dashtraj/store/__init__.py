@@ -17,9 +17,11 @@ from dashtraj.store.db import (
     PoseRow,
     SightingsDB,
     StoreError,
+    TrackIdUpdate,
     TrackRow,
 )
 
 __all__ = ["FORMAT", "SCHEMA_VERSION", "CropRow", "DetectionRow", "EmbeddingModel",
            "EmbeddingSet", "LocationUpdate",
-           "PoseRow", "SightingsDB", "StoreError", "TrackRow"]
+           "PoseRow", "SightingsDB", "StoreError", "TrackIdUpdate",
+           "TrackRow"]
