@@ -90,9 +90,9 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
         "sequences" and "frames". A tracker that reports each detection's track
         (``track_of``: ``ego``) is scored a second time as ``"<name>+backfill"``, its output
         with offline confirmation (`dashtraj.perception.track.Backfill`: a track's first
-        boxes, before min_hits confirmed it, get its id; what ``perceive`` writes). The
-        top-level scores count every truth box of the
-        oracle (≥ 8 px high, ≥ 10 % visible); "ignore_regions" scores the same tracker
+        boxes, before min_hits confirmed it, get its id; ``perceive`` keeps the online ids).
+        The top-level scores count every truth box of the oracle (≥ 8 px high, ≥ 10 %
+        visible); "ignore_regions" scores the same tracker
         output MOTChallenge-style with the boxes under `IGNORE_BELOW_PX` high or
         `IGNORE_BELOW_VISIBLE` visible as ignore regions: they are no truth, and tracker
         boxes on them (the detection's matched vehicle) are removed before scoring.

@@ -8,10 +8,7 @@ which commits each batch in one transaction (`SightingsDB.add_frames`). With an 
 localizer (``smoothed``) the frames are written with its forward (causal) estimate and
 the observer's last batch rewrites every detection's position with the smoothed one
 (same transaction as its last frames; the crops, cut while the frame was in memory,
-are those within the ReID range by the forward estimate). With the ``ego`` tracker a
-track's first boxes, written before ``min_hits`` confirmed it, get its id when it is
-(`dashtraj.perception.track.Backfill`; rewritten by ``TrackIdUpdate`` rows when they were
-in an earlier batch). With
+are those within the ReID range by the forward estimate). With
 ``workers > 1`` observers are processed in parallel processes (spawned; each opens
 its own renderer), and the database content is the same as with one worker.
 """
@@ -36,14 +33,13 @@ from dashtraj.perception.detections import (
 )
 from dashtraj.perception.localize import CameraPose, build_localizer
 from dashtraj.perception.mapmatch import map_match
-from dashtraj.perception.track import Backfill, build_tracker
+from dashtraj.perception.track import build_tracker
 from dashtraj.store import (
     CropRow,
     DetectionRow,
     LocationUpdate,
     PoseRow,
     SightingsDB,
-    TrackIdUpdate,
     TrackRow,
 )
 
@@ -116,9 +112,6 @@ class Batch:
     updates: list = field(default_factory=list)
     """`LocationUpdate` rows: detections written earlier get new positions (an offline
     localizer's, when the observer's frames ended)."""
-    track_updates: list = field(default_factory=list)
-    """`TrackIdUpdate` rows: detections of earlier batches that get their track's id once
-    it is confirmed (`dashtraj.perception.track.Backfill`)."""
 
 
 def image_camera(recording, size: tuple[int, int] | None):
@@ -141,8 +134,7 @@ class _TrackStats:
 
     def add(self, tid: int, t: float, vclass: str, truth: int) -> None:
         s = self.stats.setdefault(tid, {"first": t, "last": t, "n": 0, "cls": {}, "truth": {}})
-        s["first"] = min(s["first"], t)  # a backfilled box comes after later ones
-        s["last"] = max(s["last"], t)
+        s["last"] = t
         s["n"] += 1
         s["cls"][vclass] = s["cls"].get(vclass, 0) + 1
         if truth >= 0:
@@ -176,9 +168,6 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
     touched: set[int] = set()
     n = 0
     frames: list[int] = []
-    bf = Backfill() if hasattr(tracker, "track_of") else None
-    waiting: dict[tuple[int, int], tuple] = {}  # unconfirmed boxes: (t, class, truth)
-    in_batch: dict[tuple[int, int], int] = {}  # (frame, idx) → row of batch.detections
     for rf in recording_frames(recording, config.every_s, config.size, [observer_id],
                                msaa=config.msaa, renderer=renderer):
         pose = camera_pose_of(rf, spec)
@@ -222,9 +211,6 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
             if tid > 0:
                 tstats.add(tid, rf.t, vclass, truth)
                 touched.add(tid)
-            elif bf is not None:
-                waiting[(rf.frame, i)] = (rf.t, vclass, truth)
-                in_batch[(rf.frame, i)] = len(batch.detections) - 1
             if loc.distance_m[i] <= config.reid_range_m:
                 big = max(b[2] - b[0], b[3] - b[1]) * 1.2 > config.crop_long_side_px
                 img = crop_vehicle(rgb, b, 0.1,
@@ -232,21 +218,10 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
                 batch.crops.append(CropRow(observer_id, rf.frame, i,
                                            encode_jpeg(np.asarray(img), config.jpeg_quality),
                                            img.width, img.height))
-        if bf is not None:  # offline confirmation: the track's first boxes get its id
-            for key_frame, j, tid in bf.add(rf.frame, ids, tracker.track_of):
-                t0, vclass, truth = waiting.pop((key_frame, j))
-                tstats.add(tid, t0, vclass, truth)
-                touched.add(tid)
-                row = in_batch.get((key_frame, j))
-                if row is not None:
-                    batch.detections[row] = replace(batch.detections[row], track_id=tid)
-                else:
-                    batch.track_updates.append(TrackIdUpdate(observer_id, key_frame, j, tid))
         n += 1
         if n % config.batch_frames == 0:
             batch.tracks = tstats.rows(observer_id, touched)
             touched = set()
-            in_batch = {}
             yield batch
             batch = Batch(observer_id)
     batch.tracks = tstats.rows(observer_id, touched)
@@ -370,8 +345,7 @@ def perceive(recording, db_path: str | Path, config: PerceiveConfig = PerceiveCo
             try:
                 for o in obs:
                     for b in observer_batches(recording, o, config, road_map, renderer, fdir):
-                        db.add_frames(b.poses, b.detections, b.crops, b.tracks, b.updates,
-                                     b.track_updates)
+                        db.add_frames(b.poses, b.detections, b.crops, b.tracks, b.updates)
                         if progress is not None:
                             progress(len(b.poses))
                     db.finish_observer(o)
@@ -405,7 +379,7 @@ def _run_workers(recording, obs, config, workers, db, progress, fdir) -> None:
                 continue
             if kind == "batch":
                 db.add_frames(item.poses, item.detections, item.crops, item.tracks,
-                             item.updates, item.track_updates)
+                             item.updates)
                 if progress is not None:
                     progress(len(item.poses))
             elif kind == "done":

@@ -17,11 +17,9 @@ from dashtraj.store.db import (
     PoseRow,
     SightingsDB,
     StoreError,
-    TrackIdUpdate,
     TrackRow,
 )
 
 __all__ = ["FORMAT", "SCHEMA_VERSION", "CropRow", "DetectionRow", "EmbeddingModel",
            "EmbeddingSet", "LocationUpdate",
-           "PoseRow", "SightingsDB", "StoreError", "TrackIdUpdate",
-           "TrackRow"]
+           "PoseRow", "SightingsDB", "StoreError", "TrackRow"]

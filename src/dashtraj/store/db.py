@@ -41,8 +41,7 @@ Writing: `SightingsDB.create` (WAL journal) and one transaction per batch of fra
 (`add_frames`): a killed run leaves every committed frame readable. A batch may also carry
 `LocationUpdate` rows that rewrite the position columns of detections written before
 (``perceive``'s offline ``smoothed`` localizer, in each observer's last batch: an observer
-whose ``complete`` is 0 still has its forward estimates), and `TrackIdUpdate` rows that
-give a track's first boxes its id once it is confirmed. Reading:
+whose ``complete`` is 0 still has its forward estimates). Reading:
 `SightingsDB.open` checks the file (SQLite header, integrity, format, schema
 version) and raises `StoreError` naming it.
 
@@ -176,17 +175,6 @@ class LocationUpdate:
     lane_id: int | None
     s: float | None
     lateral_m: float | None
-
-
-@dataclass(frozen=True, slots=True)
-class TrackIdUpdate:
-    """The track id of a written detection (observer_id, frame, idx), given once its track
-    is confirmed (offline confirmation, `dashtraj.perception.track.Backfill`)."""
-
-    observer_id: int
-    frame: int
-    idx: int
-    track_id: int
 
 
 @dataclass(frozen=True, slots=True)
@@ -444,11 +432,10 @@ class SightingsDB:
 
     def add_frames(self, poses: Sequence[PoseRow], detections: Sequence[DetectionRow],
                    crops: Sequence[CropRow] = (), tracks: Sequence[TrackRow] = (),
-                   updates: Sequence[LocationUpdate] = (),
-                   track_updates: Sequence[TrackIdUpdate] = ()) -> None:
+                   updates: Sequence[LocationUpdate] = ()) -> None:
         """Write a batch of frames in one transaction (tracks are inserted or replaced;
-        ``updates`` rewrite the positions, ``track_updates`` the track ids of detections
-        written before or in the batch; `StoreError` when one names no detection)."""
+        ``updates`` rewrite the positions of detections written before or in the batch;
+        `StoreError` names one that has no detection)."""
         self._need_writable()
         with self.conn:
             self.conn.executemany(_insert("poses", _cols(PoseRow)), [astuple(r) for r in poses])
@@ -457,16 +444,14 @@ class SightingsDB:
             self.conn.executemany(_insert("crops", _cols(CropRow)), [astuple(r) for r in crops])
             self.conn.executemany(_insert("tracks", _cols(TrackRow), upsert=True),
                                   [astuple(r) for r in tracks])
-            for kind, rows in (("location", updates), ("track id", track_updates)):
-                if not rows:
-                    continue
-                cols = _cols(type(rows[0]))[3:]
+            if updates:
+                cols = _cols(LocationUpdate)[3:]
                 sql = (f"UPDATE detections SET {', '.join(c + ' = ?' for c in cols)} "
                        "WHERE observer_id = ? AND frame = ? AND idx = ?")
                 before = self.conn.total_changes
-                self.conn.executemany(sql, [astuple(r)[3:] + astuple(r)[:3] for r in rows])
-                if self.conn.total_changes - before != len(rows):
-                    raise StoreError(f"{self.path}: a {kind} update names a detection "
+                self.conn.executemany(sql, [astuple(r)[3:] + astuple(r)[:3] for r in updates])
+                if self.conn.total_changes - before != len(updates):
+                    raise StoreError(f"{self.path}: a location update names a detection "
                                      "that is not in the file")
             by_obs: dict[int, int] = {}
             for r in poses:
