@@ -424,8 +424,8 @@ class SmoothedLocalizer(TrackedLocalizer):
         out = TrackedLocalizer.localize(self, boxes, class_ids, spec, pose, t)
         tr = self._tracker
         self._frames.append((np.asarray(boxes, np.float64).reshape(-1, 4),
-                             np.asarray(class_ids, np.int64), spec, pose, float(t),
-                             tr.measured, _pass_of(tr)))
+                             np.asarray(class_ids, np.int64), pose, float(t), tr.measured,
+                             _pass_of(tr)))
         return out
 
     def smoothed(self) -> list[Localized]:
@@ -435,16 +435,16 @@ class SmoothedLocalizer(TrackedLocalizer):
 
         if not self._frames:
             return []
-        back = EgoTracker(spec=self._frames[0][2], mu_h=self.mu_h)
+        back = EgoTracker(spec=self._tracker.spec, mu_h=self.mu_h)  # the forward one's camera
         backward: list[_Pass] = []
-        for boxes, class_ids, _, pose, t, _, _ in reversed(self._frames):
+        for boxes, class_ids, pose, t, _, _ in reversed(self._frames):
             n = len(boxes)
             back.update(Detections(boxes, np.ones(n), class_ids, np.full(n, -1, np.int64)),
                         -t, pose)
             backward.append(_pass_of(back))
         backward.reverse()
         return [self._combine(pose, m, f, b)
-                for (_, _, _, pose, _, m, f), b in zip(self._frames, backward, strict=True)]
+                for (_, _, pose, _, m, f), b in zip(self._frames, backward, strict=True)]
 
     def reset(self) -> None:
         """Forget the frames and the forward filter (a new camera's sequence)."""

@@ -203,11 +203,8 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
             batch.detections.append(DetectionRow(
                 observer_id, rf.frame, i, rf.t, tid if tid > 0 else None,
                 float(b[0]), float(b[1]), float(b[2]), float(b[3]), float(det.scores[i]), c,
-                vclass, ORIENTATION_OF_CLASS[c], float(loc.distance_m[i]),
-                float(loc.bearing_deg[i]), float(loc.x[i]), float(loc.y[i]), float(mm.z[i]),
-                int(mm.road_id[i]), int(mm.section_id[i]), int(mm.lane_id[i]), float(mm.s[i]),
-                float(mm.lateral_m[i]), truth if truth >= 0 else None,
-                int(shown[i]) if shown[i] >= 0 else None))
+                vclass, ORIENTATION_OF_CLASS[c], *_position(loc, mm, i),
+                truth if truth >= 0 else None, int(shown[i]) if shown[i] >= 0 else None))
             if tid > 0:
                 tstats.add(tid, rf.t, vclass, truth)
                 touched.add(tid)
@@ -230,6 +227,13 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
     yield batch
 
 
+def _position(loc, mm, i: int) -> tuple:
+    """Detection ``i``'s position columns (distance_m … lateral_m of ``detections``)."""
+    return (float(loc.distance_m[i]), float(loc.bearing_deg[i]), float(loc.x[i]),
+            float(loc.y[i]), float(mm.z[i]), int(mm.road_id[i]), int(mm.section_id[i]),
+            int(mm.lane_id[i]), float(mm.s[i]), float(mm.lateral_m[i]))
+
+
 def _location_updates(observer_id: int, frames: list[int], locs, road_map
                       ) -> list[LocationUpdate]:
     """Rows rewriting each detection's position (frame by frame, ``locs[i]`` of
@@ -237,12 +241,8 @@ def _location_updates(observer_id: int, frames: list[int], locs, road_map
     out = []
     for frame, loc in zip(frames, locs, strict=True):
         mm = map_match(road_map, loc.x, loc.y)
-        for i in range(len(loc.x)):
-            out.append(LocationUpdate(
-                observer_id, frame, i, float(loc.distance_m[i]), float(loc.bearing_deg[i]),
-                float(loc.x[i]), float(loc.y[i]), float(mm.z[i]), int(mm.road_id[i]),
-                int(mm.section_id[i]), int(mm.lane_id[i]), float(mm.s[i]),
-                float(mm.lateral_m[i])))
+        out.extend(LocationUpdate(observer_id, frame, i, *_position(loc, mm, i))
+                   for i in range(len(loc.x)))
     return out
 
 
