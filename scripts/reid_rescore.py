@@ -9,7 +9,7 @@ folder first (the embeddings of MODEL are added to the copy, never to EXP).
 
 Usage:
     python scripts/reid_rescore.py EXP --reid-model M.onnx [--reid-threshold F.json]
-        [--gate | --no-gate] [--same-camera-m M] [--json]
+        [--gate | --no-gate] [--same-camera-m M] [--pin-anchor | --no-pin-anchor] [--json]
 
 Prints one row per run (ReID precision/recall, hmm and shortest-path SSPD over the whole
 trip and the seen stretch) and the means, with the same aggregation as `experiments`.
@@ -50,6 +50,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="the gate's GateConfig.same_camera_m (default: the library's; 0: the "
                          "rule before 2026-11-27, any two time-overlapping tracks of one "
                          "camera are two vehicles)")
+    ap.add_argument("--pin-anchor", action=argparse.BooleanOptionalAction, default=None,
+                    help="the gate keeps the query's own track whatever the others say "
+                         "(default: the library's, dashtraj.reidentify.vision.PIN_ANCHOR)")
     ap.add_argument("--json", action="store_true", help="print the figures as JSON")
     args = ap.parse_args(argv)
 
@@ -76,7 +79,9 @@ def main(argv: list[str] | None = None) -> int:
                                 embedder=embedder, threshold=th.calibration.threshold,
                                 recipe=th.calibration.recipe,
                                 gate=(gate_cfg or True) if gate_on else False,
-                                max_distance_m=config.max_distance_m, sample_s=SAMPLE_S)
+                                max_distance_m=config.max_distance_m, sample_s=SAMPLE_S,
+                                **({} if args.pin_anchor is None
+                                   else {"pin_anchor": args.pin_anchor}))
             results, _, _ = reconstruct_and_score(road_map, rec.target_route, tt.sightings,
                                                   config.methods)
             summary = {**tt.summary, "methods": results}

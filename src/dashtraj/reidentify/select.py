@@ -54,7 +54,7 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
                          sightings: Mapping[Hashable, Sequence[Sighting]], threshold: float, *,
                          aggregate: str = "median", anchor: Hashable | None = None,
                          gate: GateConfig | None = DEFAULT_GATE,
-                         keep_anchor: bool = False) -> Selection:
+                         keep_anchor: bool = False, pin_anchor: bool = True) -> Selection:
     """Decide and gate the target's tracks.
 
     Args:
@@ -73,6 +73,10 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
             user pointed at is the target by definition; its aggregated distance to
             the query can exceed the threshold when the query crop is unlike the
             rest of its track).
+        pin_anchor: the gate keeps the anchor whatever the other candidates say (the
+            best consistent set *containing* it); False: the anchor is one candidate
+            among the others (weighed like them), so a track that the tracker joined
+            to other boxes after the query crop cannot pull true tracks out.
 
     Returns:
         `Selection`.
@@ -92,7 +96,8 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
                for d in placed]
     idx = {d.key: i for i, d in enumerate(placed)}
     res = gate_tracks(road_map, [sightings[d.key] for d in placed], weights=weights,
-                      anchor=idx.get(anchor) if anchor is not None else None, config=gate)
+                      anchor=idx.get(anchor) if anchor is not None and pin_anchor else None,
+                      config=gate)
     accepted = tuple(placed[i].key for i in res.accepted)
     out = tuple(k for k in cand_keys if k not in set(accepted))
     return Selection(tuple(decisions), cand_keys, accepted, out)

@@ -70,6 +70,8 @@ POSITIONS = ("estimated", "truth")
 REID = ("appearance", "identity")
 THRESHOLD_SUFFIX = ".threshold.json"
 """The calibrated threshold of ``M.onnx`` lives in ``M.threshold.json`` beside it."""
+PIN_ANCHOR = True
+"""Default of `target_from_db`'s ``pin_anchor`` (the gate keeps the query's own track)."""
 
 RECOMPUTE = "make reid-threshold  (or: dashtraj reid-threshold DB... --model M.onnx)"
 
@@ -263,7 +265,7 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
                    gate: bool | GateConfig = True, max_distance_m: float = 15.0,
                    sample_s: float = 0.5,
                    positions_of: Callable[[int, np.ndarray], np.ndarray] | None = None,
-                   stages=None) -> TargetTracks:
+                   stages=None, pin_anchor: bool = PIN_ANCHOR) -> TargetTracks:
     """The target's sightings from one perception run's database.
 
     Args:
@@ -284,6 +286,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         positions_of: `true_positions(recording)` (positions ``truth``).
         stages: None, or an object with ``start(name, line)`` (e.g.
             `dashtraj.experiments.Stages`) told as embedding and deciding start.
+        pin_anchor: the gate keeps the query's own track whatever the others say
+            (`select_target_tracks`); the default weighs it like any candidate.
 
     Returns:
         `TargetTracks`.
@@ -395,7 +399,7 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
                                    aggregate=aggregate, anchor=anchor,
                                    gate=(gate if isinstance(gate, GateConfig)
                                          else DEFAULT_GATE if gate else None),
-                                   keep_anchor=True)
+                                   keep_anchor=True, pin_anchor=pin_anchor)
         accepted = [k for k in sel.accepted if k in tracks]
         candidates = list(sel.candidates)
         extra["reid_threshold"] = float(threshold)
