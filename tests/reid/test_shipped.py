@@ -58,8 +58,9 @@ def held_out(tmp_path_factory, gl_available):
 
 def test_shipped_model_beats_chance(held_out):
     """Bar: mAP above the best of 20 random embeddings on the same queries and gallery
-    (random mean 0.115) and at least 0.5 (measured for the shipped model: mAP 0.800, rank-1
-    0.725; its first stage 0.771 / 0.725; the model before the catalog's trims 0.672 / 0.70
+    (random mean 0.115) and at least 0.5 (measured for the shipped model: mAP 0.837, rank-1
+    0.825; its second stage 0.800 / 0.725, its first 0.771 / 0.725; the model before the
+    catalog's trims 0.672 / 0.70
     on these renders, 0.650 / 0.50 on the renders before them), rank-1 above the random
     mean. This
     catches a broken export, preprocessing or weights; it is below the paper's figures (see
@@ -75,9 +76,8 @@ def test_shipped_model_beats_chance(held_out):
     assert r["rank1"] > np.mean([x["rank1"] for x in rand]), r
 
 
-@pytest.mark.xfail(strict=False, reason="the shipped efficientnet_lite0 is under-trained (4 + 3 "
-                   "epochs on one CPU thread): rank-1 0.725 on this set, 0.879 on the ring "
-                   "queries of its test ids, below the 0.8 bar here; see its model card")
 def test_shipped_model_ranks_the_right_identity_first(held_out):
-    """Bar: rank-1 >= 80 % of the queries under the VeRi rule (the issue: 'most queries')."""
+    """Bar: rank-1 >= 80 % of the queries under the VeRi rule (the issue: 'most queries').
+    The shipped model (three stages) ranks 33 of these 40 queries right (0.825); its second
+    stage reached 0.725 and failed this bar, which was an expected failure until then."""
     assert held_out[4]["rank1"] >= 0.8, held_out[4]
