@@ -108,3 +108,30 @@ def test_read_split_of_missing_folder(tmp_path):
 
     with pytest.raises(VeriLayoutError, match="no such folder"):
         read_split(tmp_path / "image_train")
+
+
+def test_cli_flip_reports_it_and_scores_like_the_library(tmp_path, capsys):
+    """`reid eval --flip` embeds with the mirror images too and says so; its figures are
+    the library's on the same embeddings."""
+    import json
+
+    from PIL import Image
+
+    from dashtraj.reid.embed import ReidEmbedder
+    from dashtraj.reid.evaluate import evaluate_features
+
+    rng = np.random.default_rng(3)
+    for sub, names in (("image_query", ["0001_c001_a.jpg", "0002_c001_b.jpg"]),
+                       ("image_test", ["0001_c002_c.jpg", "0002_c002_d.jpg",
+                                       "0003_c003_e.jpg"])):
+        (tmp_path / sub).mkdir()
+        for n in names:
+            Image.fromarray(rng.integers(0, 255, (40, 60, 3), np.uint8)).save(tmp_path / sub / n)
+    assert main(["reid", "eval", "--data", str(tmp_path), "--flip", "--json",
+                 "--threads", "1"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    q, g = open_veri(tmp_path)
+    e = ReidEmbedder(threads=1, flip=True)
+    ref = evaluate_features(e.embed(q.paths), e.embed(g.paths), q, g)
+    assert out["flip"] is True and out["queries"] == 2
+    assert out["map"] == pytest.approx(ref["map"]) and out["rank1"] == ref["rank1"]

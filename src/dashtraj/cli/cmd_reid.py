@@ -69,6 +69,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="query folder (default image_query)")
     e.add_argument("--threads", type=positive_int, default=2,
                    help="onnxruntime threads (default 2)")
+    e.add_argument("--flip", action="store_true",
+                   help="test-time augmentation: embed every image and its mirror image, "
+                        "sum the two (twice the compute)")
     e.add_argument("--json", action="store_true", help="print the figures as JSON")
     e.set_defaults(func=run_eval)
 
@@ -149,13 +152,13 @@ def run_eval(args: argparse.Namespace) -> int:
     from dashtraj.reid.evaluate import evaluate_features, open_veri
 
     q, g = open_veri(args.data, args.query)
-    emb = ReidEmbedder(args.model, threads=args.threads)
+    emb = ReidEmbedder(args.model, threads=args.threads, flip=args.flip)
     t0 = time.time()
     gf = emb.embed(g.paths)
     qf = emb.embed(q.paths)
     dt = time.time() - t0
     r = evaluate_features(qf, gf, q, g)
-    out = {"data": args.data, "query": args.query, "model": str(emb.path),
+    out = {"data": args.data, "query": args.query, "model": str(emb.path), "flip": emb.flip,
            "rank1": r["rank1"], "rank5": r["rank5"], "rank10": r["rank10"], "map": r["map"],
            "minp": r["minp"], "queries": r["queries"], "skipped_queries": r["skipped"],
            "gallery": len(g), "query_ids": len(set(q.pids.tolist())),

@@ -116,9 +116,14 @@ def embed_database(db: SightingsDB, embedder: ReidEmbedder, batch_size: int = 64
     Raises:
         EmbedError: the database has no crops; a crop is not a readable image.
         StoreError: the database holds vectors of this model with another size.
+        ValueError: ``batch_size`` < 1, or an embedder with ``flip`` (its vectors would
+            share the model's rows with plain ones).
     """
     if batch_size < 1:
         raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+    if getattr(embedder, "flip", False):
+        raise ValueError(f"{embedder.path.name}: the embeddings table keys rows by the model "
+                         "file alone; embed without flip test-time augmentation")
     n_crops = db.count("crops")
     if n_crops == 0:
         raise EmbedError(f"{db.path} has no crops (perceive keeps crops of detections within "
