@@ -34,7 +34,7 @@ def main(argv: list[str] | None = None) -> int:
         reconstruct_and_score,
     )
     from dashtraj.reid.embed import ReidEmbedder
-    from dashtraj.reidentify.vision import load_threshold, target_from_db
+    from dashtraj.reidentify.vision import PIN_ANCHOR, load_threshold, target_from_db
     from dashtraj.roads import RoadMap
     from dashtraj.trajectory.gating import GateConfig
     from dashtraj.world.recording import Recording
@@ -50,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="the gate's GateConfig.same_camera_m (default: the library's; 0: the "
                          "rule before 2026-11-27, any two time-overlapping tracks of one "
                          "camera are two vehicles)")
-    ap.add_argument("--pin-anchor", action=argparse.BooleanOptionalAction, default=None,
+    ap.add_argument("--pin-anchor", action=argparse.BooleanOptionalAction, default=PIN_ANCHOR,
                     help="the gate keeps the query's own track whatever the others say "
                          "(default: the library's, dashtraj.reidentify.vision.PIN_ANCHOR)")
     ap.add_argument("--json", action="store_true", help="print the figures as JSON")
@@ -80,8 +80,7 @@ def main(argv: list[str] | None = None) -> int:
                                 recipe=th.calibration.recipe,
                                 gate=(gate_cfg or True) if gate_on else False,
                                 max_distance_m=config.max_distance_m, sample_s=SAMPLE_S,
-                                **({} if args.pin_anchor is None
-                                   else {"pin_anchor": args.pin_anchor}))
+                                pin_anchor=args.pin_anchor)
             results, _, _ = reconstruct_and_score(road_map, rec.target_route, tt.sightings,
                                                   config.methods)
             summary = {**tt.summary, "methods": results}

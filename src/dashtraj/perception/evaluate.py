@@ -76,6 +76,17 @@ def open_recording(path):
         return Recording.open(path)
 
 
+def _score_frame(seq: Sequence, iseq: Sequence, gt, sc, on_ignored: np.ndarray,
+                 ids: np.ndarray, boxes: np.ndarray) -> None:
+    """Add one frame's tracker output (``ids``, −1 = unreported) to the plain sequence
+    (every oracle truth box) and to the ignore-region one (the boxes on ignored vehicles
+    removed)."""
+    ok = ids > 0
+    seq.add(gt.truth_ids, gt.boxes, ids[ok], boxes[ok])
+    ok &= ~on_ignored
+    iseq.add(sc.truth_ids, sc.boxes, ids[ok], boxes[ok])
+
+
 def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str = "oracle",
                  every_s: float = 0.1, size=None) -> dict:
     """HOTA / IDF1 / MOTA per tracker over every observer of every recording.
@@ -113,10 +124,7 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
             ids = backfill([f[-2] for f in frames], [f[-1] for f in frames])
             a, b = Sequence(), Sequence()
             for (gt, sc, on_ignored, boxes, _, _), x in zip(frames, ids, strict=True):
-                ok = x > 0
-                a.add(gt.truth_ids, gt.boxes, x[ok], boxes[ok])
-                ok &= ~on_ignored
-                b.add(sc.truth_ids, sc.boxes, x[ok], boxes[ok])
+                _score_frame(a, b, gt, sc, on_ignored, x, boxes)
             all_counts[n + "+backfill"].append(counts(a))
             ign_counts[n + "+backfill"].append(counts(b))
             frames.clear()
@@ -152,10 +160,7 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
                 seconds[n] += time.perf_counter() - t0
                 if n in kept:
                     kept[n].append((gt, sc, on_ignored, d.boxes, ids, state[n].track_of.copy()))
-                ok = ids > 0
-                seqs[n].add(gt.truth_ids, gt.boxes, ids[ok], d.boxes[ok])
-                ok &= ~on_ignored
-                iseqs[n].add(sc.truth_ids, sc.boxes, ids[ok], d.boxes[ok])
+                _score_frame(seqs[n], iseqs[n], gt, sc, on_ignored, ids, d.boxes)
         if current is not None:
             flush()
     out: dict = {"sequences": n_seq, "frames": n_frames}
