@@ -300,6 +300,8 @@ CASES: list[tuple[str, list[str], str]] = [
      "not a VeRi-776 layout folder"),
     ("reid-eval-missing", ["reid", "eval", "--data", "{MISSING}"], "no such folder"),
     ("reid-moving-not-a-set", ["reid", "moving-queries", "{OUT_DIR}", "{REC}"], "no reid.json"),
+    ("reid-moving-train-not-a-set", ["reid", "moving-train", "{OUT_DIR}", "{REC}"],
+     "no reid.json"),
     # --- detect and detector
     ("detect-missing-source", ["detect", "{MISSING}", "-o", "{NEW_DIR}"],
      "no such image or folder"),

@@ -117,6 +117,42 @@ def test_resume_mid_epoch_is_exact(tmp_path):
     assert all(torch.equal(wa[k], wb[k]) for k in wa)
 
 
+def test_extra_train_folders_join_image_train(tmp_path):
+    import shutil
+
+    from dashtraj.reid.train import TrainError, train
+
+    _tiny_set(tmp_path / "data")
+    extra = tmp_path / "data" / "image_train_moving"
+    extra.mkdir()
+    for f in sorted((tmp_path / "data" / "image_train").iterdir())[::2]:
+        shutil.copyfile(f, extra / f.name.replace("_c0", "_c5", 1))
+    s = train(tmp_path / "data", tmp_path / "a", _recipe(1), seed=3, threads=1,
+              extra_train=("image_train_moving",), log=None)
+    info = json.loads((tmp_path / "a" / "run.json").read_text())
+    assert info["train_images"] == 20 + 10 and info["num_classes"] == 4
+    assert info["extra_train"] == ["image_train_moving"] and s["finished"]
+    assert (tmp_path / "a" / "cache" / "train_moving_32x32.u8").is_file()
+    # a plain run's weights differ (more images, other batches); its run.json has no key
+    train(tmp_path / "data", tmp_path / "b", _recipe(1), seed=3, threads=1, log=None)
+    assert "extra_train" not in json.loads((tmp_path / "b" / "run.json").read_text())
+    wa, wb = _weights(tmp_path / "a" / "last.pt"), _weights(tmp_path / "b" / "last.pt")
+    assert not all(torch.equal(wa[k], wb[k]) for k in wa)
+    # resuming without the folder would train another set: refused
+    with pytest.raises(TrainError, match="extra-train"):
+        train(tmp_path / "data", tmp_path / "a", _recipe(1), seed=3, threads=1, resume=True,
+              log=None)
+    # identities that image_train lacks (here the test ids 5 and 6) are refused
+    shutil.copyfile(next((tmp_path / "data" / "image_test").iterdir()),
+                    extra / "0005_c900_00000000_0.jpg")
+    with pytest.raises(TrainError, match="not in image_train"):
+        train(tmp_path / "data", tmp_path / "c", _recipe(1), seed=3, threads=1,
+              extra_train=("image_train_moving",), log=None)
+    with pytest.raises(TrainError, match="another folder"):
+        train(tmp_path / "data", tmp_path / "d", _recipe(1), seed=3, threads=1,
+              extra_train=("image_train",), log=None)
+
+
 def test_onnx_export_equals_torch(tmp_path):
     pytest.importorskip("onnx")
     pytest.importorskip("onnxruntime")

@@ -31,3 +31,30 @@ def test_moving_queries_command(gl_available, tmp_path, capsys):
     assert main(args) == 2  # an existing query set is kept unless --overwrite
     assert "--overwrite" in capsys.readouterr().err
     assert main([*args, "--overwrite"]) == 0
+
+
+def test_moving_train_command(gl_available, tmp_path, capsys):
+    # ids 1-10 train, 11-40 test; the recording draws identities 0-13 (ids 1-14)
+    cfg = ReidConfig(n_ids=40, n_test_ids=30, n_cameras=2, size=32, fov_deg=None)
+    build_reid_dataset(cfg, tmp_path / "set")
+    recs = []
+    for seed in (2, 5):  # seed 2's observers see training ids, seed 5's only test ids
+        run = RunConfig(map="town10", seed=seed, duration_s=8.0, n_observers=2, n_agents=8,
+                        identity_range=(0, 14), camera=CameraSpec(width_px=640, height_px=360))
+        simulate(run, tmp_path / f"rec{seed}")
+        recs.append(str(tmp_path / f"rec{seed}"))
+    args = ["reid", "moving-train", str(tmp_path / "set"), *recs, "--every", "0.5", "--json"]
+    assert main(args) == 0
+    counts = json.loads(capsys.readouterr().out)
+    files = sorted(p.name for p in (tmp_path / "set" / "image_train_moving").iterdir())
+    assert files == (tmp_path / "set" / "name_train_moving.txt").read_text().split()
+    assert counts["images"] == len(files) > 0 and counts["skipped_not_train"] > 0
+    # training identities only, on cameras numbered from 500
+    assert all(re.match(NAME_PATTERN, n) and 1 <= int(n[:4]) <= 10 and int(n[6:9]) >= 500
+               for n in files)
+    info = json.loads((tmp_path / "set" / "reid.json").read_text())
+    assert info["counts"]["train_moving"] == counts
+    assert len(info["train_moving"]["cameras"]) == 4 and "moving_cameras" not in info
+    assert not (tmp_path / "set" / "image_query_moving").exists()
+    assert main(args) == 2
+    assert "--overwrite" in capsys.readouterr().err

@@ -1,5 +1,6 @@
-"""`dashtraj reid train|eval|export|moving-queries|embed|query`: vehicle re-identification
-(``embed`` and ``query`` on a sightings database run in `dashtraj.cli.reid_db`)."""
+"""`dashtraj reid train|eval|export|moving-queries|moving-train|embed|query`: vehicle
+re-identification (``embed`` and ``query`` on a sightings database run in
+`dashtraj.cli.reid_db`)."""
 
 from __future__ import annotations
 
@@ -47,6 +48,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     t.add_argument("--init", default=None, metavar="CKPT.pt",
                    help="start from another run's weights (a second stage with its own "
                    "schedule, e.g. --epochs 3 --lr 1e-3)")
+    t.add_argument("--extra-train", action="append", default=[], metavar="FOLDER",
+                   help="another folder of DATA whose images join image_train's (repeatable; "
+                        "e.g. image_train_moving from 'dashtraj reid moving-train')")
     t.add_argument("--overwrite", action="store_true", help="start afresh in a non-empty DIR")
     t.add_argument("--max-hours", type=positive_float, default=None,
                    help="stop (resumable) after this many hours of this call")
@@ -88,7 +92,25 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="sampling period, seconds (default: the set's, 0.5)")
     m.add_argument("--overwrite", action="store_true", help="replace an existing query set")
     m.add_argument("--json", action="store_true", help="print the counts as JSON")
-    m.set_defaults(func=run_moving)
+    m.set_defaults(func=run_moving, split="test")
+
+    mt = sub.add_parser(
+        "moving-train",
+        help="add image_train_moving/ (training ids seen from dashcams) to a reid-dataset set",
+        description="Crops of the set's TRAINING identities seen by the moving observers of "
+                    "recordings (e.g. 'dashtraj simulate --identities 0-650') become "
+                    "DATA/image_train_moving/ and name_train_moving.txt, for 'dashtraj reid "
+                    "train --extra-train image_train_moving' (the dashcam's eye-level views "
+                    "and streets, which the ring cameras lack); reid.json gets their counts, "
+                    "cameras and recordings under \"train_moving\". Test identities in the "
+                    "recordings are skipped and counted.")
+    mt.add_argument("data", metavar="DATA", help="a reid-dataset output folder (with reid.json)")
+    mt.add_argument("recordings", nargs="+", metavar="RUN", help="recording directories")
+    mt.add_argument("--every", type=positive_float, default=None, metavar="S",
+                    help="sampling period, seconds (default: the set's, 0.5)")
+    mt.add_argument("--overwrite", action="store_true", help="replace an existing set")
+    mt.add_argument("--json", action="store_true", help="print the counts as JSON")
+    mt.set_defaults(func=run_moving, split="train")
 
     x = sub.add_parser(
         "export", help="export a checkpoint (best.pt) to ONNX (needs the .[train] extra)",
@@ -131,7 +153,8 @@ def run_train(args: argparse.Namespace) -> int:
     cmd = "dashtraj " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     s = train(args.data, args.output, recipe, seed=args.seed, resume=args.resume,
               overwrite=args.overwrite, max_hours=args.max_hours, threads=args.threads,
-              command=cmd, init=args.init, log=lambda m: print(m, flush=True))
+              command=cmd, init=args.init, extra_train=tuple(args.extra_train),
+              log=lambda m: print(m, flush=True))
     best = s["best"]
     if args.json:
         print(json.dumps({k: s[k] for k in ("epochs_done", "finished", "train_wall_s", "best",
@@ -197,22 +220,25 @@ def run_export(args: argparse.Namespace) -> int:
 
 
 def run_moving(args: argparse.Namespace) -> int:
-    """Add the moving-observer query set to a reid-dataset folder; returns 0."""
+    """Add the moving-observer query set (``split`` "test") or training crops ("train")
+    to a reid-dataset folder; returns 0."""
     import dataclasses
     import shutil
     import tempfile
     from pathlib import Path
 
-    from dashtraj.datasets.reid import ReidConfig, moving_queries
+    from dashtraj.datasets.reid import ReidConfig, moving_crops
     from dashtraj.reid.evaluate import VeriLayoutError
     from dashtraj.world.recording import Recording
 
+    split = getattr(args, "split", "test")
+    stem = "query_moving" if split == "test" else "train_moving"
     root = Path(args.data)
     meta_path = root / "reid.json"
     if not meta_path.is_file():
         raise VeriLayoutError(f"{root}: no reid.json (not a 'dashtraj reid-dataset' folder)")
     info = json.loads(meta_path.read_text(encoding="utf-8"))
-    dest = root / "image_query_moving"
+    dest = root / f"image_{stem}"
     if dest.exists() and not args.overwrite:
         raise VeriLayoutError(f"{dest} exists; --overwrite replaces it")
     names = {f.name for f in dataclasses.fields(ReidConfig)}
@@ -223,16 +249,19 @@ def run_moving(args: argparse.Namespace) -> int:
     cfg = ReidConfig(**cfg_d)
     recs = [Recording.open(p) for p in args.recordings]
     with tempfile.TemporaryDirectory(dir=root, prefix=".moving-") as tmp:
-        res = moving_queries(recs, tmp, cfg)
+        res = moving_crops(recs, tmp, cfg, split)
         if dest.exists():
             shutil.rmtree(dest)
-        os_replace = Path(tmp) / "image_query_moving"
-        os_replace.rename(dest)
-        (Path(tmp) / "name_query_moving.txt").replace(root / "name_query_moving.txt")
-    info["counts"]["query_moving"] = res["counts"]
-    info["moving_cameras"] = res["cameras"]
-    info["config"]["recordings"] = [str(r.path) for r in recs]
-    info["config"]["every_s"] = cfg.every_s
+        (Path(tmp) / f"image_{stem}").rename(dest)
+        (Path(tmp) / f"name_{stem}.txt").replace(root / f"name_{stem}.txt")
+    info["counts"][stem] = res["counts"]
+    if split == "test":
+        info["moving_cameras"] = res["cameras"]
+        info["config"]["recordings"] = [str(r.path) for r in recs]
+        info["config"]["every_s"] = cfg.every_s
+    else:
+        info["train_moving"] = {"cameras": res["cameras"], "every_s": cfg.every_s,
+                                "recordings": [str(r.path) for r in recs]}
     tmp_meta = meta_path.with_suffix(".json.tmp")
     tmp_meta.write_text(json.dumps(info, indent=1, sort_keys=True) + "\n", encoding="utf-8")
     tmp_meta.replace(meta_path)
@@ -240,6 +269,7 @@ def run_moving(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(c))
     else:
-        print(f"{dest}: {c['images']} crops of {c['ids']} test ids from {len(res['cameras'])} "
-              f"moving observers ({c['skipped_not_test']} crops of other identities skipped)")
+        print(f"{dest}: {c['images']} crops of {c['ids']} {split} ids from "
+              f"{len(res['cameras'])} moving observers ({c[f'skipped_not_{split}']} crops of "
+              "other identities skipped)")
     return 0

@@ -484,25 +484,48 @@ def moving_queries(recordings, out_dir, config: ReidConfig) -> dict:
     (``config.every_s``) where a vehicle whose catalog identity is a test id shows at
     least ``min_visible_fraction`` of itself and a visible box ≥ ``min_box_height_px``
     high. Vehicles of other identities (recordings draw identities from the whole
-    catalog) are skipped and counted.
+    catalog) are skipped and counted. Cameras are numbered from ``n_cameras + 1`` (after
+    the ring's).
 
     Returns:
         {"counts": {"images", "ids", "skipped_not_test"}, "cameras": [{"cam",
         "recording", "observer_id"}]}.
     """
+    return moving_crops(recordings, out_dir, config, "test")
+
+
+MOVING_TRAIN_FIRST_CAM = 500
+"""First camera number of ``image_train_moving`` (the ring's are 1 … n_cameras, the
+moving queries' follow them): well apart from both, within VeRi's three digits."""
+
+
+def moving_crops(recordings, out_dir, config: ReidConfig, split: str = "test") -> dict:
+    """Crops of one split's identities seen by the recordings' moving observers.
+
+    ``split`` "test": ``image_query_moving/`` and ``name_query_moving.txt`` (see
+    `moving_queries`); "train": ``image_train_moving/`` and ``name_train_moving.txt``,
+    the training identities seen from dashcams (the view and the scenes of a run's
+    crops), for ``dashtraj reid train --extra-train image_train_moving``; cameras are
+    numbered from `MOVING_TRAIN_FIRST_CAM`. Crops of the other split's identities are
+    skipped and counted (``skipped_not_test`` / ``skipped_not_train``).
+    """
     from dashtraj.datasets.frames import observer_ids
     from dashtraj.world import catalog
 
-    out = Path(out_dir) / "image_query_moving"
+    if split not in ("test", "train"):
+        raise DatasetError(f"moving crops: split {split!r} is not 'test' or 'train'")
+    stem = "query_moving" if split == "test" else "train_moving"
+    first = config.n_cameras + 1 if split == "test" else MOVING_TRAIN_FIRST_CAM
+    out = Path(out_dir) / f"image_{stem}"
     out.mkdir(parents=True, exist_ok=True)
     pool = catalog.identities()
     cams, cam_of = [], {}
     for ri, rec in enumerate(recordings):
         for o in observer_ids(rec):
-            cam_of[(ri, o)] = config.n_cameras + 1 + len(cams)
+            cam_of[(ri, o)] = first + len(cams)
             cams.append({"cam": cam_of[(ri, o)], "recording": str(rec.path), "observer_id": o})
     if cams and cams[-1]["cam"] > 999:
-        raise DatasetError(f"{len(cams)} moving observers + {config.n_cameras} ring cameras "
+        raise DatasetError(f"{len(cams)} moving observers from camera {first} "
                            "exceed the 999 camera ids of the VeRi names")
     names, skipped = [], 0
     for ri, rec in enumerate(recordings):
@@ -518,7 +541,7 @@ def moving_queries(recordings, out_dir, config: ReidConfig) -> dict:
                 same_look = (0 <= iid < len(pool) and pool[iid].model.blueprint_id
                              == row["blueprint_id"] and pool[iid].color_name == row["color"])
                 vid = iid + 1
-                if not same_look or iid >= config.n_ids or split_of(vid, config) != "test":
+                if not same_look or iid >= config.n_ids or split_of(vid, config) != split:
                     skipped += 1
                     continue
                 name = veri_name(vid, cam_of[(ri, rf.observer_id)], rf.frame, ri)
@@ -526,7 +549,7 @@ def moving_queries(recordings, out_dir, config: ReidConfig) -> dict:
                     out / name, format="JPEG", quality=JPEG_QUALITY)
                 names.append(name)
     names.sort()
-    (Path(out_dir) / "name_query_moving.txt").write_text("".join(f"{n}\n" for n in names),
-                                                         encoding="utf-8")
+    (Path(out_dir) / f"name_{stem}.txt").write_text("".join(f"{n}\n" for n in names),
+                                                  encoding="utf-8")
     return {"counts": {"images": len(names), "ids": len({n[:4] for n in names}),
-                       "skipped_not_test": skipped}, "cameras": cams}
+                       f"skipped_not_{split}": skipped}, "cameras": cams}

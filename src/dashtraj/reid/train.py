@@ -296,7 +296,7 @@ def plot_curves(history: list[dict], path: Path) -> None:
 def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
           resume: bool = False, overwrite: bool = False, max_hours: float | None = None,
           threads: int | None = None, command: str | None = None, init: str | Path | None = None,
-          log=print) -> dict:
+          extra_train: tuple[str, ...] = (), log=print) -> dict:
     """Train (or resume) a run; returns the final run summary (also in run.json).
 
     Args:
@@ -309,6 +309,9 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
         init: start from the weights of another run's checkpoint (``last.pt``/``best.pt``
             of the same model on the same identities): a second stage with its own
             schedule; the optimizer starts afresh. Ignored when resuming.
+        extra_train: more training folders of DATA (e.g. ``image_train_moving`` from
+            ``dashtraj reid moving-train``), their images added to ``image_train``'s; every
+            identity in them must be one of ``image_train``'s (the classes stay those).
 
     Raises:
         TrainError: bad data folder, run folder conflicts, resume of a different run.
@@ -349,7 +352,20 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
     train_split = read_split(data / "image_train")
     pids = sorted(set(train_split.pids.tolist()))
     label_of = {p: i for i, p in enumerate(pids)}
-    labels = np.asarray([label_of[p] for p in train_split.pids], np.int64)
+    extra_train = tuple(extra_train)
+    extra_splits = []
+    for name in extra_train:
+        if name == "image_train" or "/" in name or name.startswith("."):
+            raise TrainError(f"--extra-train {name!r}: name another folder of {data}")
+        sp = read_split(data / name)
+        alien = sorted(set(sp.pids.tolist()) - set(pids))
+        if alien:
+            raise TrainError(f"--extra-train {name}: {len(alien)} identities not in "
+                             f"image_train (e.g. {alien[0]}); extra images must be of its "
+                             "identities")
+        extra_splits.append(sp)
+    labels = np.asarray([label_of[p] for sp in (train_split, *extra_splits) for p in sp.pids],
+                        np.int64)
     val_sets = {}
     gallery = read_split(data / "image_test") if (data / "image_test").is_dir() else None
     if gallery is not None:
@@ -362,17 +378,27 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
                 "class_pids": pids, "torch": torch.__version__,
                 "init": str(Path(init).resolve()) if init else None,
                 "threads": torch.get_num_threads()}
+    if extra_train:
+        run_info["extra_train"] = list(extra_train)
     if resume:
         old = json.loads((out / "run.json").read_text())
         if old["recipe"] != json.loads(json.dumps(asdict(recipe))) or old["seed"] != seed:
             raise TrainError(f"--resume: {out}/run.json has another recipe or seed "
                              f"({old['recipe']['name']}, seed {old['seed']})")
+        if old.get("extra_train", []) != list(extra_train):
+            raise TrainError(f"--resume: {out} was trained with --extra-train "
+                             f"{old.get('extra_train', [])}, not {list(extra_train)}")
     _write_json(out / "run.json", run_info)
 
     cache = out / "cache"
     size = (recipe.height, recipe.width)
     log(f"caching {len(labels)} train images at {size[0]}x{size[1]} ...")
     x_train = image_cache(train_split, *size, cache / f"train_{size[0]}x{size[1]}.u8", log)
+    if extra_splits:
+        x_train = np.concatenate([x_train] + [
+            image_cache(sp, *size, cache / f"{name[6:] if name.startswith('image_') else name}"
+                        f"_{size[0]}x{size[1]}.u8", log)
+            for name, sp in zip(extra_train, extra_splits, strict=True)])
     x_gal = x_val = None
     if gallery is not None:
         x_gal = image_cache(gallery, *size, cache / f"test_{size[0]}x{size[1]}.u8", log)
