@@ -86,13 +86,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "recordings (e.g. 'dashtraj simulate --identities 650-700') become "
                     "DATA/image_query_moving/ and name_query_moving.txt (the paper never "
                     "measured this query set); reid.json gets their counts and cameras.")
-    m.add_argument("data", metavar="DATA", help="a reid-dataset output folder (with reid.json)")
-    m.add_argument("recordings", nargs="+", metavar="RUN", help="recording directories")
-    m.add_argument("--every", type=positive_float, default=None, metavar="S",
-                   help="sampling period, seconds (default: the set's, 0.5)")
-    m.add_argument("--overwrite", action="store_true", help="replace an existing query set")
-    m.add_argument("--json", action="store_true", help="print the counts as JSON")
-    m.set_defaults(func=run_moving, split="test")
+    _moving_arguments(m, "test")
 
     mt = sub.add_parser(
         "moving-train",
@@ -104,13 +98,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "and streets, which the ring cameras lack); reid.json gets their counts, "
                     "cameras and recordings under \"train_moving\". Test identities in the "
                     "recordings are skipped and counted.")
-    mt.add_argument("data", metavar="DATA", help="a reid-dataset output folder (with reid.json)")
-    mt.add_argument("recordings", nargs="+", metavar="RUN", help="recording directories")
-    mt.add_argument("--every", type=positive_float, default=None, metavar="S",
-                    help="sampling period, seconds (default: the set's, 0.5)")
-    mt.add_argument("--overwrite", action="store_true", help="replace an existing set")
-    mt.add_argument("--json", action="store_true", help="print the counts as JSON")
-    mt.set_defaults(func=run_moving, split="train")
+    _moving_arguments(mt, "train")
 
     x = sub.add_parser(
         "export", help="export a checkpoint (best.pt) to ONNX (needs the .[train] extra)",
@@ -217,6 +205,20 @@ def run_export(args: argparse.Namespace) -> int:
         print(f"{args.output}: {meta['model']} {meta['input_height']}x{meta['input_width']}, "
               f"{len(data) / 1e6:.2f} MB, sha256 {info['sha256'][:16]}...")
     return 0
+
+
+def _moving_arguments(p: argparse.ArgumentParser, split: str) -> None:
+    """The arguments of ``moving-queries`` (split "test") and ``moving-train`` ("train")."""
+    from dashtraj.cli._args import positive_float
+
+    p.add_argument("data", metavar="DATA", help="a reid-dataset output folder (with reid.json)")
+    p.add_argument("recordings", nargs="+", metavar="RUN", help="recording directories")
+    p.add_argument("--every", type=positive_float, default=None, metavar="S",
+                   help="sampling period, seconds (default: the set's, 0.5)")
+    p.add_argument("--overwrite", action="store_true",
+                   help=f"replace an existing {'query' if split == 'test' else 'training'} set")
+    p.add_argument("--json", action="store_true", help="print the counts as JSON")
+    p.set_defaults(func=run_moving, split=split)
 
 
 def run_moving(args: argparse.Namespace) -> int:
