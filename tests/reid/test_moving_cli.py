@@ -34,7 +34,7 @@ def test_moving_queries_command(gl_available, tmp_path, capsys):
 
 
 def test_moving_train_command(gl_available, tmp_path, capsys):
-    # ids 1-10 train, 11-40 test; the recording draws identities 0-13 (ids 1-14)
+    # ids 1-10 train, 11-40 test; the recordings draw identities 0-13 (ids 1-14)
     cfg = ReidConfig(n_ids=40, n_test_ids=30, n_cameras=2, size=32, fov_deg=None)
     build_reid_dataset(cfg, tmp_path / "set")
     recs = []
