@@ -229,12 +229,12 @@ def run_moving(args: argparse.Namespace) -> int:
     import tempfile
     from pathlib import Path
 
-    from dashtraj.datasets.reid import ReidConfig, moving_crops
+    from dashtraj.datasets.reid import MOVING_STEMS, ReidConfig, moving_crops
     from dashtraj.reid.evaluate import VeriLayoutError
     from dashtraj.world.recording import Recording
 
-    split = getattr(args, "split", "test")
-    stem = "query_moving" if split == "test" else "train_moving"
+    split = args.split
+    stem = MOVING_STEMS[split]
     root = Path(args.data)
     meta_path = root / "reid.json"
     if not meta_path.is_file():

@@ -494,6 +494,10 @@ def moving_queries(recordings, out_dir, config: ReidConfig) -> dict:
     return moving_crops(recordings, out_dir, config, "test")
 
 
+MOVING_STEMS = {"test": "query_moving", "train": "train_moving"}
+"""Split of `moving_crops` → the stem of its folder and list (``image_<stem>/``,
+``name_<stem>.txt``) and of its key in ``reid.json``'s counts."""
+
 MOVING_TRAIN_FIRST_CAM = 500
 """First camera number of ``image_train_moving`` (the ring's are 1 … n_cameras, the
 moving queries' follow them): well apart from both, within VeRi's three digits."""
@@ -512,9 +516,9 @@ def moving_crops(recordings, out_dir, config: ReidConfig, split: str = "test") -
     from dashtraj.datasets.frames import observer_ids
     from dashtraj.world import catalog
 
-    if split not in ("test", "train"):
+    if split not in MOVING_STEMS:
         raise DatasetError(f"moving crops: split {split!r} is not 'test' or 'train'")
-    stem = "query_moving" if split == "test" else "train_moving"
+    stem = MOVING_STEMS[split]
     first = config.n_cameras + 1 if split == "test" else MOVING_TRAIN_FIRST_CAM
     out = Path(out_dir) / f"image_{stem}"
     out.mkdir(parents=True, exist_ok=True)
