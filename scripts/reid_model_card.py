@@ -49,7 +49,9 @@ def main() -> None:
              "## Data", ""]
     lines.append(f"- training folder: `{info['data']}`: {info['train_images']:,} images of "
                  f"{info['num_classes']} identities (ids {info['class_pids'][0]}–"
-                 f"{info['class_pids'][-1]})")
+                 f"{info['class_pids'][-1]})"
+                 + (" with the extra training folders " + ", ".join(
+                     f"`{f}`" for f in info["extra_train"]) if info.get("extra_train") else ""))
     if a.data_json:
         d = json.loads(Path(a.data_json).read_text())
         c = d["counts"]
@@ -62,6 +64,12 @@ def main() -> None:
                      f"{c['test']['ids']} test ids"
                      + (f"; moving-observer query {c['query_moving']['images']} crops of "
                         f"{c['query_moving']['ids']} ids" if "query_moving" in c else ""))
+        if "train_moving" in c:
+            tm = d.get("train_moving", {})
+            lines.append(f"- dashcam crops of training ids (`image_train_moving`, `dashtraj reid "
+                         f"moving-train`): {c['train_moving']['images']:,} crops of "
+                         f"{c['train_moving']['ids']} ids from {len(tm.get('recordings', []))} "
+                         f"recordings ({len(tm.get('cameras', []))} moving observers)")
     lines += ["", "## Recipe", "", "```json", json.dumps(r, indent=1), "```", "",
               f"- seed {info['seed']}; torch {info['torch']}, {info['threads']} threads",
               f"- epochs done: {prog.get('epochs_done', len(epochs))} of {r['epochs']}; best "
@@ -82,13 +90,19 @@ def main() -> None:
                      f"{100 * m['rank1']:.2f} | {100 * m['rank5']:.2f} | "
                      f"{100 * m['rank10']:.2f} | {100 * m['map']:.2f} | {100 * m['minp']:.2f} |")
     if epochs:
-        lines += ["", "## Validation per epoch (ring queries)", "",
-                  "| epoch | loss | train acc % | rank-1 % | mAP % |", "|---|---|---|---|---|"]
+        sets = [q for q in ("image_query", "image_query_moving")
+                if any(q in ep["val"] for ep in epochs)]
+        lines += ["", "## Validation per epoch", "",
+                  "| epoch | loss | train acc % | "
+                  + " | ".join(f"{q} rank-1 % | {q} mAP %" for q in sets) + " |",
+                  "|---|---|---|" + "---|---|" * len(sets)]
         for ep in epochs:
-            v = ep["val"].get("image_query")
+            cells = []
+            for q in sets:
+                v = ep["val"].get(q)
+                cells += [f"{100 * v['rank1']:.2f}", f"{100 * v['map']:.2f}"] if v else ["-", "-"]
             lines.append(f"| {ep['epoch']} | {ep['loss']:.3f} | {100 * ep['train_acc']:.1f} | "
-                         + (f"{100 * v['rank1']:.2f} | {100 * v['map']:.2f} |" if v else
-                            "- | - |"))
+                         + " | ".join(cells) + " |")
     Path(a.card).write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
