@@ -153,6 +153,34 @@ def test_extra_train_folders_join_image_train(tmp_path):
               extra_train=("image_train",), log=None)
 
 
+def test_overwrite_keeps_the_old_run_when_an_input_is_bad(tmp_path):
+    """--overwrite empties OUT only after every input checked out: a typo in --extra-train
+    or --init fails with the previous run's files untouched."""
+    from dashtraj.reid.train import TrainError, train
+
+    _tiny_set(tmp_path / "data")
+    run = tmp_path / "run"
+    train(tmp_path / "data", run, _recipe(1), seed=3, threads=1, log=None)
+    before = {p.name: p.read_bytes() for p in run.iterdir() if p.is_file()}
+    assert {"last.pt", "run.json", "log.jsonl"} <= set(before)
+    with pytest.raises(TrainError, match="no such folder"):
+        train(tmp_path / "data", run, _recipe(1), seed=3, threads=1, overwrite=True,
+              extra_train=("image_train_movign",), log=None)
+    with pytest.raises(TrainError, match="no such checkpoint"):
+        train(tmp_path / "data", run, _recipe(1), seed=3, threads=1, overwrite=True,
+              init=tmp_path / "nope.pt", log=None)
+    (tmp_path / "other.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(TrainError, match=r"other\.pt: not a checkpoint"):
+        train(tmp_path / "data", run, _recipe(1), seed=3, threads=1, overwrite=True,
+              init=tmp_path / "other.pt", log=None)
+    assert {p.name: p.read_bytes() for p in run.iterdir() if p.is_file()} == before
+    # nothing is created for a bad input either
+    with pytest.raises(TrainError):
+        train(tmp_path / "data", tmp_path / "new", _recipe(1), seed=3, threads=1,
+              init=tmp_path / "nope.pt", log=None)
+    assert not (tmp_path / "new").exists()
+
+
 def test_onnx_export_equals_torch(tmp_path):
     pytest.importorskip("onnx")
     pytest.importorskip("onnxruntime")

@@ -330,6 +330,40 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
     if not (data / "image_train").is_dir():
         raise TrainError(f"{data}: no image_train/ (a VeRi-layout folder from "
                          "'dashtraj reid-dataset' or VeRi-776 itself)")
+    # every input is checked before OUT is touched (--overwrite empties it)
+    train_split = read_split(data / "image_train")
+    pids = sorted(set(train_split.pids.tolist()))
+    label_of = {p: i for i, p in enumerate(pids)}
+    extra_train = tuple(extra_train)
+    extra_splits = []
+    for name in extra_train:
+        if name == "image_train" or "/" in name or name.startswith("."):
+            raise TrainError(f"--extra-train {name!r}: name another folder of {data}")
+        if not (data / name).is_dir():
+            raise TrainError(f"--extra-train {name}: no such folder in {data}")
+        sp = read_split(data / name)
+        alien = sorted(set(sp.pids.tolist()) - set(pids))
+        if alien:
+            raise TrainError(f"--extra-train {name}: {len(alien)} identities not in "
+                             f"image_train (e.g. {alien[0]}); extra images must be of its "
+                             "identities")
+        extra_splits.append(sp)
+    init_ck = None
+    if init and not resume:
+        if not Path(init).is_file():
+            raise TrainError(f"--init: {init}: no such checkpoint")
+        try:
+            init_ck = torch.load(init, map_location="cpu", weights_only=False)
+        except Exception as e:  # torch raises pickle, zip and runtime errors alike
+            raise TrainError(f"--init: {init}: not a checkpoint of 'dashtraj reid train' "
+                             f"({type(e).__name__})") from None
+        if not isinstance(init_ck, dict):
+            raise TrainError(f"--init: {init}: not a checkpoint of 'dashtraj reid train'")
+        if (init_ck.get("num_classes") != len(pids)
+                or init_ck.get("recipe", {}).get("model") != recipe.model):
+            raise TrainError(f"--init: {init} is a {init_ck.get('recipe', {}).get('model')} "
+                             f"with {init_ck.get('num_classes')} classes; this run trains a "
+                             f"{recipe.model} on {len(pids)} identities")
     ckpt_path = out / "last.pt"
     if out.exists() and any(out.iterdir()):
         if resume:
@@ -349,21 +383,6 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
         raise TrainError(f"--resume: {out} has no run to resume")
     out.mkdir(parents=True, exist_ok=True)
 
-    train_split = read_split(data / "image_train")
-    pids = sorted(set(train_split.pids.tolist()))
-    label_of = {p: i for i, p in enumerate(pids)}
-    extra_train = tuple(extra_train)
-    extra_splits = []
-    for name in extra_train:
-        if name == "image_train" or "/" in name or name.startswith("."):
-            raise TrainError(f"--extra-train {name!r}: name another folder of {data}")
-        sp = read_split(data / name)
-        alien = sorted(set(sp.pids.tolist()) - set(pids))
-        if alien:
-            raise TrainError(f"--extra-train {name}: {len(alien)} identities not in "
-                             f"image_train (e.g. {alien[0]}); extra images must be of its "
-                             "identities")
-        extra_splits.append(sp)
     labels = np.asarray([label_of[p] for sp in (train_split, *extra_splits) for p in sp.pids],
                         np.int64)
     val_sets = {}
@@ -412,15 +431,8 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
     opt = torch.optim.Adam(model.parameters(), lr=recipe.lr, weight_decay=recipe.weight_decay)
     state = {"epoch": 0, "step_in_epoch": 0, "global_step": 0, "history": [],
              "best": None, "wall_s": 0.0}
-    if init and not resume:
-        if not Path(init).is_file():
-            raise TrainError(f"--init: {init}: no such checkpoint")
-        ck = torch.load(init, map_location="cpu", weights_only=False)
-        if ck.get("num_classes") != len(pids) or ck.get("recipe", {}).get("model") != recipe.model:
-            raise TrainError(f"--init: {init} is a {ck.get('recipe', {}).get('model')} with "
-                             f"{ck.get('num_classes')} classes; this run trains a "
-                             f"{recipe.model} on {len(pids)} identities")
-        model.load_state_dict(ck["model"])
+    if init_ck is not None:
+        model.load_state_dict(init_ck["model"])
         log(f"initialised from {init}")
     if resume:
         ck = torch.load(ckpt_path, map_location="cpu", weights_only=False)
