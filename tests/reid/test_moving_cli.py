@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 
 from dashtraj.cli import main
 from dashtraj.datasets.reid import NAME_PATTERN, ReidConfig, build_reid_dataset
@@ -37,8 +38,9 @@ def test_moving_train_command(gl_available, tmp_path, capsys):
     # ids 1-10 train, 11-40 test; the recordings draw identities 0-13 (ids 1-14)
     cfg = ReidConfig(n_ids=40, n_test_ids=30, n_cameras=2, size=32, fov_deg=None)
     build_reid_dataset(cfg, tmp_path / "set")
+    shutil.copytree(tmp_path / "set", tmp_path / "set2")
     recs = []
-    for seed in (2, 5):  # seed 2's observers see training ids, seed 5's only test ids
+    for seed in (5, 2):  # seed 5's observers see only test ids, seed 2's training ids
         run = RunConfig(map="town10", seed=seed, duration_s=8.0, n_observers=2, n_agents=8,
                         identity_range=(0, 14), camera=CameraSpec(width_px=640, height_px=360))
         simulate(run, tmp_path / f"rec{seed}")
@@ -58,3 +60,25 @@ def test_moving_train_command(gl_available, tmp_path, capsys):
     assert not (tmp_path / "set" / "image_query_moving").exists()
     assert main(args) == 2
     assert "--overwrite" in capsys.readouterr().err
+    # the same crops in two steps: seed 5's recording, then seed 2's appended; cameras and
+    # recording numbers continue, so files, list and reid.json equal the one-step set's
+    step = ["reid", "moving-train", str(tmp_path / "set2"), "--every", "0.5", "--json"]
+    assert main([*step, "--append", recs[0]]) == 2  # nothing to append to yet
+    assert "without --append" in capsys.readouterr().err
+    assert main([*step, recs[0]]) == 0
+    assert json.loads(capsys.readouterr().out)["images"] == 0
+    assert main([*step, "--append", recs[1]]) == 0
+    assert json.loads(capsys.readouterr().out) == counts
+    one, two = tmp_path / "set" / "image_train_moving", tmp_path / "set2" / "image_train_moving"
+    assert sorted(p.name for p in two.iterdir()) == files
+    assert all((one / n).read_bytes() == (two / n).read_bytes() for n in files)
+    assert ((tmp_path / "set2" / "name_train_moving.txt").read_text()
+            == (tmp_path / "set" / "name_train_moving.txt").read_text())
+    info2 = json.loads((tmp_path / "set2" / "reid.json").read_text())
+    assert info2["train_moving"] == info["train_moving"]
+    assert info2["counts"]["train_moving"] == counts
+    assert main([*step, "--append", recs[1]]) == 2  # a recording already in the set
+    assert "already in" in capsys.readouterr().err
+    assert main([*step, "--append", "--every", "1", recs[1]]) == 2
+    assert "sampled every 0.5" in capsys.readouterr().err
+    assert sorted(p.name for p in two.iterdir()) == files  # refusals changed nothing

@@ -217,8 +217,13 @@ def _moving_arguments(p: argparse.ArgumentParser, split: str) -> None:
                    help="sampling period, seconds (default: the set's, 0.5)")
     p.add_argument("--overwrite", action="store_true",
                    help=f"replace an existing {'query' if split == 'test' else 'training'} set")
+    if split == "train":
+        p.add_argument("--append", action="store_true",
+                       help="add the recordings' crops to the existing image_train_moving "
+                            "(cameras and recording numbers continue; the result equals one "
+                            "run over the earlier recordings and these)")
     p.add_argument("--json", action="store_true", help="print the counts as JSON")
-    p.set_defaults(func=run_moving, split=split)
+    p.set_defaults(func=run_moving, split=split, append=False)
 
 
 def run_moving(args: argparse.Namespace) -> int:
@@ -229,7 +234,12 @@ def run_moving(args: argparse.Namespace) -> int:
     import tempfile
     from pathlib import Path
 
-    from dashtraj.datasets.reid import MOVING_STEMS, ReidConfig, moving_crops
+    from dashtraj.datasets.reid import (
+        MOVING_STEMS,
+        MOVING_TRAIN_FIRST_CAM,
+        ReidConfig,
+        moving_crops,
+    )
     from dashtraj.reid.evaluate import VeriLayoutError
     from dashtraj.world.recording import Recording
 
@@ -241,17 +251,40 @@ def run_moving(args: argparse.Namespace) -> int:
         raise VeriLayoutError(f"{root}: no reid.json (not a 'dashtraj reid-dataset' folder)")
     info = json.loads(meta_path.read_text(encoding="utf-8"))
     dest = root / f"image_{stem}"
-    if dest.exists() and not args.overwrite:
-        raise VeriLayoutError(f"{dest} exists; --overwrite replaces it")
+    if args.append and args.overwrite:
+        raise VeriLayoutError("--append and --overwrite: choose one")
+    if dest.exists() and not (args.overwrite or args.append):
+        raise VeriLayoutError(f"{dest} exists; --overwrite replaces it"
+                              + (", --append adds to it" if split == "train" else ""))
     names = {f.name for f in dataclasses.fields(ReidConfig)}
     cfg_d = {k: (tuple(v) if isinstance(v, list) else v)
              for k, v in info["config"].items() if k in names and k != "recordings"}
     if args.every is not None:
         cfg_d["every_s"] = args.every
+    prev = info.get("train_moving") if args.append else None
+    if args.append:
+        if prev is None or not dest.is_dir():
+            raise VeriLayoutError(f"--append: {root} has no image_train_moving to add to "
+                                  "(run without --append first)")
+        if args.every is not None and args.every != prev["every_s"]:
+            raise VeriLayoutError(f"--every {args.every}: {dest} was sampled every "
+                                  f"{prev['every_s']} s")
+        cfg_d["every_s"] = prev["every_s"]
     cfg = ReidConfig(**cfg_d)
     recs = [Recording.open(p) for p in args.recordings]
+    first = {}
+    if prev is not None:
+        had = {Path(r).resolve() for r in prev["recordings"]}
+        again = [str(r.path) for r in recs if Path(r.path).resolve() in had]
+        if again:
+            raise VeriLayoutError(f"--append: {again[0]} is already in {dest}")
+        first = {"first_cam": max((c["cam"] for c in prev["cameras"]),
+                                  default=MOVING_TRAIN_FIRST_CAM - 1) + 1,
+                 "first_recording": len(prev["recordings"])}
     with tempfile.TemporaryDirectory(dir=root, prefix=".moving-") as tmp:
-        res = moving_crops(recs, tmp, cfg, split)
+        res = moving_crops(recs, tmp, cfg, split, **first)
+        if prev is not None:  # the earlier crops join the new ones in the staged folder
+            res = _merge_moving(dest, root / f"name_{stem}.txt", Path(tmp), stem, info, res)
         if dest.exists():
             shutil.rmtree(dest)
         (Path(tmp) / f"image_{stem}").rename(dest)
@@ -262,8 +295,10 @@ def run_moving(args: argparse.Namespace) -> int:
         info["config"]["recordings"] = [str(r.path) for r in recs]
         info["config"]["every_s"] = cfg.every_s
     else:
-        info["train_moving"] = {"cameras": res["cameras"], "every_s": cfg.every_s,
-                                "recordings": [str(r.path) for r in recs]}
+        info["train_moving"] = {"cameras": (prev["cameras"] if prev else []) + res["cameras"],
+                                "every_s": cfg.every_s,
+                                "recordings": (prev["recordings"] if prev else [])
+                                + [str(r.path) for r in recs]}
     tmp_meta = meta_path.with_suffix(".json.tmp")
     tmp_meta.write_text(json.dumps(info, indent=1, sort_keys=True) + "\n", encoding="utf-8")
     tmp_meta.replace(meta_path)
@@ -275,3 +310,30 @@ def run_moving(args: argparse.Namespace) -> int:
               f"{len(res['cameras'])} moving observers ({c[f'skipped_not_{split}']} crops of "
               "other identities skipped)")
     return 0
+
+
+def _merge_moving(dest, names_path, tmp, stem: str, info: dict, res: dict) -> dict:
+    """Hard-link (or copy) the earlier crops of ``dest`` into the staged folder ``tmp``
+    beside the new ones and write the merged name list there; returns ``res`` with the
+    counts of the whole set."""
+    import os
+    import shutil
+
+    from dashtraj.reid.evaluate import VeriLayoutError
+
+    staged = tmp / f"image_{stem}"
+    old = names_path.read_text(encoding="utf-8").split() if names_path.is_file() else []
+    for n in old:
+        if not (dest / n).is_file():
+            raise VeriLayoutError(f"{names_path}: {n} is listed but {dest} lacks it")
+        try:
+            os.link(dest / n, staged / n)
+        except OSError:
+            shutil.copyfile(dest / n, staged / n)
+    new = (tmp / f"name_{stem}.txt").read_text(encoding="utf-8").split()
+    names = sorted(old + new)
+    (tmp / f"name_{stem}.txt").write_text("".join(f"{n}\n" for n in names), encoding="utf-8")
+    key = next(k for k in res["counts"] if k.startswith("skipped_not_"))
+    skipped = info["counts"].get(stem, {}).get(key, 0) + res["counts"][key]
+    return {**res, "counts": {"images": len(names), "ids": len({n[:4] for n in names}),
+                              key: skipped}}

@@ -503,7 +503,8 @@ MOVING_TRAIN_FIRST_CAM = 500
 moving queries' follow them): well apart from both, within VeRi's three digits."""
 
 
-def moving_crops(recordings, out_dir, config: ReidConfig, split: str = "test") -> dict:
+def moving_crops(recordings, out_dir, config: ReidConfig, split: str = "test", *,
+                 first_cam: int | None = None, first_recording: int = 0) -> dict:
     """Crops of one split's identities seen by the recordings' moving observers.
 
     ``split`` "test": ``image_query_moving/`` and ``name_query_moving.txt`` (see
@@ -512,6 +513,11 @@ def moving_crops(recordings, out_dir, config: ReidConfig, split: str = "test") -
     crops), for ``dashtraj reid train --extra-train image_train_moving``; cameras are
     numbered from `MOVING_TRAIN_FIRST_CAM`. Crops of the other split's identities are
     skipped and counted (``skipped_not_test`` / ``skipped_not_train``).
+
+    ``first_cam`` and ``first_recording`` continue a set made earlier (``dashtraj reid
+    moving-train --append``): cameras are numbered from ``first_cam`` and the recordings
+    indexed (the last field of a name) from ``first_recording``, so that adding
+    recordings later names every crop as one run over all of them would.
     """
     from dashtraj.datasets.frames import observer_ids
     from dashtraj.world import catalog
@@ -519,7 +525,8 @@ def moving_crops(recordings, out_dir, config: ReidConfig, split: str = "test") -
     if split not in MOVING_STEMS:
         raise DatasetError(f"moving crops: split {split!r} is not 'test' or 'train'")
     stem = MOVING_STEMS[split]
-    first = config.n_cameras + 1 if split == "test" else MOVING_TRAIN_FIRST_CAM
+    first = first_cam if first_cam is not None else (
+        config.n_cameras + 1 if split == "test" else MOVING_TRAIN_FIRST_CAM)
     out = Path(out_dir) / f"image_{stem}"
     out.mkdir(parents=True, exist_ok=True)
     pool = catalog.identities()
@@ -548,7 +555,8 @@ def moving_crops(recordings, out_dir, config: ReidConfig, split: str = "test") -
                 if not same_look or iid >= config.n_ids or split_of(vid, config) != split:
                     skipped += 1
                     continue
-                name = veri_name(vid, cam_of[(ri, rf.observer_id)], rf.frame, ri)
+                name = veri_name(vid, cam_of[(ri, rf.observer_id)], rf.frame,
+                                 first_recording + ri)
                 crop_vehicle(rf.frame_data.rgb, b, config.margin, config.size).save(
                     out / name, format="JPEG", quality=JPEG_QUALITY)
                 names.append(name)
