@@ -32,10 +32,15 @@ bench: $(STAMP)
 # ReID: the paper-sized VeRi-layout set (700 ids x 85 ring cameras, a domain-randomized look per
 # ring image; moving-observer queries of the test ids from two town10 recordings), then the cpu
 # recipe: efficientnet_lite0 fine-tuned from its ImageNet weights, 4 epochs of softmax + triplet,
-# then stage 2: 3 more epochs from its best.pt on a new cosine from lr 2.5e-4, then stage 3 (the
-# shipped weights): 3 more from stage 2's last.pt on a new cosine from lr 2e-4 (each stage
-# resumes from its own last.pt); exported with float16 weights.
-# One torch thread: on these 2 shared cores two threads ran 5x slower (barrier waits).
+# then stage 2: 3 more epochs from its best.pt on a new cosine from lr 2.5e-4, then stages 3 and
+# 4: 3 more each from the previous stage's last.pt on new cosines from lr 2e-4 and 1.5e-4, then
+# stage 5 (the shipped weights): 3 more from stage 4's last.pt from lr 1.5e-4 with the training
+# identities' dashcam crops added (16 recordings of identities 0-650, town01 and town10 seeds
+# 101-108; 'reid moving-train'); each stage resumes from its own last.pt; exported with float16
+# weights.
+# One torch thread by default: on these 2 shared cores two threads ran 5x slower beside other
+# jobs (barrier waits); on two otherwise idle cores REID_THREADS=2 is faster (stage 5's last two
+# epochs: 22-26 images/s against 15 on one thread).
 REID_DATA ?= runs/reid/veri_town10_pi
 REID_RUN ?= runs/reid/efficientnet_lite0_cpu
 REID_THREADS ?= 1
@@ -47,6 +52,12 @@ reid-data: $(STAMP)
 		-q -o $(REID_DATA)_moving$$s || exit 1; done
 	test -d $(REID_DATA)/image_query_moving || $(VENV)/bin/dashtraj reid moving-queries \
 		$(REID_DATA) $(REID_DATA)_moving1 $(REID_DATA)_moving2
+	for t in town01 town10; do for s in 101 102 103 104 105 106 107 108; do \
+		test -f $(REID_DATA)_mtrain/$${t}_s$$s/meta.json || $(VENV)/bin/dashtraj simulate \
+		--town $$t --identities 0-650 --observers 6 --agents 30 --duration 90 --seed $$s \
+		-q -o $(REID_DATA)_mtrain/$${t}_s$$s || exit 1; done; done
+	test -d $(REID_DATA)/image_train_moving || $(VENV)/bin/dashtraj reid moving-train \
+		$(REID_DATA) $(REID_DATA)_mtrain/town01_s* $(REID_DATA)_mtrain/town10_s*
 
 reid-train: $(STAMP)
 	$(PY) -c 'import torch' 2>/dev/null || $(PY) -m pip install -q torch==2.13.0
@@ -59,8 +70,14 @@ reid-train: $(STAMP)
 	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_stage3 --recipe cpu --seed 0 \
 		--threads $(REID_THREADS) --init $(REID_RUN)_stage2/last.pt --epochs 3 --lr 2e-4 \
 		$$(test -f $(REID_RUN)_stage3/last.pt && echo --resume)
-	$(VENV)/bin/dashtraj reid export $(REID_RUN)_stage3/best.pt \
-		-o $(REID_RUN)_stage3/efficientnet_lite0_cpu.onnx --fp16-weights --overwrite
+	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_stage4 --recipe cpu --seed 0 \
+		--threads $(REID_THREADS) --init $(REID_RUN)_stage3/last.pt --epochs 3 --lr 1.5e-4 \
+		$$(test -f $(REID_RUN)_stage4/last.pt && echo --resume)
+	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_stage5 --recipe cpu --seed 0 \
+		--threads $(REID_THREADS) --init $(REID_RUN)_stage4/last.pt --epochs 3 --lr 1.5e-4 \
+		--extra-train image_train_moving $$(test -f $(REID_RUN)_stage5/last.pt && echo --resume)
+	$(VENV)/bin/dashtraj reid export $(REID_RUN)_stage5/best.pt \
+		-o $(REID_RUN)_stage5/efficientnet_lite0_cpu.onnx --fp16-weights --overwrite
 
 # The ReID model's track-decision threshold, calibrated on training recordings (seeds 900-903,
 # identities < 650; never the test seeds) and written beside it: rerun after replacing the model.
