@@ -152,8 +152,9 @@ def _partial_name(path: Path) -> Path:
         n += 1
 
 
-def _commit(tmp: Path, path: Path) -> None:
-    """Move ``tmp`` to ``path``; an existing ``path`` is replaced whole (never merged)."""
+def replace_whole(tmp: Path, path: Path) -> None:
+    """Move ``tmp`` to ``path``; an existing ``path`` is replaced whole (never merged), and at
+    every instant ``path`` holds either the old output or the new one (see the module)."""
     if not (path.exists() or path.is_symlink()):
         tmp.rename(path)
         return
@@ -214,7 +215,7 @@ def atomic_output(path: str | os.PathLike[str], *, overwrite: bool = False,
     if kind == "file" and not tmp.exists():
         raise OutputPathError(f"output {p}: nothing was written")
     try:
-        _commit(tmp, p)
+        replace_whole(tmp, p)
     except BaseException:
         _remove(tmp)
         raise

@@ -230,7 +230,6 @@ def run_moving(args: argparse.Namespace) -> int:
     """Add the moving-observer query set (``split`` "test") or training crops ("train")
     to a reid-dataset folder; returns 0."""
     import dataclasses
-    import shutil
     import tempfile
     from pathlib import Path
 
@@ -240,6 +239,7 @@ def run_moving(args: argparse.Namespace) -> int:
         ReidConfig,
         moving_crops,
     )
+    from dashtraj.outputs import replace_whole
     from dashtraj.reid.evaluate import VeriLayoutError
     from dashtraj.world.recording import Recording
 
@@ -285,9 +285,7 @@ def run_moving(args: argparse.Namespace) -> int:
         res = moving_crops(recs, tmp, cfg, split, **first)
         if prev is not None:  # the earlier crops join the new ones in the staged folder
             res = _merge_moving(dest, root / f"name_{stem}.txt", Path(tmp), stem, info, res)
-        if dest.exists():
-            shutil.rmtree(dest)
-        (Path(tmp) / f"image_{stem}").rename(dest)
+        replace_whole(Path(tmp) / f"image_{stem}", dest)
         (Path(tmp) / f"name_{stem}.txt").replace(root / f"name_{stem}.txt")
     info["counts"][stem] = res["counts"]
     if split == "test":
