@@ -284,7 +284,7 @@ def run_moving(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(dir=root, prefix=".moving-") as tmp:
         res = moving_crops(recs, tmp, cfg, split, **first)
         if prev is not None:  # the earlier crops join the new ones in the staged folder
-            res = _merge_moving(dest, root / f"name_{stem}.txt", Path(tmp), stem, info, res)
+            res = _merge_moving(dest, root / f"name_{stem}.txt", Path(tmp), split, info, res)
         replace_whole(Path(tmp) / f"image_{stem}", dest)
         (Path(tmp) / f"name_{stem}.txt").replace(root / f"name_{stem}.txt")
     info["counts"][stem] = res["counts"]
@@ -310,15 +310,17 @@ def run_moving(args: argparse.Namespace) -> int:
     return 0
 
 
-def _merge_moving(dest, names_path, tmp, stem: str, info: dict, res: dict) -> dict:
+def _merge_moving(dest, names_path, tmp, split: str, info: dict, res: dict) -> dict:
     """Hard-link (or copy) the earlier crops of ``dest`` into the staged folder ``tmp``
     beside the new ones and write the merged name list there; returns ``res`` with the
     counts of the whole set."""
     import os
     import shutil
 
+    from dashtraj.datasets.reid import MOVING_STEMS
     from dashtraj.reid.evaluate import VeriLayoutError
 
+    stem = MOVING_STEMS[split]
     staged = tmp / f"image_{stem}"
     old = names_path.read_text(encoding="utf-8").split() if names_path.is_file() else []
     for n in old:
@@ -331,7 +333,7 @@ def _merge_moving(dest, names_path, tmp, stem: str, info: dict, res: dict) -> di
     new = (tmp / f"name_{stem}.txt").read_text(encoding="utf-8").split()
     names = sorted(old + new)
     (tmp / f"name_{stem}.txt").write_text("".join(f"{n}\n" for n in names), encoding="utf-8")
-    key = next(k for k in res["counts"] if k.startswith("skipped_not_"))
+    key = f"skipped_not_{split}"
     skipped = info["counts"].get(stem, {}).get(key, 0) + res["counts"][key]
     return {**res, "counts": {"images": len(names), "ids": len({n[:4] for n in names}),
                               key: skipped}}
