@@ -34,16 +34,20 @@ bench: $(STAMP)
 # recipe: efficientnet_lite0 fine-tuned from its ImageNet weights, 4 epochs of softmax + triplet,
 # then stage 2: 3 more epochs from its best.pt on a new cosine from lr 2.5e-4, then stages 3 and
 # 4: 3 more each from the previous stage's last.pt on new cosines from lr 2e-4 and 1.5e-4, then
-# stage 5 (the shipped weights): 3 more from stage 4's last.pt from lr 1.5e-4 with the training
-# identities' dashcam crops added (16 recordings of identities 0-650, town01 and town10 seeds
-# 101-108; 'reid moving-train'); each stage resumes from its own last.pt; exported with float16
-# weights.
+# stage 5: 3 more from stage 4's last.pt from lr 1.5e-4 with the training identities' dashcam
+# crops added (16 recordings of identities 0-650, town01 and town10 seeds 101-108; 'reid
+# moving-train'), then stage 6 (the shipped weights): 2 more from stage 5's last.pt from lr
+# 1.5e-4 after the crops of 8 more recordings (town01 seeds 109-116) are appended to those
+# ('reid moving-train --append', once stage 5 is done: stage 5 trains on the first 16 only);
+# each stage resumes from its own last.pt; exported with float16 weights.
 # One torch thread by default: on these 2 shared cores two threads ran 5x slower beside other
 # jobs (barrier waits); on two otherwise idle cores REID_THREADS=2 is faster (stage 5's last two
-# epochs: 22-26 images/s against 15 on one thread).
+# epochs and stage 6: 22-27 images/s against 15 on one thread).
 REID_DATA ?= runs/reid/veri_town10_pi
 REID_RUN ?= runs/reid/efficientnet_lite0_cpu
 REID_THREADS ?= 1
+MTRAIN_SEEDS := 101 102 103 104 105 106 107 108
+MTRAIN6_SEEDS := 109 110 111 112 113 114 115 116
 reid-data: $(STAMP)
 	test -f $(REID_DATA)/reid.json || $(VENV)/bin/dashtraj reid-dataset -o $(REID_DATA) \
 		--workers 2 --randomize --randomize-seed 0
@@ -52,12 +56,14 @@ reid-data: $(STAMP)
 		-q -o $(REID_DATA)_moving$$s || exit 1; done
 	test -d $(REID_DATA)/image_query_moving || $(VENV)/bin/dashtraj reid moving-queries \
 		$(REID_DATA) $(REID_DATA)_moving1 $(REID_DATA)_moving2
-	for t in town01 town10; do for s in 101 102 103 104 105 106 107 108; do \
-		test -f $(REID_DATA)_mtrain/$${t}_s$$s/meta.json || $(VENV)/bin/dashtraj simulate \
+	for r in $(foreach s,$(MTRAIN_SEEDS),town01_s$(s) town10_s$(s)) \
+		$(foreach s,$(MTRAIN6_SEEDS),town01_s$(s)); do t=$${r%_s*}; s=$${r#*_s}; \
+		test -f $(REID_DATA)_mtrain/$$r/meta.json || $(VENV)/bin/dashtraj simulate \
 		--town $$t --identities 0-650 --observers 6 --agents 30 --duration 90 --seed $$s \
-		-q -o $(REID_DATA)_mtrain/$${t}_s$$s || exit 1; done; done
+		-q -o $(REID_DATA)_mtrain/$$r || exit 1; done
 	test -d $(REID_DATA)/image_train_moving || $(VENV)/bin/dashtraj reid moving-train \
-		$(REID_DATA) $(REID_DATA)_mtrain/town01_s* $(REID_DATA)_mtrain/town10_s*
+		$(REID_DATA) $(foreach s,$(MTRAIN_SEEDS),$(REID_DATA)_mtrain/town01_s$(s)) \
+		$(foreach s,$(MTRAIN_SEEDS),$(REID_DATA)_mtrain/town10_s$(s))
 
 reid-train: $(STAMP)
 	$(PY) -c 'import torch' 2>/dev/null || $(PY) -m pip install -q torch==2.13.0
@@ -76,8 +82,14 @@ reid-train: $(STAMP)
 	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_stage5 --recipe cpu --seed 0 \
 		--threads $(REID_THREADS) --init $(REID_RUN)_stage4/last.pt --epochs 3 --lr 1.5e-4 \
 		--extra-train image_train_moving $$(test -f $(REID_RUN)_stage5/last.pt && echo --resume)
-	$(VENV)/bin/dashtraj reid export $(REID_RUN)_stage5/best.pt \
-		-o $(REID_RUN)_stage5/efficientnet_lite0_cpu.onnx --fp16-weights --overwrite
+	grep -q '_mtrain/town01_s116"' $(REID_DATA)/reid.json || $(VENV)/bin/dashtraj reid \
+		moving-train $(REID_DATA) --append \
+		$(foreach s,$(MTRAIN6_SEEDS),$(REID_DATA)_mtrain/town01_s$(s))
+	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_stage6 --recipe cpu --seed 0 \
+		--threads $(REID_THREADS) --init $(REID_RUN)_stage5/last.pt --epochs 2 --lr 1.5e-4 \
+		--extra-train image_train_moving $$(test -f $(REID_RUN)_stage6/last.pt && echo --resume)
+	$(VENV)/bin/dashtraj reid export $(REID_RUN)_stage6/best.pt \
+		-o $(REID_RUN)_stage6/efficientnet_lite0_cpu.onnx --fp16-weights --overwrite
 
 # The ReID model's track-decision threshold, calibrated on training recordings (seeds 900-903,
 # identities < 650; never the test seeds) and written beside it: rerun after replacing the model.
