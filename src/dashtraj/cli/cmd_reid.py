@@ -284,7 +284,7 @@ def run_moving(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(dir=root, prefix=".moving-") as tmp:
         res = moving_crops(recs, tmp, cfg, split, **first)
         if prev is not None:  # the earlier crops join the new ones in the staged folder
-            res = _merge_moving(dest, root / f"name_{stem}.txt", Path(tmp), split, info, res)
+            res = _merge_moving(dest, Path(tmp), split, info, res)
         replace_whole(Path(tmp) / f"image_{stem}", dest)
         (Path(tmp) / f"name_{stem}.txt").replace(root / f"name_{stem}.txt")
     info["counts"][stem] = res["counts"]
@@ -310,10 +310,10 @@ def run_moving(args: argparse.Namespace) -> int:
     return 0
 
 
-def _merge_moving(dest, names_path, tmp, split: str, info: dict, res: dict) -> dict:
-    """Hard-link (or copy) the earlier crops of ``dest`` into the staged folder ``tmp``
-    beside the new ones and write the merged name list there; returns ``res`` with the
-    counts of the whole set."""
+def _merge_moving(dest, tmp, split: str, info: dict, res: dict) -> dict:
+    """Hard-link (or copy) the earlier crops of ``dest`` (listed in the name list beside
+    it) into the staged folder ``tmp`` beside the new ones and write the merged name list
+    there; returns ``res`` with the counts of the whole set."""
     import os
     import shutil
 
@@ -321,6 +321,7 @@ def _merge_moving(dest, names_path, tmp, split: str, info: dict, res: dict) -> d
     from dashtraj.reid.evaluate import VeriLayoutError
 
     stem = MOVING_STEMS[split]
+    names_path = dest.parent / f"name_{stem}.txt"
     staged = tmp / f"image_{stem}"
     old = names_path.read_text(encoding="utf-8").split() if names_path.is_file() else []
     for n in old:
