@@ -82,8 +82,8 @@ reid-train: $(STAMP)
 	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_stage5 --recipe cpu --seed 0 \
 		--threads $(REID_THREADS) --init $(REID_RUN)_stage4/last.pt --epochs 3 --lr 1.5e-4 \
 		--extra-train image_train_moving $$(test -f $(REID_RUN)_stage5/last.pt && echo --resume)
-	grep -q '_mtrain/town01_s116"' $(REID_DATA)/reid.json || $(VENV)/bin/dashtraj reid \
-		moving-train $(REID_DATA) --append \
+	grep -q '_mtrain/town01_s$(lastword $(MTRAIN6_SEEDS))"' $(REID_DATA)/reid.json \
+		|| $(VENV)/bin/dashtraj reid moving-train $(REID_DATA) --append \
 		$(foreach s,$(MTRAIN6_SEEDS),$(REID_DATA)_mtrain/town01_s$(s))
 	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_stage6 --recipe cpu --seed 0 \
 		--threads $(REID_THREADS) --init $(REID_RUN)_stage5/last.pt --epochs 2 --lr 1.5e-4 \
