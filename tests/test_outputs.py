@@ -3,10 +3,17 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import pytest
 
-from dashtraj.outputs import OutputExistsError, OutputPathError, atomic_output, check_output
+from dashtraj.outputs import (
+    OutputExistsError,
+    OutputPathError,
+    atomic_output,
+    check_output,
+    replace_together,
+)
 
 
 def _fill(d, names):
@@ -171,3 +178,52 @@ def test_temporary_sibling_names_its_process_and_host(tmp_path):
 
     with atomic_output(tmp_path / "run") as tmp:
         assert tmp.name == f".run.tmp-{os.getpid()}@{_HOST}"
+
+
+def _staged(tmp_path):
+    """A folder and the list naming its files, old ones in place and new ones staged."""
+    (tmp_path / "set").mkdir()
+    _fill(tmp_path / "set", ["a.jpg"])
+    (tmp_path / "names.txt").write_text("a.jpg\n")
+    stage = tmp_path / ".stage"
+    (stage / "set").mkdir(parents=True)
+    _fill(stage / "set", ["a.jpg", "b.jpg"])
+    (stage / "names.txt").write_text("a.jpg\nb.jpg\n")
+    (stage / "new.json").write_text("{}")
+    return [(stage / "set", tmp_path / "set"), (stage / "names.txt", tmp_path / "names.txt"),
+            (stage / "new.json", tmp_path / "new.json")]
+
+
+def test_replace_together_moves_all(tmp_path):
+    replace_together(_staged(tmp_path))
+    assert sorted(p.name for p in (tmp_path / "set").iterdir()) == ["a.jpg", "b.jpg"]
+    assert (tmp_path / "names.txt").read_text().split() == ["a.jpg", "b.jpg"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".stage", "names.txt", "new.json",
+                                                            "set"]  # no backup left
+    assert not any((tmp_path / ".stage").iterdir())
+
+
+@pytest.mark.parametrize("fail_at", [1, 2, 3, 4, 5])
+@pytest.mark.parametrize("exc", [OSError("disk"), KeyboardInterrupt()])
+def test_replace_together_interrupted_restores_all(tmp_path, monkeypatch, fail_at, exc):
+    moves = _staged(tmp_path)
+    calls = {"n": 0}
+    rename = Path.rename
+
+    def flaky(self, target):  # the fail_at-th rename fails (2 backups, then 3 moves in)
+        calls["n"] += 1
+        if calls["n"] == fail_at:
+            raise exc
+        return rename(self, target)
+
+    monkeypatch.setattr(Path, "rename", flaky)
+    with pytest.raises(type(exc)):
+        replace_together(moves)
+    monkeypatch.setattr(Path, "rename", rename)
+    # every path holds what it held before, the staged files are still staged
+    assert [p.name for p in (tmp_path / "set").iterdir()] == ["a.jpg"]
+    assert (tmp_path / "names.txt").read_text() == "a.jpg\n"
+    assert not (tmp_path / "new.json").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".stage", "names.txt", "set"]
+    assert sorted(p.name for p in (tmp_path / ".stage").iterdir()) == ["names.txt", "new.json",
+                                                                      "set"]

@@ -168,6 +168,33 @@ def replace_whole(tmp: Path, path: Path) -> None:
     _remove(backup)
 
 
+def replace_together(moves: list[tuple[Path, Path]]) -> None:
+    """Move each staged ``tmp`` to its ``path`` (``(tmp, path)`` pairs), replacing what is
+    there, as one step: a failure or Ctrl-C on the way moves every path back to what it held
+    before, so the outputs (e.g. a folder and the list that names its files) are never seen
+    half old, half new by a later command. The old outputs are removed only once every new
+    one is in place."""
+    backups: list[tuple[Path, Path]] = []  # (path, its backup)
+    placed: list[tuple[Path, Path]] = []  # (tmp, path) moved in
+    try:
+        for _tmp, path in moves:
+            if path.exists() or path.is_symlink():
+                backup = _free_sibling(path, "old")
+                path.rename(backup)
+                backups.append((path, backup))
+        for tmp, path in moves:
+            tmp.rename(path)
+            placed.append((tmp, path))
+    except BaseException:
+        for tmp, path in reversed(placed):
+            path.rename(tmp)
+        for path, backup in reversed(backups):
+            backup.rename(path)
+        raise
+    for _path, backup in backups:
+        _remove(backup)
+
+
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike[str], *, overwrite: bool = False,
                   kind: Kind = "dir", keep_partial: bool = False,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import re
 import shutil
+from pathlib import Path
 
 from dashtraj.cli import main
 from dashtraj.datasets.reid import NAME_PATTERN, ReidConfig, build_reid_dataset
@@ -34,7 +35,7 @@ def test_moving_queries_command(gl_available, tmp_path, capsys):
     assert main([*args, "--overwrite"]) == 0
 
 
-def test_moving_train_command(gl_available, tmp_path, capsys):
+def test_moving_train_command(gl_available, tmp_path, capsys, monkeypatch):
     # ids 1-10 train, 11-40 test; the recordings draw identities 0-13 (ids 1-14)
     cfg = ReidConfig(n_ids=40, n_test_ids=30, n_cameras=2, size=32, fov_deg=None)
     build_reid_dataset(cfg, tmp_path / "set")
@@ -82,3 +83,20 @@ def test_moving_train_command(gl_available, tmp_path, capsys):
     assert main([*step, "--append", "--every", "1", recs[1]]) == 2
     assert "sampled every 0.5" in capsys.readouterr().err
     assert sorted(p.name for p in two.iterdir()) == files  # refusals changed nothing
+    # an interruption while the new set is moved in (here when reid.json, the last of the
+    # folder, its name list and reid.json, is replaced) leaves all three as they were
+    before = {p.name: (sorted(q.name for q in p.iterdir()) if p.is_dir() else p.read_bytes())
+              for p in (tmp_path / "set2").iterdir()}
+    rename = Path.rename
+
+    def interrupted(self, target):
+        if Path(target).name == "reid.json" and self.parent.name.startswith(".moving-"):
+            raise KeyboardInterrupt  # the staged reid.json's move, not the restore
+        return rename(self, target)
+
+    monkeypatch.setattr(Path, "rename", interrupted)
+    assert main([*step, "--overwrite", recs[0]]) == 130
+    monkeypatch.setattr(Path, "rename", rename)
+    after = {p.name: (sorted(q.name for q in p.iterdir()) if p.is_dir() else p.read_bytes())
+             for p in (tmp_path / "set2").iterdir()}
+    assert after == before  # no staged or backup folder left either

@@ -239,7 +239,7 @@ def run_moving(args: argparse.Namespace) -> int:
         ReidConfig,
         moving_crops,
     )
-    from dashtraj.outputs import replace_whole
+    from dashtraj.outputs import replace_together
     from dashtraj.reid.evaluate import VeriLayoutError
     from dashtraj.world.recording import Recording
 
@@ -282,24 +282,26 @@ def run_moving(args: argparse.Namespace) -> int:
                                   default=MOVING_TRAIN_FIRST_CAM - 1) + 1,
                  "first_recording": len(prev["recordings"])}
     with tempfile.TemporaryDirectory(dir=root, prefix=".moving-") as tmp:
+        staged = Path(tmp)
         res = moving_crops(recs, tmp, cfg, split, **first)
         if prev is not None:  # the earlier crops join the new ones in the staged folder
-            res = _merge_moving(dest, Path(tmp), split, info, res)
-        replace_whole(Path(tmp) / f"image_{stem}", dest)
-        (Path(tmp) / f"name_{stem}.txt").replace(root / f"name_{stem}.txt")
-    info["counts"][stem] = res["counts"]
-    if split == "test":
-        info["moving_cameras"] = res["cameras"]
-        info["config"]["recordings"] = [str(r.path) for r in recs]
-        info["config"]["every_s"] = cfg.every_s
-    else:
-        info["train_moving"] = {"cameras": (prev["cameras"] if prev else []) + res["cameras"],
-                                "every_s": cfg.every_s,
-                                "recordings": (prev["recordings"] if prev else [])
-                                + [str(r.path) for r in recs]}
-    tmp_meta = meta_path.with_suffix(".json.tmp")
-    tmp_meta.write_text(json.dumps(info, indent=1, sort_keys=True) + "\n", encoding="utf-8")
-    tmp_meta.replace(meta_path)
+            res = _merge_moving(dest, staged, split, info, res)
+        info["counts"][stem] = res["counts"]
+        if split == "test":
+            info["moving_cameras"] = res["cameras"]
+            info["config"]["recordings"] = [str(r.path) for r in recs]
+            info["config"]["every_s"] = cfg.every_s
+        else:
+            info["train_moving"] = {
+                "cameras": (prev["cameras"] if prev else []) + res["cameras"],
+                "every_s": cfg.every_s,
+                "recordings": (prev["recordings"] if prev else []) + [str(r.path) for r in recs]}
+        (staged / "reid.json").write_text(json.dumps(info, indent=1, sort_keys=True) + "\n",
+                                          encoding="utf-8")
+        # the image folder, its name list and reid.json (which counts them) change as one
+        replace_together([(staged / f"image_{stem}", dest),
+                          (staged / f"name_{stem}.txt", root / f"name_{stem}.txt"),
+                          (staged / "reid.json", meta_path)])
     c = res["counts"]
     if args.json:
         print(json.dumps(c))
