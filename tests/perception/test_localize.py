@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dashtraj.perception.detections import OracleDetector
+from dashtraj.perception.detections import DETECTION_CLASSES, OracleDetector
 from dashtraj.perception.localize import (
     CameraPose,
     LocalizationError,
@@ -136,6 +136,33 @@ def test_box_evidence_flags_truncation_and_occlusion():
     assert ev[2] == HIDDEN_BOTTOM | HIDDEN_SIDE
     assert ev[3] == 0  # the nearer box is not hidden by the farther one
     assert ev[4] == 0
+
+
+
+def test_a_box_below_that_is_estimated_farther_is_no_occluder():
+    """A near car's box stays at its own distance when a detector's part box (its lower
+    half, cut by the image bottom, estimated far away by its height) lies below it.
+
+    The boxes are the shipped detector's on a car 5.4 m ahead (town10 seed 4, observer 3,
+    frame 570: a car_back the model called truck_front, and a bus_side box on its lower
+    part). Before an occluder had to be nearer by its own estimate too, the car's box
+    counted as hidden and was put 1 m beyond the part box's Eq. 3 distance: 24 m. A nearer
+    box with its own estimate nearer still hides the far box (the last lines)."""
+    pose = CameraPose(0.0, 0.0, 1.6, 0.0)
+    car = [465.0, 265.0, 910.0, 637.0]
+    part = [467.0, 558.0, 926.0, 720.0]
+    truck_front, bus_side, car_back = (DETECTION_CLASSES.index(c)
+                                       for c in ("truck_front", "bus_side", "car_back"))
+    loc = build_localizer("fused")
+    alone = loc.localize(np.array([car]), np.array([truck_front]), SPEC, pose).distance_m[0]
+    both = loc.localize(np.array([car, part]), np.array([truck_front, bus_side]), SPEC, pose)
+    assert 4.0 < alone < 7.0
+    assert both.distance_m[0] == pytest.approx(alone)
+    assert both.distance_m[1] > 10.0  # the part box: Eq. 3 of a bus 162 px high
+    far, near = [600.0, 350.0, 700.0, 400.0], [590.0, 360.0, 720.0, 460.0]
+    out = loc.localize(np.array([far, near]), np.array([car_back, car_back]), SPEC, pose)
+    lone = loc.localize(np.array([far]), np.array([car_back]), SPEC, pose).distance_m[0]
+    assert out.distance_m[1] < out.distance_m[0] < lone  # hidden: not from its bottom edge
 
 
 @pytest.fixture(scope="module")

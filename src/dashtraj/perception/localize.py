@@ -296,7 +296,9 @@ class FusedLocalizer:
         """Boxes whose bottom edge is hidden by nearer detections of the same frame: the
         visible bottom is too high and both the ground and Eq. 3 estimates are too far.
         A box counts as hidden when nearer boxes (lower bottom edge, top above this box's
-        bottom) cover at least `cover_frac` of its columns. Unless it is also cut sideways
+        bottom, and nearer by their own estimate: a detector's box on the lower part of
+        the same vehicle is estimated far by its height) cover at least `cover_frac` of
+        its columns. Unless it is also cut sideways
         (by one of them or the image border: its width says nothing then), use the
         distance from the box width (class width for back views, the vehicle seen
         straight; the geometric mean with the fused value for front and side views, seen
@@ -308,6 +310,7 @@ class FusedLocalizer:
         b = boxes
         w_px = np.maximum(b[:, 2] - b[:, 0], 1.0)
         below = (b[None, :, 3] > b[:, None, 3]) & (b[None, :, 1] <= b[:, None, 3] + 2.0)
+        below &= d[None, :] < d[:, None]  # an occluder is nearer by its own estimate too
         np.fill_diagonal(below, False)
         # columns of box i covered by the union of its occluders j
         cols = np.linspace(0.0, 1.0, 16)
