@@ -6,7 +6,7 @@ import argparse
 
 import pytest
 
-from dashtraj.cli._args import seed_list
+from dashtraj.cli._args import nms_iou, seed_list
 
 
 @pytest.mark.parametrize(("text", "seeds"), [
@@ -24,3 +24,11 @@ def test_seed_list(text, seeds):
 def test_seed_list_refuses(text):
     with pytest.raises(argparse.ArgumentTypeError):
         seed_list(text)
+
+
+def test_nms_iou():
+    assert nms_iou("0.45") == 0.45 and nms_iou("1") == 1.0
+    assert nms_iou("none") is None and nms_iou(" None ") is None
+    for bad in ("0", "-0.1", "1.5", "nan", "x", ""):
+        with pytest.raises(argparse.ArgumentTypeError):
+            nms_iou(bad)

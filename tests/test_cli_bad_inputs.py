@@ -128,6 +128,8 @@ CASES: list[tuple[str, list[str], str]] = [
      "is not a directory"),
     ("perceive-look", ["perceive", "{REC}", "--look", "neon", "-o", "{NEW_FILE}"],
      "unknown look preset 'neon'; valid:"),
+    ("perceive-agnostic-nms", ["perceive", "{REC}", "--agnostic-nms", "0", "-o", "{NEW_FILE}"],
+     "--agnostic-nms"),
     ("perceive-size", ["perceive", "{REC}", "--size", "4x4", "-o", "{NEW_FILE}"],
      "argument --size"),
     ("perceive-exists", ["perceive", "{REC}", "-o", "{OUT_FILE}"], "--overwrite"),

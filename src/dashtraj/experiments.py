@@ -63,6 +63,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from dashtraj.errors import DashtrajError
+from dashtraj.perception import detections
 
 PAPER_SSPD_M = 5.13
 """The paper's mean SSPD over its ten driving experiments, metres."""
@@ -78,9 +79,10 @@ REID_MODES = ("identity", "look-alike", "appearance")
 SAMPLE_S = 0.5
 """One sighting per track every this many seconds (both sources), seconds."""
 
-AGNOSTIC_NMS_IOU = 0.45
+AGNOSTIC_NMS_IOU = detections.AGNOSTIC_NMS_IOU
 """Class-agnostic NMS IoU of the detector model in ``vision`` runs: one box per vehicle
-instead of one per orientation class (`dashtraj.perception.detections._ModelDetector`)."""
+instead of one per orientation class (`dashtraj.perception.detections._ModelDetector`); the
+same default as ``perceive``'s."""
 
 
 @dataclass(frozen=True, slots=True)

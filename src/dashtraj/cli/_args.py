@@ -251,12 +251,35 @@ def image_size(text: str) -> str:
     return text
 
 
+def nms_iou(text: str) -> float | None:
+    """``none`` (None) or an IoU in (0, 1]."""
+    if text.strip().lower() == "none":
+        return None
+    value = _number(text)
+    if not 0.0 < value <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected an IoU in (0, 1] or none, got {text!r}")
+    return value
+
+
+def add_agnostic_nms_arg(parser: argparse.ArgumentParser) -> None:
+    """``--agnostic-nms IOU|none``: the detector model's class-agnostic NMS."""
+    from dashtraj.perception.detections import AGNOSTIC_NMS_IOU
+
+    parser.add_argument(
+        "--agnostic-nms", type=nms_iou, default=AGNOSTIC_NMS_IOU, metavar="IOU|none",
+        help="with a detector model, also suppress boxes of other classes overlapping a "
+             "better one by this IoU, and boxes lying mostly inside a better one: the 15 "
+             "classes are one vehicle seen from the front, back or side (default "
+             f"{AGNOSTIC_NMS_IOU:g}; none: the model's class-aware NMS only)")
+
+
 def add_frame_source_args(parser: argparse.ArgumentParser, every_s: float) -> None:
-    """The inputs every evaluation on rendered frames takes: recordings, the detector, the
-    frame period (seconds) and the image size."""
+    """The inputs every evaluation on rendered frames takes: recordings, the detector (and
+    its class-agnostic NMS), the frame period (seconds) and the image size."""
     parser.add_argument("recordings", nargs="+", metavar="RUN", help="recording directories")
     parser.add_argument("--detector", default="oracle", metavar="oracle|M.onnx",
                         help="detector (default oracle: the renderer's exact visible boxes)")
+    add_agnostic_nms_arg(parser)
     parser.add_argument("--every", type=positive_float, default=every_s, metavar="S",
                         help=f"frame period, seconds (default {every_s:g})")
     parser.add_argument("--size", type=image_size, metavar="WxH",

@@ -67,6 +67,11 @@ def _size(text):
     return parse_size(text)
 
 
+def _nms_used(args: argparse.Namespace) -> float | None:
+    """The class-agnostic NMS IoU that applied (None with the oracle or --agnostic-nms none)."""
+    return None if args.detector == "oracle" else args.agnostic_nms
+
+
 def run_eval(args: argparse.Namespace) -> int:
     from dashtraj.outputs import atomic_output, check_output
     from dashtraj.perception.evaluate import localization_eval, open_recording, scatter_png
@@ -78,11 +83,13 @@ def run_eval(args: argparse.Namespace) -> int:
         check_output(args.plot, overwrite=args.overwrite, kind="file")
     recs = [open_recording(r) for r in args.recordings]
     summary, samples = localization_eval(recs, args.localizers, args.detector, args.every,
-                                         _size(args.size), args.mu_h, args.track_every)
+                                         _size(args.size), args.mu_h, args.track_every,
+                                         args.agnostic_nms)
     if args.plot:
         with atomic_output(args.plot, overwrite=args.overwrite, kind="file") as tmp:
             scatter_png(samples, args.localizers, tmp)
-    out = {"detector": args.detector, "detections": len(samples["true_m"]), **summary}
+    out = {"detector": args.detector, "agnostic_nms": _nms_used(args),
+           "detections": len(samples["true_m"]), **summary}
     if args.json:
         print(json.dumps(out))
         return 0

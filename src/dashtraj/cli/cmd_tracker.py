@@ -53,8 +53,10 @@ def run_eval(args: argparse.Namespace) -> int:
                             f"{', '.join(PEER_NAMES)}")
     recs = [open_recording(r) for r in args.recordings]
     peers, why = boxmot_peers(wanted) if wanted else ({}, None)
-    res = tracker_eval(recs, args.trackers, peers, args.detector, args.every, size)
+    res = tracker_eval(recs, args.trackers, peers, args.detector, args.every, size,
+                       args.agnostic_nms)
     res["detector"] = args.detector
+    res["agnostic_nms"] = None if args.detector == "oracle" else args.agnostic_nms
     res["peers_skipped"] = None if peers or not wanted else why
     if args.json:
         print(json.dumps(res))

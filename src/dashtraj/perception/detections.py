@@ -254,6 +254,11 @@ def _part_of_better(boxes: np.ndarray, scores: np.ndarray, inside: float = 0.8,
     return np.any(better & (frac_in >= inside) & (frac_of >= part), axis=1)
 
 
+AGNOSTIC_NMS_IOU = 0.45
+"""Default class-agnostic NMS IoU of a detector model (`_ModelDetector`) in `perceive`, the
+experiments and the evaluations on rendered frames: one box per vehicle instead of one per
+orientation class. Commands take ``--agnostic-nms IOU|none``."""
+
 DETECTORS: tuple[str, ...] = ("oracle",)
 """Detector names; any other value must be a path to an .onnx model."""
 

@@ -21,7 +21,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dashtraj.perception.detections import OracleDetector, build_detector, truth_of
+from dashtraj.perception.detections import (
+    AGNOSTIC_NMS_IOU,
+    OracleDetector,
+    build_detector,
+    truth_of,
+)
 from dashtraj.perception.localize import build_localizer
 from dashtraj.perception.mot_metrics import Sequence, counts, summarize
 from dashtraj.perception.pipeline import camera_pose_of, image_camera
@@ -53,12 +58,14 @@ image height): truth boxes of the oracle that fall under either are ignore regio
 
 
 def eval_frames(recording, detector: str = "oracle", every_s: float = 0.1, size=None,
-                observers=None, keep_rgb: bool = False) -> Iterator[EvalFrame]:
-    """Render each observer's frames; yield detections and truth (observer by observer)."""
+                observers=None, keep_rgb: bool = False,
+                agnostic_iou: float | None = AGNOSTIC_NMS_IOU) -> Iterator[EvalFrame]:
+    """Render each observer's frames; yield detections and truth (observer by observer).
+    ``agnostic_iou``: a detector model's class-agnostic NMS (`build_detector`)."""
     from dashtraj.datasets.frames import recording_frames
 
     spec = image_camera(recording, size)
-    det = build_detector(detector)
+    det = build_detector(detector, agnostic_iou=agnostic_iou)
     floor_px = OracleDetector.min_height_px  # the scored truth is a subset of the truth
     floor_vis = OracleDetector.min_visible_fraction
     for rf in recording_frames(recording, every_s, size, observers, msaa=0):
@@ -88,7 +95,8 @@ def _score_frame(seq: Sequence, iseq: Sequence, gt, sc, on_ignored: np.ndarray,
 
 
 def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str = "oracle",
-                 every_s: float = 0.1, size=None) -> dict:
+                 every_s: float = 0.1, size=None,
+                 agnostic_iou: float | None = AGNOSTIC_NMS_IOU) -> dict:
     """HOTA / IDF1 / MOTA per tracker over every observer of every recording.
 
     Args:
@@ -137,7 +145,8 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
         state: dict = {}
         seqs: dict = {}
         iseqs: dict = {}
-        for ef in eval_frames(rec, detector, every_s, size, keep_rgb=bool(peers)):
+        for ef in eval_frames(rec, detector, every_s, size, keep_rgb=bool(peers),
+                              agnostic_iou=agnostic_iou):
             if ef.observer_id != current:
                 if current is not None:
                     flush()
@@ -187,8 +196,8 @@ def _truth_positions(rec):
 
 def localization_eval(recordings, localizers=("paper", "ground", "fused", "tracked"),
                       detector: str = "oracle", every_s: float = 0.5, size=None,
-                      mu_h: float | None = None, track_every_s: float = 0.1
-                      ) -> tuple[dict, dict]:
+                      mu_h: float | None = None, track_every_s: float = 0.1,
+                      agnostic_iou: float | None = AGNOSTIC_NMS_IOU) -> tuple[dict, dict]:
     """Position and distance errors per estimator, in bands of true distance.
 
     Only detections matched to a vehicle count (all, with the oracle), in the frames every
@@ -225,7 +234,7 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
         keys, xs, ys, n_v = _truth_positions(rec)
         current = None
         index = 0
-        for ef in eval_frames(rec, detector, period, size):
+        for ef in eval_frames(rec, detector, period, size, agnostic_iou=agnostic_iou):
             d = ef.detections
             if ef.observer_id != current:
                 flush()

@@ -26,6 +26,7 @@ import numpy as np
 
 from dashtraj.errors import DashtrajError
 from dashtraj.perception.detections import (
+    AGNOSTIC_NMS_IOU,
     ORIENTATION_OF_CLASS,
     VEHICLE_CLASS_OF_CLASS,
     build_detector,
@@ -67,8 +68,9 @@ class PerceiveConfig:
         threads: onnxruntime threads of the detector model in each process (None: 2 in
             one process, 1 per worker with ``workers > 1``, so that k workers use k
             cores).
-        agnostic_nms_iou: the detector model's class-agnostic NMS IoU (None: its
-            class-aware NMS only; `dashtraj.perception.detections._ModelDetector`).
+        agnostic_nms_iou: the detector model's class-agnostic NMS IoU (default
+            `AGNOSTIC_NMS_IOU`; None: its class-aware NMS only;
+            `dashtraj.perception.detections._ModelDetector`).
     """
 
     detector: str = "oracle"
@@ -85,7 +87,7 @@ class PerceiveConfig:
     observers: tuple[int, ...] | None = field(default=None)
     look: str | None = None
     threads: int | None = None
-    agnostic_nms_iou: float | None = None
+    agnostic_nms_iou: float | None = AGNOSTIC_NMS_IOU
 
     def to_dict(self) -> dict:
         return asdict(self)
