@@ -12,6 +12,7 @@ def test_tracker_eval_json_has_the_metrics_per_tracker(small_run, gl_available, 
                  "--json"]) == 0
     r = json.loads(capsys.readouterr().out)
     assert r["sequences"] == 3 and r["frames"] == 3 * 126
+    assert r["detector"] == "oracle" and r["agnostic_nms"] is None  # no NMS on exact boxes
     for n in ("sort", "ego"):
         assert {"idf1", "hota", "mota", "updates_per_s"} <= set(r[n])
         assert 0.0 <= r[n]["mota"] <= 1.0 and 0.0 <= r[n]["hota"] <= 1.0
@@ -42,6 +43,7 @@ def test_localization_eval_json_and_scatter(small_run, gl_available, tmp_path, c
     for n in ("paper", "ground", "fused", "tracked", "smoothed"):
         assert {"rmse_lt20_m", "rmse_20_60_m", "median_lt20_m", "n_lt20"} <= set(r[n])
     assert r["fused"]["rmse_lt20_m"] < 1.5  # 320 x 180 pixels
+    assert r["agnostic_nms"] is None
     assert r["fused"]["rmse_lt20_m"] < r["paper"]["rmse_lt20_m"]
     assert r["tracked"]["rmse_lt20_m"] < r["paper"]["rmse_lt20_m"]
     assert r["smoothed"]["rmse_lt20_m"] < r["paper"]["rmse_lt20_m"]

@@ -273,6 +273,11 @@ def add_agnostic_nms_arg(parser: argparse.ArgumentParser) -> None:
              f"{AGNOSTIC_NMS_IOU:g}; none: the model's class-aware NMS only)")
 
 
+def agnostic_nms_used(args: argparse.Namespace) -> float | None:
+    """The class-agnostic NMS IoU that applied (None with the oracle or ``none``)."""
+    return None if args.detector == "oracle" else args.agnostic_nms
+
+
 def add_frame_source_args(parser: argparse.ArgumentParser, every_s: float) -> None:
     """The inputs every evaluation on rendered frames takes: recordings, the detector (and
     its class-agnostic NMS), the frame period (seconds) and the image size."""

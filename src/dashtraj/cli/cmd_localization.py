@@ -67,12 +67,8 @@ def _size(text):
     return parse_size(text)
 
 
-def _nms_used(args: argparse.Namespace) -> float | None:
-    """The class-agnostic NMS IoU that applied (None with the oracle or --agnostic-nms none)."""
-    return None if args.detector == "oracle" else args.agnostic_nms
-
-
 def run_eval(args: argparse.Namespace) -> int:
+    from dashtraj.cli._args import agnostic_nms_used
     from dashtraj.outputs import atomic_output, check_output
     from dashtraj.perception.evaluate import localization_eval, open_recording, scatter_png
     from dashtraj.perception.localize import build_localizer
@@ -88,7 +84,7 @@ def run_eval(args: argparse.Namespace) -> int:
     if args.plot:
         with atomic_output(args.plot, overwrite=args.overwrite, kind="file") as tmp:
             scatter_png(samples, args.localizers, tmp)
-    out = {"detector": args.detector, "agnostic_nms": _nms_used(args),
+    out = {"detector": args.detector, "agnostic_nms": agnostic_nms_used(args),
            "detections": len(samples["true_m"]), **summary}
     if args.json:
         print(json.dumps(out))

@@ -33,6 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_eval(args: argparse.Namespace) -> int:
+    from dashtraj.cli._args import agnostic_nms_used
     from dashtraj.perception.evaluate import open_recording, tracker_eval
     from dashtraj.perception.peers import PEER_NAMES, boxmot_peers
     from dashtraj.perception.track import build_tracker
@@ -56,7 +57,7 @@ def run_eval(args: argparse.Namespace) -> int:
     res = tracker_eval(recs, args.trackers, peers, args.detector, args.every, size,
                        args.agnostic_nms)
     res["detector"] = args.detector
-    res["agnostic_nms"] = None if args.detector == "oracle" else args.agnostic_nms
+    res["agnostic_nms"] = agnostic_nms_used(args)
     res["peers_skipped"] = None if peers or not wanted else why
     if args.json:
         print(json.dumps(res))
