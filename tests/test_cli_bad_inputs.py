@@ -130,6 +130,8 @@ CASES: list[tuple[str, list[str], str]] = [
      "unknown look preset 'neon'; valid:"),
     ("perceive-agnostic-nms", ["perceive", "{REC}", "--agnostic-nms", "0", "-o", "{NEW_FILE}"],
      "--agnostic-nms"),
+    ("perceive-min-score", ["perceive", "{REC}", "--min-score", "1.5", "-o", "{NEW_FILE}"],
+     "--min-score"),
     ("perceive-size", ["perceive", "{REC}", "--size", "4x4", "-o", "{NEW_FILE}"],
      "argument --size"),
     ("perceive-exists", ["perceive", "{REC}", "-o", "{OUT_FILE}"], "--overwrite"),

@@ -261,8 +261,8 @@ def nms_iou(text: str) -> float | None:
     return value
 
 
-def add_agnostic_nms_arg(parser: argparse.ArgumentParser) -> None:
-    """``--agnostic-nms IOU|none``: the detector model's class-agnostic NMS."""
+def add_detector_filter_args(parser: argparse.ArgumentParser) -> None:
+    """``--agnostic-nms IOU|none`` and ``--min-score S``: the detector model's box filters."""
     from dashtraj.perception.detections import AGNOSTIC_NMS_IOU
 
     parser.add_argument(
@@ -271,6 +271,9 @@ def add_agnostic_nms_arg(parser: argparse.ArgumentParser) -> None:
              "better one by this IoU, and boxes lying mostly inside a better one: the 15 "
              "classes are one vehicle seen from the front, back or side (default "
              f"{AGNOSTIC_NMS_IOU:g}; none: the model's class-aware NMS only)")
+    parser.add_argument(
+        "--min-score", type=fraction, default=None, metavar="S",
+        help="with a detector model, the smallest kept box score (default: the model's, 0.25)")
 
 
 def agnostic_nms_used(args: argparse.Namespace) -> float | None:
@@ -278,13 +281,19 @@ def agnostic_nms_used(args: argparse.Namespace) -> float | None:
     return None if args.detector == "oracle" else args.agnostic_nms
 
 
+def min_score_used(args: argparse.Namespace) -> float | None:
+    """The detector model's smallest kept score (None with the oracle; 0.25 by default)."""
+    return None if args.detector == "oracle" else (0.25 if args.min_score is None
+                                                   else args.min_score)
+
+
 def add_frame_source_args(parser: argparse.ArgumentParser, every_s: float) -> None:
     """The inputs every evaluation on rendered frames takes: recordings, the detector (and
-    its class-agnostic NMS), the frame period (seconds) and the image size."""
+    its box filters), the frame period (seconds) and the image size."""
     parser.add_argument("recordings", nargs="+", metavar="RUN", help="recording directories")
     parser.add_argument("--detector", default="oracle", metavar="oracle|M.onnx",
                         help="detector (default oracle: the renderer's exact visible boxes)")
-    add_agnostic_nms_arg(parser)
+    add_detector_filter_args(parser)
     parser.add_argument("--every", type=positive_float, default=every_s, metavar="S",
                         help=f"frame period, seconds (default {every_s:g})")
     parser.add_argument("--size", type=image_size, metavar="WxH",

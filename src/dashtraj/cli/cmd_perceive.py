@@ -10,7 +10,7 @@ import json
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `perceive` command."""
     from dashtraj.cli._args import (
-        add_agnostic_nms_arg,
+        add_detector_filter_args,
         image_size,
         int_at_least,
         positive_float,
@@ -38,7 +38,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", required=True, metavar="DB", help="database file to write")
     p.add_argument("--detector", default="oracle", metavar="oracle|M.onnx",
                    help="detector (default oracle: the renderer's exact visible boxes)")
-    add_agnostic_nms_arg(p)
+    add_detector_filter_args(p)
     p.add_argument("--tracker", default="ego", help="sort or ego (default ego)")
     p.add_argument("--localizer", default="smoothed",
                    help="paper, ground, fused, tracked or smoothed (default smoothed)")
@@ -96,7 +96,7 @@ def run_perceive(args: argparse.Namespace) -> int:
     cfg = PerceiveConfig(detector=args.detector, tracker=args.tracker, localizer=args.localizer,
                          mu_h=args.mu_h, every_s=args.every, size=size, msaa=args.msaa,
                          reid_range_m=args.reid_range, look=args.look,
-                         agnostic_nms_iou=args.agnostic_nms,
+                         agnostic_nms_iou=args.agnostic_nms, min_score=args.min_score,
                          observers=tuple(args.observers) if args.observers else None)
     from dashtraj.datasets.frames import observer_ids, sample_steps
 

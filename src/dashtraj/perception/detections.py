@@ -207,11 +207,13 @@ class _ModelDetector:
     sub-box of the same vehicle, IoU below the threshold) is dropped too
     (`_part_of_better`)."""
 
-    def __init__(self, path: Path, threads: int = 2, agnostic_iou: float | None = None):
+    def __init__(self, path: Path, threads: int = 2, agnostic_iou: float | None = None,
+                 min_score: float | None = None):
         from dashtraj.perception.detect import YoloDetector
 
         self.name = path.name
-        self._model = YoloDetector(path, threads=threads)
+        self._model = (YoloDetector(path, threads=threads) if min_score is None
+                       else YoloDetector(path, threads=threads, conf=min_score))
         self.agnostic_iou = agnostic_iou
 
     def detect(self, frame) -> Detections:
@@ -263,10 +265,12 @@ DETECTORS: tuple[str, ...] = ("oracle",)
 """Detector names; any other value must be a path to an .onnx model."""
 
 
-def build_detector(name: str, threads: int = 2, agnostic_iou: float | None = None) -> Detector:
+def build_detector(name: str, threads: int = 2, agnostic_iou: float | None = None,
+                   min_score: float | None = None) -> Detector:
     """``"oracle"`` → `OracleDetector`; a path to an ``.onnx`` file → the ONNX detector
     (`threads`: its onnxruntime intra-op threads; `agnostic_iou`: class-agnostic NMS,
-    see `_ModelDetector`).
+    see `_ModelDetector`; `min_score`: the smallest kept score, None for the model's
+    default, `dashtraj.perception.detect.YoloDetector`'s 0.25).
 
     Raises:
         DetectorError: neither a known name nor an existing .onnx file.
@@ -279,4 +283,4 @@ def build_detector(name: str, threads: int = 2, agnostic_iou: float | None = Non
                             "model")
     if not p.is_file():
         raise DetectorError(f"--detector {p}: no such model file")
-    return _ModelDetector(p, threads, agnostic_iou)
+    return _ModelDetector(p, threads, agnostic_iou, min_score)

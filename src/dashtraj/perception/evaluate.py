@@ -59,13 +59,15 @@ image height): truth boxes of the oracle that fall under either are ignore regio
 
 def eval_frames(recording, detector: str = "oracle", every_s: float = 0.1, size=None,
                 observers=None, keep_rgb: bool = False,
-                agnostic_iou: float | None = AGNOSTIC_NMS_IOU) -> Iterator[EvalFrame]:
+                agnostic_iou: float | None = AGNOSTIC_NMS_IOU,
+                min_score: float | None = None) -> Iterator[EvalFrame]:
     """Render each observer's frames; yield detections and truth (observer by observer).
-    ``agnostic_iou``: a detector model's class-agnostic NMS (`build_detector`)."""
+    ``agnostic_iou``, ``min_score``: a detector model's class-agnostic NMS and smallest kept
+    score (`build_detector`)."""
     from dashtraj.datasets.frames import recording_frames
 
     spec = image_camera(recording, size)
-    det = build_detector(detector, agnostic_iou=agnostic_iou)
+    det = build_detector(detector, agnostic_iou=agnostic_iou, min_score=min_score)
     floor_px = OracleDetector.min_height_px  # the scored truth is a subset of the truth
     floor_vis = OracleDetector.min_visible_fraction
     for rf in recording_frames(recording, every_s, size, observers, msaa=0):
@@ -96,7 +98,8 @@ def _score_frame(seq: Sequence, iseq: Sequence, gt, sc, on_ignored: np.ndarray,
 
 def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str = "oracle",
                  every_s: float = 0.1, size=None,
-                 agnostic_iou: float | None = AGNOSTIC_NMS_IOU) -> dict:
+                 agnostic_iou: float | None = AGNOSTIC_NMS_IOU,
+                 min_score: float | None = None) -> dict:
     """HOTA / IDF1 / MOTA per tracker over every observer of every recording.
 
     Args:
@@ -146,7 +149,7 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
         seqs: dict = {}
         iseqs: dict = {}
         for ef in eval_frames(rec, detector, every_s, size, keep_rgb=bool(peers),
-                              agnostic_iou=agnostic_iou):
+                              agnostic_iou=agnostic_iou, min_score=min_score):
             if ef.observer_id != current:
                 if current is not None:
                     flush()
@@ -197,7 +200,8 @@ def _truth_positions(rec):
 def localization_eval(recordings, localizers=("paper", "ground", "fused", "tracked"),
                       detector: str = "oracle", every_s: float = 0.5, size=None,
                       mu_h: float | None = None, track_every_s: float = 0.1,
-                      agnostic_iou: float | None = AGNOSTIC_NMS_IOU) -> tuple[dict, dict]:
+                      agnostic_iou: float | None = AGNOSTIC_NMS_IOU,
+                      min_score: float | None = None) -> tuple[dict, dict]:
     """Position and distance errors per estimator, in bands of true distance.
 
     Only detections matched to a vehicle count (all, with the oracle), in the frames every
@@ -234,7 +238,8 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
         keys, xs, ys, n_v = _truth_positions(rec)
         current = None
         index = 0
-        for ef in eval_frames(rec, detector, period, size, agnostic_iou=agnostic_iou):
+        for ef in eval_frames(rec, detector, period, size, agnostic_iou=agnostic_iou,
+                              min_score=min_score):
             d = ef.detections
             if ef.observer_id != current:
                 flush()

@@ -71,6 +71,8 @@ class PerceiveConfig:
         agnostic_nms_iou: the detector model's class-agnostic NMS IoU (default
             `AGNOSTIC_NMS_IOU`; None: its class-aware NMS only;
             `dashtraj.perception.detections._ModelDetector`).
+        min_score: the detector model's smallest kept score (None: the model's default,
+            0.25).
     """
 
     detector: str = "oracle"
@@ -88,6 +90,7 @@ class PerceiveConfig:
     look: str | None = None
     threads: int | None = None
     agnostic_nms_iou: float | None = AGNOSTIC_NMS_IOU
+    min_score: float | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -161,7 +164,7 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
 
     spec = image_camera(recording, config.size)
     detector = build_detector(config.detector, 2 if config.threads is None else config.threads,
-                              config.agnostic_nms_iou)
+                              config.agnostic_nms_iou, config.min_score)
     tracker = build_tracker(config.tracker, spec)
     localizer = build_localizer(config.localizer, config.mu_h)
     tstats = _TrackStats()
