@@ -282,9 +282,12 @@ def agnostic_nms_used(args: argparse.Namespace) -> float | None:
 
 
 def min_score_used(args: argparse.Namespace) -> float | None:
-    """The detector model's smallest kept score (None with the oracle; 0.25 by default)."""
-    return None if args.detector == "oracle" else (0.25 if args.min_score is None
-                                                   else args.min_score)
+    """The detector model's smallest kept score (None with the oracle)."""
+    from dashtraj.perception.detect import DEFAULT_MIN_SCORE
+
+    if args.detector == "oracle":
+        return None
+    return DEFAULT_MIN_SCORE if args.min_score is None else args.min_score
 
 
 def add_frame_source_args(parser: argparse.ArgumentParser, every_s: float) -> None:

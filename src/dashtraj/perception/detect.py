@@ -140,8 +140,12 @@ def nms(boxes: np.ndarray, scores: np.ndarray, iou: float,
     return np.array(keep, dtype=np.int64)
 
 
-def postprocess(raw: np.ndarray, conf: float = 0.25, iou: float = 0.6, max_det: int = 300,
-                max_candidates: int = 10000) -> list[np.ndarray]:
+DEFAULT_MIN_SCORE = 0.25
+"""The smallest kept box score of a detector model unless told otherwise (``--min-score``)."""
+
+
+def postprocess(raw: np.ndarray, conf: float = DEFAULT_MIN_SCORE, iou: float = 0.6,
+                max_det: int = 300, max_candidates: int = 10000) -> list[np.ndarray]:
     """Decode an ultralytics-layout output.
 
     Args:
@@ -306,7 +310,7 @@ class YoloDetector:
         match the model's output.
     """
 
-    def __init__(self, model=None, names=None, conf: float = 0.25, iou: float = 0.6,
+    def __init__(self, model=None, names=None, conf: float = DEFAULT_MIN_SCORE, iou: float = 0.6,
                  threads: int = 2, batch: int = 8, max_det: int = 300):
         import onnxruntime as ort
 
