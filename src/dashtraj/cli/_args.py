@@ -263,6 +263,7 @@ def nms_iou(text: str) -> float | None:
 
 def add_detector_filter_args(parser: argparse.ArgumentParser) -> None:
     """``--agnostic-nms IOU|none`` and ``--min-score S``: the detector model's box filters."""
+    from dashtraj.perception.detect import DEFAULT_MIN_SCORE
     from dashtraj.perception.detections import AGNOSTIC_NMS_IOU
 
     parser.add_argument(
@@ -272,22 +273,16 @@ def add_detector_filter_args(parser: argparse.ArgumentParser) -> None:
              "classes are one vehicle seen from the front, back or side (default "
              f"{AGNOSTIC_NMS_IOU:g}; none: the model's class-aware NMS only)")
     parser.add_argument(
-        "--min-score", type=fraction, default=None, metavar="S",
-        help="with a detector model, the smallest kept box score (default: the model's, 0.25)")
+        "--min-score", type=fraction, default=DEFAULT_MIN_SCORE, metavar="S",
+        help=f"with a detector model, the smallest kept box score (default {DEFAULT_MIN_SCORE:g})")
 
 
-def agnostic_nms_used(args: argparse.Namespace) -> float | None:
-    """The class-agnostic NMS IoU that applied (None with the oracle or ``none``)."""
-    return None if args.detector == "oracle" else args.agnostic_nms
-
-
-def min_score_used(args: argparse.Namespace) -> float | None:
-    """The detector model's smallest kept score (None with the oracle)."""
-    from dashtraj.perception.detect import DEFAULT_MIN_SCORE
-
-    if args.detector == "oracle":
-        return None
-    return DEFAULT_MIN_SCORE if args.min_score is None else args.min_score
+def detector_filters_used(args: argparse.Namespace) -> dict:
+    """The box filters that applied, for a command's JSON: ``agnostic_nms`` (the IoU; None for
+    ``none``) and ``min_score``, both None with the oracle (its boxes are exact)."""
+    model = args.detector != "oracle"
+    return {"agnostic_nms": args.agnostic_nms if model else None,
+            "min_score": args.min_score if model else None}
 
 
 def add_frame_source_args(parser: argparse.ArgumentParser, every_s: float) -> None:

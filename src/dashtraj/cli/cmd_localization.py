@@ -68,7 +68,7 @@ def _size(text):
 
 
 def run_eval(args: argparse.Namespace) -> int:
-    from dashtraj.cli._args import agnostic_nms_used, min_score_used
+    from dashtraj.cli._args import detector_filters_used
     from dashtraj.outputs import atomic_output, check_output
     from dashtraj.perception.evaluate import localization_eval, open_recording, scatter_png
     from dashtraj.perception.localize import build_localizer
@@ -84,8 +84,7 @@ def run_eval(args: argparse.Namespace) -> int:
     if args.plot:
         with atomic_output(args.plot, overwrite=args.overwrite, kind="file") as tmp:
             scatter_png(samples, args.localizers, tmp)
-    out = {"detector": args.detector, "agnostic_nms": agnostic_nms_used(args),
-           "min_score": min_score_used(args),
+    out = {"detector": args.detector, **detector_filters_used(args),
            "detections": len(samples["true_m"]), **summary}
     if args.json:
         print(json.dumps(out))

@@ -33,7 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_eval(args: argparse.Namespace) -> int:
-    from dashtraj.cli._args import agnostic_nms_used, min_score_used
+    from dashtraj.cli._args import detector_filters_used
     from dashtraj.perception.evaluate import open_recording, tracker_eval
     from dashtraj.perception.peers import PEER_NAMES, boxmot_peers
     from dashtraj.perception.track import build_tracker
@@ -57,8 +57,7 @@ def run_eval(args: argparse.Namespace) -> int:
     res = tracker_eval(recs, args.trackers, peers, args.detector, args.every, size,
                        args.agnostic_nms, args.min_score)
     res["detector"] = args.detector
-    res["agnostic_nms"] = agnostic_nms_used(args)
-    res["min_score"] = min_score_used(args)
+    res.update(detector_filters_used(args))
     res["peers_skipped"] = None if peers or not wanted else why
     if args.json:
         print(json.dumps(res))

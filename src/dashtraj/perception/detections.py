@@ -27,6 +27,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from dashtraj.errors import DashtrajError
+from dashtraj.perception.detect import DEFAULT_MIN_SCORE
 from dashtraj.world.camera import DETECTION_CLASSES
 
 ORIENTATION_OF_CLASS: tuple[str, ...] = tuple(c.split("_")[1] for c in DETECTION_CLASSES)
@@ -208,12 +209,11 @@ class _ModelDetector:
     (`_part_of_better`)."""
 
     def __init__(self, path: Path, threads: int = 2, agnostic_iou: float | None = None,
-                 min_score: float | None = None):
+                 min_score: float = DEFAULT_MIN_SCORE):
         from dashtraj.perception.detect import YoloDetector
 
         self.name = path.name
-        self._model = (YoloDetector(path, threads=threads) if min_score is None
-                       else YoloDetector(path, threads=threads, conf=min_score))
+        self._model = YoloDetector(path, threads=threads, conf=min_score)
         self.agnostic_iou = agnostic_iou
 
     def detect(self, frame) -> Detections:
@@ -266,11 +266,10 @@ DETECTORS: tuple[str, ...] = ("oracle",)
 
 
 def build_detector(name: str, threads: int = 2, agnostic_iou: float | None = None,
-                   min_score: float | None = None) -> Detector:
+                   min_score: float = DEFAULT_MIN_SCORE) -> Detector:
     """``"oracle"`` → `OracleDetector`; a path to an ``.onnx`` file → the ONNX detector
     (`threads`: its onnxruntime intra-op threads; `agnostic_iou`: class-agnostic NMS,
-    see `_ModelDetector`; `min_score`: the smallest kept score, None for the model's
-    default, `dashtraj.perception.detect.YoloDetector`'s 0.25).
+    see `_ModelDetector`; `min_score`: a model's smallest kept score).
 
     Raises:
         DetectorError: neither a known name nor an existing .onnx file.

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dashtraj.perception.detect import DEFAULT_MIN_SCORE
 from dashtraj.perception.detections import (
     AGNOSTIC_NMS_IOU,
     OracleDetector,
@@ -60,7 +61,7 @@ image height): truth boxes of the oracle that fall under either are ignore regio
 def eval_frames(recording, detector: str = "oracle", every_s: float = 0.1, size=None,
                 observers=None, keep_rgb: bool = False,
                 agnostic_iou: float | None = AGNOSTIC_NMS_IOU,
-                min_score: float | None = None) -> Iterator[EvalFrame]:
+                min_score: float = DEFAULT_MIN_SCORE) -> Iterator[EvalFrame]:
     """Render each observer's frames; yield detections and truth (observer by observer).
     ``agnostic_iou``, ``min_score``: a detector model's class-agnostic NMS and smallest kept
     score (`build_detector`)."""
@@ -99,7 +100,7 @@ def _score_frame(seq: Sequence, iseq: Sequence, gt, sc, on_ignored: np.ndarray,
 def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str = "oracle",
                  every_s: float = 0.1, size=None,
                  agnostic_iou: float | None = AGNOSTIC_NMS_IOU,
-                 min_score: float | None = None) -> dict:
+                 min_score: float = DEFAULT_MIN_SCORE) -> dict:
     """HOTA / IDF1 / MOTA per tracker over every observer of every recording.
 
     Args:
@@ -201,7 +202,7 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
                       detector: str = "oracle", every_s: float = 0.5, size=None,
                       mu_h: float | None = None, track_every_s: float = 0.1,
                       agnostic_iou: float | None = AGNOSTIC_NMS_IOU,
-                      min_score: float | None = None) -> tuple[dict, dict]:
+                      min_score: float = DEFAULT_MIN_SCORE) -> tuple[dict, dict]:
     """Position and distance errors per estimator, in bands of true distance.
 
     Only detections matched to a vehicle count (all, with the oracle), in the frames every

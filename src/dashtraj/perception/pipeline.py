@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from dashtraj.errors import DashtrajError
+from dashtraj.perception.detect import DEFAULT_MIN_SCORE
 from dashtraj.perception.detections import (
     AGNOSTIC_NMS_IOU,
     ORIENTATION_OF_CLASS,
@@ -71,8 +72,7 @@ class PerceiveConfig:
         agnostic_nms_iou: the detector model's class-agnostic NMS IoU (default
             `AGNOSTIC_NMS_IOU`; None: its class-aware NMS only;
             `dashtraj.perception.detections._ModelDetector`).
-        min_score: the detector model's smallest kept score (None: the model's default,
-            0.25).
+        min_score: the detector model's smallest kept score.
     """
 
     detector: str = "oracle"
@@ -90,7 +90,7 @@ class PerceiveConfig:
     look: str | None = None
     threads: int | None = None
     agnostic_nms_iou: float | None = AGNOSTIC_NMS_IOU
-    min_score: float | None = None
+    min_score: float = DEFAULT_MIN_SCORE
 
     def to_dict(self) -> dict:
         return asdict(self)
