@@ -5,7 +5,7 @@ previous settings, measured in the same run on the same recording.
 - previous: 10 frames/s, one process, the detector's two onnxruntime threads,
   class-aware NMS only;
 - now: 5 frames/s (``--every 0.2``), observers in 2 worker processes with one
-  onnxruntime thread each, class-agnostic NMS (`dashtraj.experiments.AGNOSTIC_NMS_IOU`).
+  onnxruntime thread each, class-agnostic NMS (`dashtraj.perception.detections.AGNOSTIC_NMS_IOU`).
 
 CPU seconds (this process and its finished workers) measure the work on a shared
 machine; the wall clock measures the load. The recording: town01, seed 0, 3 observers,
@@ -41,7 +41,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--duration", type=float, default=20.0)
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
-    from dashtraj.experiments import AGNOSTIC_NMS_IOU, ExperimentConfig, look_of, reid_model_of
+    from dashtraj.experiments import ExperimentConfig, look_of, reid_model_of
     from dashtraj.perception.detect import default_model_path
     from dashtraj.perception.pipeline import PerceiveConfig
     from dashtraj.world.recording import Recording, RunConfig, simulate
@@ -55,9 +55,10 @@ def main(argv: list[str] | None = None) -> None:
         rec = Recording.open(root / "rec")
         base = dict(detector=str(default_model_path()), size=(640, 360), look=look)
         out = {
-            "previous": timed(rec, root / "a.db", PerceiveConfig(**base, every_s=0.1), 1),
-            "now": timed(rec, root / "b.db", PerceiveConfig(
-                **base, every_s=0.2, agnostic_nms_iou=AGNOSTIC_NMS_IOU), 2),
+            # the earlier settings: class-aware NMS only (agnostic is PerceiveConfig's default)
+            "previous": timed(rec, root / "a.db", PerceiveConfig(
+                **base, every_s=0.1, agnostic_nms_iou=None), 1),
+            "now": timed(rec, root / "b.db", PerceiveConfig(**base, every_s=0.2), 2),
         }
     for k, v in out.items():
         print(f"{k:9s} {v['frames']:5d} frames  {v['detections']:6d} detections  "

@@ -34,7 +34,8 @@ scoring after them are the same code for every source):
   calibrated on TRAINING recordings with the same recipe (``M.threshold.json`` beside
   the model; ``dashtraj reid-threshold``), then the spatio-temporal gate (`gate`).
   Precision and recall are measured against each track's truth. The detector model
-  runs with class-agnostic NMS (`AGNOSTIC_NMS_IOU`).
+  runs with class-agnostic NMS (`PerceiveConfig`'s default,
+  `dashtraj.perception.detections.AGNOSTIC_NMS_IOU`).
 
 How the target's tracks are picked among the candidates (`REID_MODES`):
 
@@ -63,7 +64,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from dashtraj.errors import DashtrajError
-from dashtraj.perception import detections
 
 PAPER_SSPD_M = 5.13
 """The paper's mean SSPD over its ten driving experiments, metres."""
@@ -78,12 +78,6 @@ REID_MODES = ("identity", "look-alike", "appearance")
 
 SAMPLE_S = 0.5
 """One sighting per track every this many seconds (both sources), seconds."""
-
-AGNOSTIC_NMS_IOU = detections.AGNOSTIC_NMS_IOU
-"""Class-agnostic NMS IoU of the detector model in ``vision`` runs: one box per vehicle
-instead of one per orientation class (`dashtraj.perception.detections._ModelDetector`); the
-same default as ``perceive``'s."""
-
 
 @dataclass(frozen=True, slots=True)
 class ExperimentConfig:
@@ -402,8 +396,7 @@ def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
 
     s = perceive(rec, db_path, PerceiveConfig(detector=detector_of(detector),
                                               size=config.image_size, every_s=config.every_s,
-                                              look=look, reid_range_m=config.max_distance_m,
-                                              agnostic_nms_iou=AGNOSTIC_NMS_IOU),
+                                              look=look, reid_range_m=config.max_distance_m),
                  workers=config.workers, progress=progress)
     stages.note(f"perceive: {s.frames} frames, {s.detections} detections, {s.tracks} tracks, "
                 f"{s.crops} crops within {config.max_distance_m:g} m")
