@@ -155,17 +155,7 @@ def _partial_name(path: Path) -> Path:
 def replace_whole(tmp: Path, path: Path) -> None:
     """Move ``tmp`` to ``path``; an existing ``path`` is replaced whole (never merged), and at
     every instant ``path`` holds either the old output or the new one (see the module)."""
-    if not (path.exists() or path.is_symlink()):
-        tmp.rename(path)
-        return
-    backup = _free_sibling(path, "old")
-    path.rename(backup)
-    try:
-        tmp.rename(path)
-    except BaseException:
-        backup.rename(path)
-        raise
-    _remove(backup)
+    replace_together([(tmp, path)])
 
 
 def replace_together(moves: list[tuple[Path, Path]]) -> None:
