@@ -4,9 +4,11 @@ gate removes it (road 12 vs the parallel road 4, see tests/trajectory/test_gatin
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from dashtraj.reidentify.scoring import reid_score
-from dashtraj.reidentify.select import select_target_tracks
+from dashtraj.reidentify.select import select_target_tracks, tracks_seen_apart
+from dashtraj.store.db import DetectionRow
 from gating_helpers import drive
 
 
@@ -59,3 +61,58 @@ def test_an_unpinned_anchor_cannot_pull_true_tracks_out(town01):
     assert free.accepted == ((2, 5), (3, 2), (4, 7)) and free.gated_out == ((1, 1),)
     assert reid_score(free.accepted, truth, 0).precision == 1.0
     assert reid_score(pinned.accepted, truth, 0).recall < 1.0
+
+
+def _row(obs, frame, track, box, t=None):
+    return DetectionRow(observer_id=obs, frame=frame, idx=0, t=frame * 0.2 if t is None else t,
+                        track_id=track, x0=box[0], y0=box[1], x1=box[2], y1=box[3],
+                        score=0.8, class_id=0, vehicle_class="car", orientation="back",
+                        distance_m=10.0, bearing_deg=0.0, x=0.0, y=0.0, z=0.0, road_id=None,
+                        section_id=None, lane_id=None, s=None, lateral_m=None,
+                        truth_vehicle_id=None, depicted_vehicle_id=None)
+
+
+def test_tracks_seen_apart_from_separate_boxes():
+    """Real boxes of the town01 seed 0 run (shipped detector, score >= 0.45): observer 3
+    follows the target (track 2, 293-334 px wide, 16.5 m ahead) while an oncoming car
+    (track 25) passes to its left in frames 318-322; separate boxes in three frames."""
+    target = {318: (293.3, 182.4, 333.9, 214.2), 319: (292.9, 181.6, 334.6, 216.6),
+              320: (293.1, 182.1, 334.7, 216.0), 321: (293.3, 182.0, 333.9, 214.6)}
+    oncoming = {318: (231.7, 181.4, 270.5, 215.6), 319: (212.0, 182.1, 261.1, 222.4),
+                320: (187.2, 183.4, 252.7, 225.2)}
+    rows = ([_row(3, f, 2, b) for f, b in target.items()]
+            + [_row(3, f, 25, b) for f, b in oncoming.items()]
+            + [_row(1, 318, 4, oncoming[318]), _row(3, 318, None, (0, 0, 5, 5))])
+    assert tracks_seen_apart(rows) == {frozenset({(3, 2), (3, 25)})}
+    # one frame is not enough (a tracker's slip); three are when asked for
+    assert tracks_seen_apart(rows, min_frames=4) == set()
+    # only frames inside both tracks' sighting spans count
+    spans = {(3, 2): (0.0, 100.0), (3, 25): (63.8, 64.0)}  # frames 319 and 320 only
+    assert tracks_seen_apart(rows, spans) == {frozenset({(3, 2), (3, 25)})}
+    assert tracks_seen_apart(rows, {(3, 2): (0.0, 100.0), (3, 25): (64.0, 64.0)}) == set()
+    assert tracks_seen_apart(rows, {(3, 2): (0.0, 100.0)}) == set()
+    # a frame in which the two tracks' boxes overlap (a second box on one vehicle, one
+    # track having strayed to a neighbour elsewhere): never called two vehicles
+    shared = [*rows, _row(3, 321, 25, (300.0, 185.0, 330.0, 214.0))]
+    assert tracks_seen_apart(shared) == set()
+    # a small overlap (a neighbour's mirror inside the box) still counts as separate
+    touching = [_row(3, f, 9, (b[0] - 38.0, b[1], b[0] + 2.0, b[3])) for f, b in target.items()]
+    assert tracks_seen_apart([*rows[:4], *touching]) == {frozenset({(3, 2), (3, 9)})}
+    with pytest.raises(ValueError, match="min_frames"):
+        tracks_seen_apart(rows, min_frames=0)
+
+
+def test_select_never_keeps_two_tracks_seen_apart(town01):
+    # by positions another car of observer 1 (track 2) could be the target; the pixels
+    # said two vehicles
+    target = (drive(town01, 0.0, 2.0, 12, 20.0, obs=1, track=1)
+              + drive(town01, 6.0, 8.0, 12, 80.0, obs=1, track=1))
+    oncoming = drive(town01, 4.0, 4.5, 12, 63.0, obs=1, track=2)
+    tracks = {(1, 1): target, (1, 2): oncoming}
+    keys = [(1, 1)] * 3 + [(1, 2)] * 3
+    d = np.array([0.1, 0.1, 0.1, 0.2, 0.2, 0.2])
+    both = select_target_tracks(town01, d, keys, tracks, 0.5, anchor=(1, 1))
+    assert both.accepted == ((1, 1), (1, 2))
+    one = select_target_tracks(town01, d, keys, tracks, 0.5, anchor=(1, 1),
+                               apart={frozenset({(1, 1), (1, 2)}), frozenset({(1, 2), (7, 7)})})
+    assert one.accepted == ((1, 1),) and one.gated_out == ((1, 2),)

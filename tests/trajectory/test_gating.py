@@ -143,6 +143,8 @@ def test_empty_and_bad_input(town01):
         gate_tracks(town01, [t], weights=[1.0, 2.0])
     with pytest.raises(GatingError, match="anchor 3"):
         gate_tracks(town01, [t], anchor=3)
+    with pytest.raises(GatingError, match=r"apart pair \(0, 1\)"):
+        gate_tracks(town01, [t], apart=[(0, 1)])
     with pytest.raises(GatingError, match="max_speed_mps"):
         GateConfig(max_speed_mps=-1.0)
     with pytest.raises(GatingError, match="earlier"):
@@ -218,3 +220,21 @@ def test_one_cameras_duplicate_track_of_one_vehicle_is_kept(town01):
     assert gate_tracks(town01, [target, alt_ahead], anchor=0).accepted == (0,)
     with pytest.raises(GatingError, match="same_camera_m"):
         GateConfig(same_camera_m=-1.0)
+
+
+def test_pairs_known_apart_are_never_both_kept(town01):
+    # observer 1 follows the target (track 1); an oncoming car passes it across the road
+    # centre (track 2, lane 1) while the target is beyond the ReID range, so the gate
+    # holds no sighting of track 1 at those moments: by positions alone both tracks
+    # could be the target (track 2 is reachable from track 1's last sighting and back)
+    target = (drive(town01, 0.0, 2.0, 12, 20.0, obs=1, track=1)
+              + drive(town01, 6.0, 8.0, 12, 80.0, obs=1, track=1))
+    oncoming = [sight(town01, t, 12, 20.0 + 10.0 * t + 3.0, lane=1, obs=1, track=2,
+                      orientation="front") for t in (4.0, 4.5)]
+    assert gate_tracks(town01, [target, oncoming], anchor=0).accepted == (0, 1)
+    # the pixels said two vehicles (separate boxes in the same frames): only the anchor stays
+    r = gate_tracks(town01, [target, oncoming], anchor=0, apart=[(1, 0)])
+    assert r.accepted == (0,) and r.rejected == (1,)
+    # without an anchor the heavier track stays, whichever index comes first in the pair
+    r = gate_tracks(town01, [oncoming, target], weights=[2.0, 10.0], apart=[(0, 1)])
+    assert r.accepted == (1,)

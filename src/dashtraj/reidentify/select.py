@@ -6,7 +6,11 @@
    the tracks at or below the calibrated threshold (the appearance candidates);
 2. `dashtraj.trajectory.gating.gate_tracks`: among the candidates keep the heaviest
    chain one vehicle could have driven on the lane graph, through the query's own
-   track when it is a candidate (the anchor).
+   track when it is a candidate (the anchor). Two tracks of one camera that show
+   separate boxes in the same frames (`tracks_seen_apart`) are two vehicles: never
+   both kept, even where one of them is beyond the ReID range and has no sighting
+   there to compare positions (an oncoming car passing the target, 3 m away across
+   the road centre, matched on appearance while the target was 16 m ahead).
 
 Weights: a track's number of sightings (sampled at a fixed period, so: how long
 it was seen) times ``1 + margin``, the appearance margin
@@ -19,7 +23,7 @@ look-alike figures.)
 
 from __future__ import annotations
 
-from collections.abc import Hashable, Mapping, Sequence
+from collections.abc import Collection, Hashable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,7 +58,8 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
                          sightings: Mapping[Hashable, Sequence[Sighting]], threshold: float, *,
                          aggregate: str = "median", anchor: Hashable | None = None,
                          gate: GateConfig | None = DEFAULT_GATE,
-                         keep_anchor: bool = False, pin_anchor: bool = True) -> Selection:
+                         keep_anchor: bool = False, pin_anchor: bool = True,
+                         apart: Collection[frozenset] = ()) -> Selection:
     """Decide and gate the target's tracks.
 
     Args:
@@ -77,6 +82,8 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
             best consistent set *containing* it); False: the anchor is one candidate
             among the others (weighed like them), so a track that the tracker joined
             to other boxes after the query crop cannot pull true tracks out.
+        apart: pairs of track keys (frozensets of two) known to be two vehicles
+            (`tracks_seen_apart`); the gate never keeps both.
 
     Returns:
         `Selection`.
@@ -95,9 +102,11 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
                * (1.0 + float(np.clip((threshold - d.distance) / scale / 2, 0.0, 0.499)))
                for d in placed]
     idx = {d.key: i for i, d in enumerate(placed)}
+    pairs = [tuple(idx[k] for k in pair) for pair in apart
+             if len(pair) == 2 and all(k in idx for k in pair)]
     res = gate_tracks(road_map, [sightings[d.key] for d in placed], weights=weights,
                       anchor=idx.get(anchor) if anchor is not None and pin_anchor else None,
-                      config=gate)
+                      config=gate, apart=pairs)
     accepted = tuple(placed[i].key for i in res.accepted)
     out = tuple(k for k in cand_keys if k not in set(accepted))
     return Selection(tuple(decisions), cand_keys, accepted, out)
@@ -113,6 +122,72 @@ def tracks_of(sightings: Sequence[Sighting]) -> dict[tuple[int, int | None], lis
     for s in sorted(sightings, key=lambda s: (s.t, s.observer_id)):
         out.setdefault((s.observer_id, s.track_id), []).append(s)
     return out
+
+
+def tracks_seen_apart(detections, spans: Mapping[Hashable, tuple[float, float]] | None = None,
+                      min_frames: int = 2, max_overlap: float = 0.1) -> set[frozenset]:
+    """Pairs of tracks one camera saw as two vehicles: separate boxes, frame after frame.
+
+    Two tracks of one observer whose boxes in a frame overlap by at most
+    `max_overlap` of the smaller box (their intersection over its area) show two
+    things at once. They are two vehicles when that happened in `min_frames` frames
+    or more and their boxes never overlapped more in a frame they shared: one frame
+    alone could be a tracker's slip onto the scenery, and two tracks that did share a
+    box's pixels once may be two tracks on one vehicle (a second box of another
+    orientation class, a box of its front half), one of which strayed to a neighbour
+    for a while. With `spans`, only frames inside both tracks' spans count:
+    a tracker can carry a track onto another vehicle far away after it lost its own
+    (or start it there before), and only the part of a track that the gate weighs
+    (its sightings) says which vehicle the track is.
+
+    Args:
+        detections: rows with observer_id, frame, t, track_id and the box x0, y0,
+            x1, y1 (`SightingsDB.detections()`); rows without a track are ignored.
+        spans: (first t, last t) of each track's sightings, by key; a track without
+            one is never apart. None: every frame counts.
+        min_frames: frames with separate boxes needed, >= 1.
+        max_overlap: the largest intersection over the smaller box's area that
+            still counts as separate, in [0, 1).
+
+    Returns:
+        A set of frozensets {(observer_id, track_id_a), (observer_id, track_id_b)}:
+        the keys of `tracks_of` and of the vision pipeline.
+    """
+    if min_frames < 1 or not 0 <= max_overlap < 1:
+        raise ValueError(f"tracks_seen_apart: min_frames >= 1 and 0 <= max_overlap < 1, got "
+                         f"{min_frames!r}, {max_overlap!r}")
+    def inside(d) -> bool:
+        if spans is None:
+            return True
+        span = spans.get((d.observer_id, d.track_id))
+        return span is not None and span[0] <= d.t <= span[1]
+
+    by_frame: dict[tuple[int, int], list] = {}
+    for d in detections:
+        if d.track_id is not None and inside(d):
+            by_frame.setdefault((d.observer_id, d.frame), []).append(d)
+    seen: dict[frozenset, int] = {}
+    shared: set[frozenset] = set()
+    for (obs, _), ds in by_frame.items():
+        if len({d.track_id for d in ds}) < 2:
+            continue
+        b = np.array([[d.x0, d.y0, d.x1, d.y1] for d in ds], dtype=np.float64)
+        area = np.clip(b[:, 2] - b[:, 0], 0, None) * np.clip(b[:, 3] - b[:, 1], 0, None)
+        ix = np.clip(np.minimum(b[:, None, 2], b[None, :, 2])
+                     - np.maximum(b[:, None, 0], b[None, :, 0]), 0, None)
+        iy = np.clip(np.minimum(b[:, None, 3], b[None, :, 3])
+                     - np.maximum(b[:, None, 1], b[None, :, 1]), 0, None)
+        small = np.minimum(area[:, None], area[None, :])
+        sep = ix * iy <= max_overlap * small
+        pairs = set()
+        for i in range(len(ds)):
+            for j in range(i + 1, len(ds)):
+                if ds[i].track_id != ds[j].track_id:
+                    pair = frozenset({(obs, ds[i].track_id), (obs, ds[j].track_id)})
+                    (pairs.add if sep[i, j] else shared.add)(pair)
+        for pair in pairs:  # once per frame, however many boxes a track has in it
+            seen[pair] = seen.get(pair, 0) + 1
+    return {pair for pair, n in seen.items() if n >= min_frames and pair not in shared}
 
 
 def query_detection(db, vehicle_id: int, max_distance_m: float = 15.0, usable=None):

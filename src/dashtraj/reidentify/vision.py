@@ -20,7 +20,9 @@ the `decision.Recipe` says); each detection's cosine distance to the query is
 aggregated per track and the track is the target when that is at most the threshold
 calibrated on TRAINING identities with the same recipe (`load_threshold`; ``dashtraj
 reid-threshold`` writes it beside the model); then the spatio-temporal gate
-(`select.select_target_tracks`). With a crop filter, the query is the target's first
+(`select.select_target_tracks`), told which tracks one camera saw as two vehicles
+(separate boxes in the same frames within both tracks' sighting spans,
+`select.tracks_seen_apart`). With a crop filter, the query is the target's first
 crop within 15 m that the filter keeps (the paper's first crop when none is); the
 query's own track is a candidate whatever its distance (the user pointed at it).
 
@@ -61,7 +63,12 @@ from dashtraj.reidentify.decision import (
     cosine_distances,
 )
 from dashtraj.reidentify.scoring import reid_score
-from dashtraj.reidentify.select import DEFAULT_GATE, query_detection, select_target_tracks
+from dashtraj.reidentify.select import (
+    DEFAULT_GATE,
+    query_detection,
+    select_target_tracks,
+    tracks_seen_apart,
+)
 from dashtraj.trajectory.gating import GateConfig
 from dashtraj.trajectory.records import Sighting
 
@@ -307,7 +314,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
     aggregate = recipe.aggregate
     with SightingsDB.open(db_path, writable=switches.reid == "appearance") as db:
         poses = {(p.observer_id, p.frame): p for p in db.poses()}
-        near = [d for d in db.detections() if d.distance_m <= max_distance_m
+        every = db.detections()
+        near = [d for d in every if d.distance_m <= max_distance_m
                 and (d.truth_vehicle_id is not None if by_truth else d.track_id is not None)]
         track_truth: dict[Hashable, int | None] = {}
         if not by_truth:
@@ -395,11 +403,15 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
     elif query is None or keys is None:
         accepted, candidates = [], []
     else:
+        # two tracks of one camera with separate boxes in the same frames, within
+        # their sightings' spans, are two vehicles (the gate keeps at most one)
+        apart = (set() if by_truth or not gate else
+                 tracks_seen_apart(every, {k: (v[0].t, v[-1].t) for k, v in tracks.items()}))
         sel = select_target_tracks(road_map, dists, keys, tracks, float(threshold),
                                    aggregate=aggregate, anchor=anchor,
                                    gate=(gate if isinstance(gate, GateConfig)
                                          else DEFAULT_GATE if gate else None),
-                                   keep_anchor=True, pin_anchor=pin_anchor)
+                                   keep_anchor=True, pin_anchor=pin_anchor, apart=apart)
         accepted = [k for k in sel.accepted if k in tracks]
         candidates = list(sel.candidates)
         extra["reid_threshold"] = float(threshold)

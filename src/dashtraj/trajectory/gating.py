@@ -23,6 +23,10 @@ The rule (`gate_tracks`):
    one moment at (nearly) one place are one vehicle seen twice: a duplicate box (a
    second orientation class that class-aware NMS keeps) or a track restarted while
    the old one still coasted; they are judged by reachability like any pair.
+   The caller may also name pairs known to be two vehicles from the pixels
+   (`apart`: two tracks of one camera with separate boxes in the same frames,
+   `dashtraj.reidentify.select.tracks_seen_apart`), which the sightings cannot
+   show when one of the two was too far from the camera to be kept as a sighting.
    A sighting at most ``slack_m`` *behind* the other along the lanes
    counts as reachable (cost 0): localization jitter, not a loop around the block.
    ``route_cost`` is the lane graph's shortest route in metres with no lane-change
@@ -74,7 +78,7 @@ from __future__ import annotations
 
 import bisect
 import math
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -311,7 +315,8 @@ def _follows(road_map, lanes, cfg, a_track: list[Sighting], b_track: list[Sighti
 
 def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
                 weights: Sequence[float] | None = None, anchor: int | None = None,
-                config: GateConfig = GateConfig(), method: str = "clique") -> GateResult:
+                config: GateConfig = GateConfig(), method: str = "clique",
+                apart: Collection[tuple[int, int]] = ()) -> GateResult:
     """Keep the heaviest set of candidate tracks one vehicle could have produced.
 
     Args:
@@ -323,13 +328,16 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
         config: `GateConfig`.
         method: "clique" (every pair consistent) or "chain" (consecutive pairs);
             see the module docstring.
+        apart: pairs (i, j) of track indices known to be two vehicles (never both
+            kept), whatever their positions say.
 
     Returns:
         `GateResult` (accepted indices in time order, rejected indices).
 
     Raises:
         GatingError: an empty track, a weight that is negative or not finite, the
-            wrong number of weights, an anchor out of range, an unknown method.
+            wrong number of weights, an anchor or an `apart` index out of range, an
+            unknown method.
 
     Example:
         >>> r = gate_tracks(town01, [track_a, twin_track, track_b])  # doctest: +SKIP
@@ -347,6 +355,13 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
         raise GatingError(f"gate_tracks: weight {bad} must be finite and >= 0, got {w[bad]!r}")
     if anchor is not None and not 0 <= anchor < n:
         raise GatingError(f"gate_tracks: anchor {anchor} is not a track index (0..{n - 1})")
+    two = set()
+    for pair in apart:
+        i, j = (int(v) for v in pair)
+        if not (0 <= i < n and 0 <= j < n):
+            raise GatingError(f"gate_tracks: apart pair {tuple(pair)} is not two track "
+                              f"indices (0..{n - 1})")
+        two.update(((i, j), (j, i)))
     ts: list[list[Sighting]] = []
     for i, tr in enumerate(tracks):
         if len(tr) == 0:
@@ -359,7 +374,8 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
     ok = np.zeros((n, n), dtype=bool)  # ok[p, q]: order[q] can follow order[p]
     for q in range(n):
         for p in range(q):
-            ok[p, q] = _follows(road_map, lanes, config, ts[order[p]], ts[order[q]])
+            ok[p, q] = ((order[p], order[q]) not in two
+                        and _follows(road_map, lanes, config, ts[order[p]], ts[order[q]]))
     wo = w[order]
     if method == "clique":
         chain = _best_clique(ok, wo, None if anchor is None else order.index(anchor))
