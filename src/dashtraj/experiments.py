@@ -64,6 +64,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from dashtraj.errors import DashtrajError
+from dashtraj.perception.detect import DEFAULT_MIN_SCORE
+from dashtraj.perception.detections import AGNOSTIC_NMS_IOU
 
 PAPER_SSPD_M = 5.13
 """The paper's mean SSPD over its ten driving experiments, metres."""
@@ -109,6 +111,9 @@ class ExperimentConfig:
         every_s: ``detections``/``vision``: the frame period, seconds.
         workers: ``detections``/``vision``: perception processes (observers in
             parallel; the database is the same for any count).
+        agnostic_nms_iou: ``vision`` with a detector model: its class-agnostic NMS IoU
+            (None: the model's class-aware NMS only); `PerceiveConfig.agnostic_nms_iou`.
+        min_score: ``vision`` with a detector model: the smallest kept box score.
     """
 
     town: str = "town10"
@@ -130,6 +135,8 @@ class ExperimentConfig:
     look: str | None = None
     every_s: float = 0.1
     workers: int = 2
+    agnostic_nms_iou: float | None = AGNOSTIC_NMS_IOU
+    min_score: float = DEFAULT_MIN_SCORE
 
     def __post_init__(self) -> None:
         if self.reid not in REID_MODES:
@@ -396,7 +403,9 @@ def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
 
     s = perceive(rec, db_path, PerceiveConfig(detector=detector_of(detector),
                                               size=config.image_size, every_s=config.every_s,
-                                              look=look, reid_range_m=config.max_distance_m),
+                                              look=look, reid_range_m=config.max_distance_m,
+                                              agnostic_nms_iou=config.agnostic_nms_iou,
+                                              min_score=config.min_score),
                  workers=config.workers, progress=progress)
     stages.note(f"perceive: {s.frames} frames, {s.detections} detections, {s.tracks} tracks, "
                 f"{s.crops} crops within {config.max_distance_m:g} m")

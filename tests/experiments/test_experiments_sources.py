@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 
 import pytest
 
+import dashtraj.perception.pipeline as pipeline
 from dashtraj.cli import main
+from dashtraj.cli._vision_args import add_vision_args, vision_settings
 from dashtraj.experiments import (
     ExperimentConfig,
     ExperimentError,
     aggregate_reid,
+    perceive_run,
     plot_experiment,
     run_experiment,
 )
@@ -54,8 +58,39 @@ def test_config_round_trip_and_bad_source():
     with pytest.raises(ExperimentError, match="unknown sightings source 'pixels'; valid: oracle"):
         ExperimentConfig(sightings="pixels")
     vis = ExperimentConfig(sightings="vision", reid="appearance", detector="oracle",
-                           reid_threshold="t.json", look="flat", every_s=0.2)
+                           reid_threshold="t.json", look="flat", every_s=0.2,
+                           agnostic_nms_iou=None, min_score=0.45)
     assert ExperimentConfig.from_dict(json.loads(json.dumps(vis.to_dict()))) == vis
+    # a summary written before the box filters were settings: the defaults of the time
+    old = {k: v for k, v in vis.to_dict().items() if k not in ("agnostic_nms_iou", "min_score")}
+    back = ExperimentConfig.from_dict(old)
+    assert (back.agnostic_nms_iou, back.min_score) == (0.45, 0.25)
+
+
+def test_box_filters_reach_the_perception(monkeypatch, tmp_path):
+    """``experiments --min-score`` / ``--agnostic-nms`` go into the run's config and from
+    there into `PerceiveConfig` (the perception itself is tested in tests/perception)."""
+    seen = []
+
+    class Summary:
+        frames = detections = tracks = crops = 0
+
+    def fake_perceive(rec, db_path, config, workers=1, progress=None):
+        seen.append(config)
+        return Summary()
+
+    monkeypatch.setattr(pipeline, "perceive", fake_perceive)
+
+    rec = argparse.Namespace(meta={"observer_ids": [1], "simulated_to_t": 1.0})
+
+    ap = argparse.ArgumentParser()
+    add_vision_args(ap, default_sightings="vision")
+    for argv, want in (([], (0.45, 0.25)), (["--min-score", "0.45", "--agnostic-nms", "none"],
+                                            (None, 0.45))):
+        cfg = ExperimentConfig(reid="appearance", **vision_settings(ap.parse_args(argv)))
+        assert (cfg.agnostic_nms_iou, cfg.min_score) == want
+        perceive_run(cfg, rec, tmp_path / "x.db", "shipped")
+        assert (seen[-1].agnostic_nms_iou, seen[-1].min_score) == want
 
 
 @pytest.mark.slow

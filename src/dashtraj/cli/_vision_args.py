@@ -6,7 +6,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from dashtraj.cli._args import ArgumentError, image_size, int_at_least, positive_float
+from dashtraj.cli._args import (
+    ArgumentError,
+    add_detector_filter_args,
+    image_size,
+    int_at_least,
+    positive_float,
+)
 
 VISION_SIZE = (640, 360)
 """Default image size of ``--sightings vision``, pixels (the shipped detector's training
@@ -50,6 +56,7 @@ def add_vision_args(p: argparse.ArgumentParser, default_sightings: str | None = 
     p.add_argument("--workers", type=int_at_least(1), default=2, metavar="N",
                    help="detections/vision: perception processes, observers in parallel "
                         "(default 2: the two cores of the reference machine)")
+    add_detector_filter_args(p)
 
 
 def vision_settings(args) -> dict:
@@ -79,7 +86,8 @@ def vision_settings(args) -> dict:
         VISION_EVERY_S if args.sightings == "vision" else DETECTIONS_EVERY_S)
     return {"sightings": args.sightings, "detector": args.detector,
             "reid_model": args.reid_model, "reid_threshold": args.reid_threshold,
-            "look": args.look, "image_size": size, "every_s": every, "workers": args.workers}
+            "look": args.look, "image_size": size, "every_s": every, "workers": args.workers,
+            "agnostic_nms_iou": args.agnostic_nms, "min_score": args.min_score}
 
 
 def check_reid_model(config) -> None:
