@@ -73,3 +73,35 @@ def test_query_is_the_first_cropped_detection_in_range(tmp_path):
         groups = tracks_of(db.sightings(max_distance_m=15.0))
         assert sorted(groups) == [(1, 5), (2, 5)]
         assert [s.t for s in groups[(1, 5)]] == [0.6, 0.7]
+
+
+def test_the_route_gets_each_tracks_last_detection_in_range(tmp_path, town01):
+    """Sightings are sampled every 0.5 s of a track; the target's sightings also end at
+    each track's last detection within range (the route is rebuilt up to where the track
+    really left it), while the decisions and the scoring see the samples only."""
+    from dashtraj.reidentify.vision import StageSwitches, target_from_db
+
+    path = tmp_path / "ends.db"
+    with SightingsDB.create(path) as db:
+        db.write_run("runs/x", "town01", None, {"width_px": 640, "height_px": 360}, {},
+                     [(1, None)])
+        poses = [PoseRow(1, f, f * 0.1, 0, 0, 0, 0, 0, 0, 1.6, 0, 0) for f in range(16)]
+        # track 5: the target, in range in frames 0-12 (t 0-1.2 s), 20 m away after;
+        # track 6: the target too, frames 0-10 (its last detection is a sample)
+        dets = [DetectionRow(1, f, 0, f * 0.1, 5, 0, 0, 10, 10, 0.9, 1, "car", "back",
+                             12.0 if f <= 12 else 20.0, 0.0, 100.0 + f, 2.0, 0, None, None, None,
+                             None, None, 0) for f in range(16)]
+        dets += [DetectionRow(1, f, 1, f * 0.1, 6, 20, 0, 30, 10, 0.9, 1, "car", "back", 10.0,
+                              0.0, 50.0 + f, 2.0, 0, None, None, None, None, None, 0)
+                 for f in range(11)]
+        db.add_frames(poses, dets, (), [TrackRow(1, 5, "car", 0.0, 1.5, 16, 0),
+                                        TrackRow(1, 6, "car", 0.0, 1.0, 11, 0)])
+        db.finish_observer(1)
+        db.finish_run()
+    tt = target_from_db(path, town01, 0, switches=StageSwitches(reid="identity"),
+                        max_distance_m=15.0, sample_s=0.5)
+    by_track = {k: [round(s.t, 3) for s in tt.sightings if s.track_id == k] for k in (5, 6)}
+    assert by_track == {5: [0.0, 0.5, 1.0, 1.2], 6: [0.0, 0.5, 1.0]}
+    end = [s for s in tt.sightings if s.track_id == 5][-1]
+    assert (end.x, end.y) == (112.0, 2.0)  # frame 12's position
+    assert (tt.summary["reid_true_matches"], tt.summary["reid_misses"]) == (2, 0)

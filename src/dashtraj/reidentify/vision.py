@@ -289,7 +289,9 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         gate: the spatio-temporal gate after the appearance decision: True (the
             default `GateConfig`), a `GateConfig`, or False (none).
         max_distance_m: the ReID range (detections estimated this close), metres.
-        sample_s: one sighting per track every this many seconds.
+        sample_s: one sighting per track every this many seconds (the decisions, the
+            gate and the scoring use these); the target's sightings also hold each
+            accepted track's last detection in range where the samples stop before it.
         positions_of: `true_positions(recording)` (positions ``truth``).
         stages: None, or an object with ``start(name, line)`` (e.g.
             `dashtraj.experiments.Stages`) told as embedding and deciding start.
@@ -364,8 +366,14 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
                     q = m / max(float(np.linalg.norm(m)), 1e-12)
             keys = [k for k, _ in gal]
             dists = cosine_distances(q, emb[[i for _, i in gal]]) if gal else np.zeros(0)
-    rows = sorted(((key_of(d), d) for d in near), key=lambda r: (r[0], r[1].t, r[1].idx))
-    rows = _sample(rows, sample_s)
+    every_row = sorted(((key_of(d), d) for d in near), key=lambda r: (r[0], r[1].t, r[1].idx))
+    rows = _sample(every_row, sample_s)
+    # each track's last detection in range, where the samples stop before it: the route
+    # is rebuilt to where the track really ended (not up to `sample_s` earlier); the
+    # decisions, the gate and the scoring see the samples only
+    last_kept = {k: d.t for k, d in rows}
+    last_row = {k: d for k, d in every_row}  # in time order: the last one stays
+    ends = [(k, d) for k, d in last_row.items() if d.t > last_kept[k]]
     truth = {k: (k[1] if by_truth else track_truth.get(k)) for k, _ in rows}
     if not by_truth:  # what the used sightings show: most of them, "no vehicle" counted
         votes: dict[Hashable, Counter] = {}
@@ -374,25 +382,30 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
                      else d.truth_vehicle_id)  # schema-2 files have no depicted id
             votes.setdefault(k, Counter())[shown] += 1
         truth = {k: _majority(c) for k, c in votes.items()}
-    if positions_of is not None and switches.positions == "truth" and rows:
-        xy = np.zeros((len(rows), 2))
+    placed = rows + ends
+    if positions_of is not None and switches.positions == "truth" and placed:
+        xy = np.zeros((len(placed), 2))
         vids = np.array([d.truth_vehicle_id if d.truth_vehicle_id is not None else -1
-                         for _, d in rows])
-        ts = np.array([d.t for _, d in rows])
+                         for _, d in placed])
+        ts = np.array([d.t for _, d in placed])
         for v in np.unique(vids):
             m = vids == v
             xy[m] = (positions_of(int(v), ts[m]) if v >= 0
-                     else [[d.x, d.y] for (_, d), keep in zip(rows, m, strict=True) if keep])
+                     else [[d.x, d.y] for (_, d), keep in zip(placed, m, strict=True) if keep])
     else:
-        xy = np.array([[d.x, d.y] for _, d in rows]).reshape(-1, 2)
+        xy = np.array([[d.x, d.y] for _, d in placed]).reshape(-1, 2)
     tracks: dict[Hashable, list[Sighting]] = {}
-    for (k, d), (x, y) in zip(rows, xy, strict=True):
+    track_end: dict[Hashable, Sighting] = {}
+    for i, ((k, d), (x, y)) in enumerate(zip(placed, xy, strict=True)):
         p = poses[(d.observer_id, d.frame)]
-        tracks.setdefault(k, []).append(Sighting(
-            t=d.t, observer_id=d.observer_id, observer_x=p.cam_x, observer_y=p.cam_y,
-            observer_yaw=p.cam_yaw, x=float(x), y=float(y), orientation=d.orientation,
-            vehicle_class=d.vehicle_class, track_id=k[1], distance=d.distance_m,
-            bearing=d.bearing_deg))
+        s = Sighting(t=d.t, observer_id=d.observer_id, observer_x=p.cam_x, observer_y=p.cam_y,
+                     observer_yaw=p.cam_yaw, x=float(x), y=float(y), orientation=d.orientation,
+                     vehicle_class=d.vehicle_class, track_id=k[1], distance=d.distance_m,
+                     bearing=d.bearing_deg)
+        if i < len(rows):
+            tracks.setdefault(k, []).append(s)
+        else:
+            track_end[k] = s
     anchor = key_of(query) if query is not None else None
     extra: dict = {"reid_tracks": len(tracks),
                    "query": None if query is None else
@@ -428,7 +441,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
                                          for c in ("threshold", "gate", "no_usable_crop")}
     for k in candidates:
         truth.setdefault(k, None)
-    sightings = sorted((s for k in accepted for s in tracks[k]),
+    sightings = sorted((s for k in accepted
+                        for s in (*tracks[k], *([track_end[k]] if k in track_end else ()))),
                        key=lambda s: (s.t, s.observer_id))
     score = reid_score(accepted, truth, target_vehicle_id)
     return TargetTracks(sightings, {**score.to_dict(), "reid_candidates": len(candidates),
