@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from dashtraj.reidentify.scoring import reid_score
-from dashtraj.reidentify.select import select_target_tracks, tracks_seen_apart
+from dashtraj.reidentify.select import box_relations, select_target_tracks
 from dashtraj.store.db import DetectionRow
-from gating_helpers import drive
+from gating_helpers import drive, sight
 
 
 def test_gate_restores_precision_with_a_twin(town01):
@@ -72,7 +72,7 @@ def _row(obs, frame, track, box, t=None):
                         truth_vehicle_id=None, depicted_vehicle_id=None)
 
 
-def test_tracks_seen_apart_from_separate_boxes():
+def test_box_relations_two_vehicles_from_separate_boxes():
     """Real boxes of the town01 seed 0 run (shipped detector, score >= 0.45): observer 3
     follows the target (track 2, 293-334 px wide, 16.5 m ahead) while an oncoming car
     (track 25) passes to its left in frames 318-322; separate boxes in three frames."""
@@ -83,23 +83,42 @@ def test_tracks_seen_apart_from_separate_boxes():
     rows = ([_row(3, f, 2, b) for f, b in target.items()]
             + [_row(3, f, 25, b) for f, b in oncoming.items()]
             + [_row(1, 318, 4, oncoming[318]), _row(3, 318, None, (0, 0, 5, 5))])
-    assert tracks_seen_apart(rows) == {frozenset({(3, 2), (3, 25)})}
+    pair = frozenset({(3, 2), (3, 25)})
+    rel = box_relations(rows)
+    assert (rel.apart, rel.together) == ({pair}, set())
     # one frame is not enough (a tracker's slip); three are when asked for
-    assert tracks_seen_apart(rows, min_frames=4) == set()
+    assert box_relations(rows, min_frames=4).apart == set()
     # only frames inside both tracks' sighting spans count
     spans = {(3, 2): (0.0, 100.0), (3, 25): (63.8, 64.0)}  # frames 319 and 320 only
-    assert tracks_seen_apart(rows, spans) == {frozenset({(3, 2), (3, 25)})}
-    assert tracks_seen_apart(rows, {(3, 2): (0.0, 100.0), (3, 25): (64.0, 64.0)}) == set()
-    assert tracks_seen_apart(rows, {(3, 2): (0.0, 100.0)}) == set()
+    assert box_relations(rows, spans).apart == {pair}
+    assert box_relations(rows, {(3, 2): (0.0, 100.0), (3, 25): (64.0, 64.0)}).apart == set()
+    assert box_relations(rows, {(3, 2): (0.0, 100.0)}).apart == set()
     # a frame in which the two tracks' boxes overlap (a second box on one vehicle, one
-    # track having strayed to a neighbour elsewhere): never called two vehicles
-    shared = [*rows, _row(3, 321, 25, (300.0, 185.0, 330.0, 214.0))]
-    assert tracks_seen_apart(shared) == set()
+    # track having strayed to a neighbour elsewhere): neither two vehicles nor one
+    mixed = box_relations([*rows, _row(3, 321, 25, (300.0, 185.0, 330.0, 214.0))])
+    assert (mixed.apart, mixed.together) == (set(), set())
     # a small overlap (a neighbour's mirror inside the box) still counts as separate
     touching = [_row(3, f, 9, (b[0] - 38.0, b[1], b[0] + 2.0, b[3])) for f, b in target.items()]
-    assert tracks_seen_apart([*rows[:4], *touching]) == {frozenset({(3, 2), (3, 9)})}
+    assert box_relations([*rows[:4], *touching]).apart == {frozenset({(3, 2), (3, 9)})}
     with pytest.raises(ValueError, match="min_frames"):
-        tracks_seen_apart(rows, min_frames=0)
+        box_relations(rows, min_frames=0)
+
+
+def test_box_relations_one_vehicle_from_overlapping_boxes():
+    """Real boxes of the town10 seed 9 development run: observer 3 follows the target, a
+    motorcycle (track 75, its whole box) and the detector also boxes its rider's upper
+    part (track 134, inside track 75's box), localized 3-12 m from it."""
+    whole = {1216: (322.0, 184.0, 340.0, 247.0), 1220: (322.0, 183.0, 342.0, 248.0)}
+    part = {1216: (323.0, 181.0, 332.0, 201.0), 1220: (321.0, 182.0, 334.0, 203.0)}
+    rows = [_row(3, f, 75, b) for f, b in whole.items()] + \
+        [_row(3, f, 134, b) for f, b in part.items()]
+    rel = box_relations(rows)
+    assert (rel.apart, rel.together) == (set(), {frozenset({(3, 75), (3, 134)})})
+    assert box_relations(rows, min_frames=3).together == set()
+    # once separate (the second track on another vehicle for a frame): not one vehicle
+    rel = box_relations([*rows, _row(3, 1224, 75, (200.0, 180.0, 230.0, 240.0)),
+                         _row(3, 1224, 134, (321.0, 181.0, 342.0, 245.0))])
+    assert (rel.apart, rel.together) == (set(), set())
 
 
 def test_select_never_keeps_two_tracks_seen_apart(town01):
@@ -116,3 +135,14 @@ def test_select_never_keeps_two_tracks_seen_apart(town01):
     one = select_target_tracks(town01, d, keys, tracks, 0.5, anchor=(1, 1),
                                apart={frozenset({(1, 1), (1, 2)}), frozenset({(1, 2), (7, 7)})})
     assert one.accepted == ((1, 1),) and one.gated_out == ((1, 2),)
+
+    # seen together in the pixels, the camera's two tracks are one vehicle, whatever the
+    # sightings' positions (the second track's boxes localized 4 m ahead of the first's)
+    ahead = [sight(town01, t, 12, 20.0 + 10.0 * t + 4.0, obs=1, track=3) for t in (2.0, 2.5)]
+    tracks = {(1, 1): target, (1, 3): ahead}
+    keys = [(1, 1)] * 3 + [(1, 3)] * 3
+    assert select_target_tracks(town01, d, keys, tracks, 0.5, anchor=(1, 1)).accepted == \
+        ((1, 1),)
+    joined = select_target_tracks(town01, d, keys, tracks, 0.5, anchor=(1, 1),
+                                  together={frozenset({(1, 1), (1, 3)})})
+    assert joined.accepted == ((1, 1), (1, 3))

@@ -145,6 +145,8 @@ def test_empty_and_bad_input(town01):
         gate_tracks(town01, [t], anchor=3)
     with pytest.raises(GatingError, match=r"apart pair \(0, 1\)"):
         gate_tracks(town01, [t], apart=[(0, 1)])
+    with pytest.raises(GatingError, match=r"together pair \(0, -1\)"):
+        gate_tracks(town01, [t], together=[(0, -1)])
     with pytest.raises(GatingError, match="max_speed_mps"):
         GateConfig(max_speed_mps=-1.0)
     with pytest.raises(GatingError, match="earlier"):
@@ -209,6 +211,11 @@ def test_one_cameras_duplicate_track_of_one_vehicle_is_kept(town01):
     # 4 m ahead at the same moments: another vehicle (a lane or a car length away)
     ahead = [sight(town01, t, 12, 20.0 + 10.0 * t + 4.0, obs=1, track=2) for t in (2.0, 2.5)]
     assert gate_tracks(town01, [target, ahead], anchor=0).accepted == (0,)
+    # unless the camera's pixels showed the two tracks as one vehicle (overlapping boxes:
+    # a second box on part of it is localized metres away); reachability still applies
+    assert gate_tracks(town01, [target, ahead], anchor=0, together=[(0, 1)]).accepted == (0, 1)
+    far = [sight(town01, t, 6, 100.0, obs=1, track=2) for t in (2.0, 2.5)]
+    assert gate_tracks(town01, [target, far], anchor=0, together=[(0, 1)]).accepted == (0,)
     # same_camera_m = 0: the earlier rule, any overlap in time is two vehicles
     old = GateConfig(same_camera_m=0.0)
     assert gate_tracks(town01, [target, dup], anchor=0, config=old).accepted == (0,)

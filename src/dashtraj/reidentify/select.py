@@ -7,10 +7,13 @@
 2. `dashtraj.trajectory.gating.gate_tracks`: among the candidates keep the heaviest
    chain one vehicle could have driven on the lane graph, through the query's own
    track when it is a candidate (the anchor). Two tracks of one camera that show
-   separate boxes in the same frames (`tracks_seen_apart`) are two vehicles: never
+   separate boxes in the same frames (`box_relations`) are two vehicles: never
    both kept, even where one of them is beyond the ReID range and has no sighting
    there to compare positions (an oncoming car passing the target, 3 m away across
-   the road centre, matched on appearance while the target was 16 m ahead).
+   the road centre, matched on appearance while the target was 16 m ahead). Two
+   that show overlapping boxes in the same frames are one vehicle seen twice,
+   whatever their positions (a box of a car's lower half is localized metres from
+   the whole car's).
 
 Weights: a track's number of sightings (sampled at a fixed period, so: how long
 it was seen) times ``1 + margin``, the appearance margin
@@ -59,7 +62,8 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
                          aggregate: str = "median", anchor: Hashable | None = None,
                          gate: GateConfig | None = DEFAULT_GATE,
                          keep_anchor: bool = False, pin_anchor: bool = True,
-                         apart: Collection[frozenset] = ()) -> Selection:
+                         apart: Collection[frozenset] = (),
+                         together: Collection[frozenset] = ()) -> Selection:
     """Decide and gate the target's tracks.
 
     Args:
@@ -83,7 +87,10 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
             among the others (weighed like them), so a track that the tracker joined
             to other boxes after the query crop cannot pull true tracks out.
         apart: pairs of track keys (frozensets of two) known to be two vehicles
-            (`tracks_seen_apart`); the gate never keeps both.
+            (`box_relations`); the gate never keeps both.
+        together: pairs of one camera's track keys seen as one vehicle
+            (`box_relations`); the gate does not call them two vehicles for being
+            localized apart at one moment (`GateConfig.same_camera_m`).
 
     Returns:
         `Selection`.
@@ -102,11 +109,13 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
                * (1.0 + float(np.clip((threshold - d.distance) / scale / 2, 0.0, 0.499)))
                for d in placed]
     idx = {d.key: i for i, d in enumerate(placed)}
-    pairs = [tuple(idx[k] for k in pair) for pair in apart
-             if len(pair) == 2 and all(k in idx for k in pair)]
+    def indices(pairs):
+        return [tuple(idx[k] for k in pair) for pair in pairs
+                if len(pair) == 2 and all(k in idx for k in pair)]
+
     res = gate_tracks(road_map, [sightings[d.key] for d in placed], weights=weights,
                       anchor=idx.get(anchor) if anchor is not None and pin_anchor else None,
-                      config=gate, apart=pairs)
+                      config=gate, apart=indices(apart), together=indices(together))
     accepted = tuple(placed[i].key for i in res.accepted)
     out = tuple(k for k in cand_keys if k not in set(accepted))
     return Selection(tuple(decisions), cand_keys, accepted, out)
@@ -124,38 +133,60 @@ def tracks_of(sightings: Sequence[Sighting]) -> dict[tuple[int, int | None], lis
     return out
 
 
-def tracks_seen_apart(detections, spans: Mapping[Hashable, tuple[float, float]] | None = None,
-                      min_frames: int = 2, max_overlap: float = 0.1) -> set[frozenset]:
-    """Pairs of tracks one camera saw as two vehicles: separate boxes, frame after frame.
+@dataclass(frozen=True, slots=True)
+class BoxRelations:
+    """What one camera's boxes say about pairs of its tracks (`box_relations`).
 
-    Two tracks of one observer whose boxes in a frame overlap by at most
-    `max_overlap` of the smaller box (their intersection over its area) show two
-    things at once. They are two vehicles when that happened in `min_frames` frames
-    or more and their boxes never overlapped more in a frame they shared: one frame
-    alone could be a tracker's slip onto the scenery, and two tracks that did share a
-    box's pixels once may be two tracks on one vehicle (a second box of another
-    orientation class, a box of its front half), one of which strayed to a neighbour
-    for a while. With `spans`, only frames inside both tracks' spans count:
-    a tracker can carry a track onto another vehicle far away after it lost its own
-    (or start it there before), and only the part of a track that the gate weighs
-    (its sightings) says which vehicle the track is.
+    Attributes:
+        apart: pairs seen as two vehicles (separate boxes in the same frames).
+        together: pairs seen as one vehicle twice (overlapping boxes in the same frames).
+    """
+
+    apart: frozenset[frozenset]
+    together: frozenset[frozenset]
+
+
+def box_relations(detections, spans: Mapping[Hashable, tuple[float, float]] | None = None,
+                  min_frames: int = 2, max_overlap: float = 0.1) -> BoxRelations:
+    """Pairs of one camera's tracks that its pixels show as two vehicles, or as one.
+
+    In a frame where two tracks of one observer both have a box, the boxes are
+    *separate* when they overlap by at most `max_overlap` of the smaller box (their
+    intersection over its area), and *overlapping* otherwise. Two tracks are:
+
+    - **apart** (two vehicles) when their boxes were separate in `min_frames` frames
+      or more and never overlapping: one frame alone could be a tracker's slip onto
+      the scenery, and two tracks that did share a box's pixels once may be two
+      tracks on one vehicle, one of which strayed to a neighbour for a while;
+    - **together** (one vehicle seen twice: a second box of another orientation
+      class, a box of its lower half or of the part a nearer car leaves visible)
+      when their boxes overlapped in `min_frames` frames or more and were never
+      separate. Such a second box is localized from other pixels, metres away from
+      the first (a cut box's height says little), so positions alone would call the
+      two tracks two vehicles.
+
+    With `spans`, only frames inside both tracks' spans count: a tracker can carry a
+    track onto another vehicle after it lost its own (or start it there before), and
+    only the part of a track that the gate weighs (its sightings) says which vehicle
+    the track is.
 
     Args:
         detections: rows with observer_id, frame, t, track_id and the box x0, y0,
             x1, y1 (`SightingsDB.detections()`); rows without a track are ignored.
         spans: (first t, last t) of each track's sightings, by key; a track without
-            one is never apart. None: every frame counts.
-        min_frames: frames with separate boxes needed, >= 1.
+            one is in no pair. None: every frame counts.
+        min_frames: frames needed, >= 1.
         max_overlap: the largest intersection over the smaller box's area that
             still counts as separate, in [0, 1).
 
     Returns:
-        A set of frozensets {(observer_id, track_id_a), (observer_id, track_id_b)}:
-        the keys of `tracks_of` and of the vision pipeline.
+        `BoxRelations` of frozensets {(observer_id, track_id_a), (observer_id,
+        track_id_b)}: the keys of `tracks_of` and of the vision pipeline.
     """
     if min_frames < 1 or not 0 <= max_overlap < 1:
-        raise ValueError(f"tracks_seen_apart: min_frames >= 1 and 0 <= max_overlap < 1, got "
+        raise ValueError(f"box_relations: min_frames >= 1 and 0 <= max_overlap < 1, got "
                          f"{min_frames!r}, {max_overlap!r}")
+
     def inside(d) -> bool:
         if spans is None:
             return True
@@ -166,8 +197,8 @@ def tracks_seen_apart(detections, spans: Mapping[Hashable, tuple[float, float]] 
     for d in detections:
         if d.track_id is not None and inside(d):
             by_frame.setdefault((d.observer_id, d.frame), []).append(d)
-    seen: dict[frozenset, int] = {}
-    shared: set[frozenset] = set()
+    separate: dict[frozenset, int] = {}
+    overlapping: dict[frozenset, int] = {}
     for (obs, _), ds in by_frame.items():
         if len({d.track_id for d in ds}) < 2:
             continue
@@ -177,17 +208,19 @@ def tracks_seen_apart(detections, spans: Mapping[Hashable, tuple[float, float]] 
                      - np.maximum(b[:, None, 0], b[None, :, 0]), 0, None)
         iy = np.clip(np.minimum(b[:, None, 3], b[None, :, 3])
                      - np.maximum(b[:, None, 1], b[None, :, 1]), 0, None)
-        small = np.minimum(area[:, None], area[None, :])
-        sep = ix * iy <= max_overlap * small
-        pairs = set()
+        sep = ix * iy <= max_overlap * np.minimum(area[:, None], area[None, :])
+        seen_sep, seen_over = set(), set()
         for i in range(len(ds)):
             for j in range(i + 1, len(ds)):
                 if ds[i].track_id != ds[j].track_id:
                     pair = frozenset({(obs, ds[i].track_id), (obs, ds[j].track_id)})
-                    (pairs.add if sep[i, j] else shared.add)(pair)
-        for pair in pairs:  # once per frame, however many boxes a track has in it
-            seen[pair] = seen.get(pair, 0) + 1
-    return {pair for pair, n in seen.items() if n >= min_frames and pair not in shared}
+                    (seen_sep if sep[i, j] else seen_over).add(pair)
+        for seen, count in ((seen_sep, separate), (seen_over, overlapping)):
+            for pair in seen:  # once per frame, however many boxes a track has in it
+                count[pair] = count.get(pair, 0) + 1
+    return BoxRelations(
+        frozenset(p for p, n in separate.items() if n >= min_frames and p not in overlapping),
+        frozenset(p for p, n in overlapping.items() if n >= min_frames and p not in separate))
 
 
 def query_detection(db, vehicle_id: int, max_distance_m: float = 15.0, usable=None):

@@ -21,8 +21,8 @@ aggregated per track and the track is the target when that is at most the thresh
 calibrated on TRAINING identities with the same recipe (`load_threshold`; ``dashtraj
 reid-threshold`` writes it beside the model); then the spatio-temporal gate
 (`select.select_target_tracks`), told which tracks one camera saw as two vehicles
-(separate boxes in the same frames within both tracks' sighting spans,
-`select.tracks_seen_apart`). With a crop filter, the query is the target's first
+(separate boxes in the same frames within both tracks' sighting spans) and which as one
+(overlapping boxes; `select.box_relations`). With a crop filter, the query is the target's first
 crop within 15 m that the filter keeps (the paper's first crop when none is); the
 query's own track is a candidate whatever its distance (the user pointed at it).
 
@@ -65,9 +65,10 @@ from dashtraj.reidentify.decision import (
 from dashtraj.reidentify.scoring import reid_score
 from dashtraj.reidentify.select import (
     DEFAULT_GATE,
+    BoxRelations,
+    box_relations,
     query_detection,
     select_target_tracks,
-    tracks_seen_apart,
 )
 from dashtraj.trajectory.gating import GateConfig
 from dashtraj.trajectory.records import Sighting
@@ -417,14 +418,16 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         accepted, candidates = [], []
     else:
         # two tracks of one camera with separate boxes in the same frames, within
-        # their sightings' spans, are two vehicles (the gate keeps at most one)
-        apart = (set() if by_truth or not gate else
-                 tracks_seen_apart(every, {k: (v[0].t, v[-1].t) for k, v in tracks.items()}))
+        # their sightings' spans, are two vehicles (the gate keeps at most one); with
+        # overlapping boxes, one vehicle seen twice
+        rel = (box_relations(every, {k: (v[0].t, v[-1].t) for k, v in tracks.items()})
+               if not by_truth and gate else BoxRelations(frozenset(), frozenset()))
         sel = select_target_tracks(road_map, dists, keys, tracks, float(threshold),
                                    aggregate=aggregate, anchor=anchor,
                                    gate=(gate if isinstance(gate, GateConfig)
                                          else DEFAULT_GATE if gate else None),
-                                   keep_anchor=True, pin_anchor=pin_anchor, apart=apart)
+                                   keep_anchor=True, pin_anchor=pin_anchor,
+                                   apart=rel.apart, together=rel.together)
         accepted = [k for k in sel.accepted if k in tracks]
         candidates = list(sel.candidates)
         extra["reid_threshold"] = float(threshold)

@@ -25,8 +25,10 @@ The rule (`gate_tracks`):
    the old one still coasted; they are judged by reachability like any pair.
    The caller may also name pairs known to be two vehicles from the pixels
    (`apart`: two tracks of one camera with separate boxes in the same frames,
-   `dashtraj.reidentify.select.tracks_seen_apart`), which the sightings cannot
-   show when one of the two was too far from the camera to be kept as a sighting.
+   `dashtraj.reidentify.select.box_relations`), which the sightings cannot
+   show when one of the two was too far from the camera to be kept as a sighting,
+   and pairs known to be one vehicle (`together`: overlapping boxes in the same
+   frames), which the same-camera rule above then leaves to reachability.
    A sighting at most ``slack_m`` *behind* the other along the lanes
    counts as reachable (cost 0): localization jitter, not a loop around the block.
    ``route_cost`` is the lane graph's shortest route in metres with no lane-change
@@ -291,10 +293,12 @@ def _apart_at_once(a_track: list[Sighting], b_track: list[Sighting], max_m: floa
     return False
 
 
-def _follows(road_map, lanes, cfg, a_track: list[Sighting], b_track: list[Sighting]) -> bool:
-    """One car can have made both tracks, A starting no later than B."""
+def _follows(road_map, lanes, cfg, a_track: list[Sighting], b_track: list[Sighting],
+             one_vehicle: bool = False) -> bool:
+    """One car can have made both tracks, A starting no later than B (`one_vehicle`: the
+    camera's pixels showed them as one vehicle, whatever their positions)."""
     b0 = b_track[0]
-    if (a_track[-1].t >= b0.t and a_track[0].observer_id == b0.observer_id
+    if (not one_vehicle and a_track[-1].t >= b0.t and a_track[0].observer_id == b0.observer_id
             and a_track[0].track_id != b0.track_id
             and _apart_at_once(a_track, b_track, cfg.same_camera_m)):
         return False  # one camera's two tracks seen apart at one moment: two vehicles
@@ -316,7 +320,8 @@ def _follows(road_map, lanes, cfg, a_track: list[Sighting], b_track: list[Sighti
 def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
                 weights: Sequence[float] | None = None, anchor: int | None = None,
                 config: GateConfig = GateConfig(), method: str = "clique",
-                apart: Collection[tuple[int, int]] = ()) -> GateResult:
+                apart: Collection[tuple[int, int]] = (),
+                together: Collection[tuple[int, int]] = ()) -> GateResult:
     """Keep the heaviest set of candidate tracks one vehicle could have produced.
 
     Args:
@@ -330,6 +335,9 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
             see the module docstring.
         apart: pairs (i, j) of track indices known to be two vehicles (never both
             kept), whatever their positions say.
+        together: pairs (i, j) of one camera's tracks known to be one vehicle seen
+            twice: never called two vehicles for being seen apart at one moment
+            (`GateConfig.same_camera_m`); still judged by reachability.
 
     Returns:
         `GateResult` (accepted indices in time order, rejected indices).
@@ -355,13 +363,14 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
         raise GatingError(f"gate_tracks: weight {bad} must be finite and >= 0, got {w[bad]!r}")
     if anchor is not None and not 0 <= anchor < n:
         raise GatingError(f"gate_tracks: anchor {anchor} is not a track index (0..{n - 1})")
-    two = set()
-    for pair in apart:
-        i, j = (int(v) for v in pair)
-        if not (0 <= i < n and 0 <= j < n):
-            raise GatingError(f"gate_tracks: apart pair {tuple(pair)} is not two track "
-                              f"indices (0..{n - 1})")
-        two.update(((i, j), (j, i)))
+    two, one = set(), set()
+    for name, pairs, into in (("apart", apart, two), ("together", together, one)):
+        for pair in pairs:
+            i, j = (int(v) for v in pair)
+            if not (0 <= i < n and 0 <= j < n):
+                raise GatingError(f"gate_tracks: {name} pair {tuple(pair)} is not two track "
+                                  f"indices (0..{n - 1})")
+            into.update(((i, j), (j, i)))
     ts: list[list[Sighting]] = []
     for i, tr in enumerate(tracks):
         if len(tr) == 0:
@@ -374,8 +383,9 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
     ok = np.zeros((n, n), dtype=bool)  # ok[p, q]: order[q] can follow order[p]
     for q in range(n):
         for p in range(q):
-            ok[p, q] = ((order[p], order[q]) not in two
-                        and _follows(road_map, lanes, config, ts[order[p]], ts[order[q]]))
+            pair = (order[p], order[q])
+            ok[p, q] = pair not in two and _follows(road_map, lanes, config, ts[order[p]],
+                                                    ts[order[q]], one_vehicle=pair in one)
     wo = w[order]
     if method == "clique":
         chain = _best_clique(ok, wo, None if anchor is None else order.index(anchor))
