@@ -109,6 +109,7 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
                * (1.0 + float(np.clip((threshold - d.distance) / scale / 2, 0.0, 0.499)))
                for d in placed]
     idx = {d.key: i for i, d in enumerate(placed)}
+
     def indices(pairs):
         return [tuple(idx[k] for k in pair) for pair in pairs
                 if len(pair) == 2 and all(k in idx for k in pair)]

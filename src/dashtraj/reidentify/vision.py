@@ -373,7 +373,7 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
     # is rebuilt to where the track really ended (not up to `sample_s` earlier); the
     # decisions, the gate and the scoring see the samples only
     last_kept = {k: d.t for k, d in rows}
-    last_row = {k: d for k, d in every_row}  # in time order: the last one stays
+    last_row = dict(every_row)  # in time order: each key's last row stays
     ends = [(k, d) for k, d in last_row.items() if d.t > last_kept[k]]
     truth = {k: (k[1] if by_truth else track_truth.get(k)) for k, _ in rows}
     if not by_truth:  # what the used sightings show: most of them, "no vehicle" counted
