@@ -22,6 +22,7 @@ import json
 import shutil
 import sys
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 
@@ -34,9 +35,13 @@ def main(argv: list[str] | None = None) -> int:
         reconstruct_and_score,
     )
     from dashtraj.reid.embed import ReidEmbedder
-    from dashtraj.reidentify.vision import PIN_ANCHOR, load_threshold, target_from_db
+    from dashtraj.reidentify.vision import (
+        PIN_ANCHOR,
+        VISION_GATE,
+        load_threshold,
+        target_from_db,
+    )
     from dashtraj.roads import RoadMap
-    from dashtraj.trajectory.gating import GateConfig
     from dashtraj.world.recording import Recording
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -63,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     th = load_threshold(args.reid_model, args.reid_threshold)
     gate_cfg = (None if args.same_camera_m is None
-                else GateConfig(same_camera_m=args.same_camera_m))
+                else replace(VISION_GATE, same_camera_m=args.same_camera_m))
     embedder = ReidEmbedder(args.reid_model, threads=1)
     summaries, rows = [], []
     with tempfile.TemporaryDirectory(prefix="reid_rescore_") as tmp:
