@@ -178,15 +178,21 @@ def depicted_vehicles(frame, boxes: np.ndarray, min_fraction: float = 0.25,
     return out
 
 
-def iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """IoU of every box of a (N, 4) with every box of b (M, 4), xyxy pixels → (N, M)."""
+def intersection_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Intersection area of every box of a (N, 4) with every box of b (M, 4), xyxy
+    pixels → (N, M) px²."""
     a = np.asarray(a, np.float64).reshape(-1, 4)
     b = np.asarray(b, np.float64).reshape(-1, 4)
     lo = np.maximum(a[:, None, :2], b[None, :, :2])
     hi = np.minimum(a[:, None, 2:], b[None, :, 2:])
-    ix = np.clip(hi[..., 0] - lo[..., 0], 0, None)
-    iy = np.clip(hi[..., 1] - lo[..., 1], 0, None)
-    inter = ix * iy
+    return np.clip(hi[..., 0] - lo[..., 0], 0, None) * np.clip(hi[..., 1] - lo[..., 1], 0, None)
+
+
+def iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """IoU of every box of a (N, 4) with every box of b (M, 4), xyxy pixels → (N, M)."""
+    a = np.asarray(a, np.float64).reshape(-1, 4)
+    b = np.asarray(b, np.float64).reshape(-1, 4)
+    inter = intersection_matrix(a, b)
     area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
     area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
     union = area_a[:, None] + area_b[None, :] - inter
@@ -246,9 +252,7 @@ def _part_of_better(boxes: np.ndarray, scores: np.ndarray, inside: float = 0.8,
     b = np.asarray(boxes, np.float64).reshape(-1, 4)
     s = np.asarray(scores, np.float64)
     area = (b[:, 2] - b[:, 0]).clip(0) * (b[:, 3] - b[:, 1]).clip(0)
-    iw = (np.minimum(b[:, None, 2], b[None, :, 2]) - np.maximum(b[:, None, 0], b[None, :, 0]))
-    ih = (np.minimum(b[:, None, 3], b[None, :, 3]) - np.maximum(b[:, None, 1], b[None, :, 1]))
-    inter = iw.clip(0) * ih.clip(0)  # inter[i, j]
+    inter = intersection_matrix(b, b)  # inter[i, j]
     with np.errstate(invalid="ignore", divide="ignore"):
         frac_in = np.where(area[:, None] > 0, inter / area[:, None], 0.0)
         frac_of = np.where(area[None, :] > 0, area[:, None] / area[None, :], 0.0)

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dashtraj.perception.detections import intersection_matrix
 from dashtraj.reidentify.decision import TrackDecision, decide_tracks
 from dashtraj.roads import RoadMap
 from dashtraj.trajectory.gating import GateConfig, gate_tracks
@@ -205,11 +206,7 @@ def box_relations(detections, spans: Mapping[Hashable, tuple[float, float]] | No
             continue
         b = np.array([[d.x0, d.y0, d.x1, d.y1] for d in ds], dtype=np.float64)
         area = np.clip(b[:, 2] - b[:, 0], 0, None) * np.clip(b[:, 3] - b[:, 1], 0, None)
-        ix = np.clip(np.minimum(b[:, None, 2], b[None, :, 2])
-                     - np.maximum(b[:, None, 0], b[None, :, 0]), 0, None)
-        iy = np.clip(np.minimum(b[:, None, 3], b[None, :, 3])
-                     - np.maximum(b[:, None, 1], b[None, :, 1]), 0, None)
-        sep = ix * iy <= max_overlap * np.minimum(area[:, None], area[None, :])
+        sep = intersection_matrix(b, b) <= max_overlap * np.minimum(area[:, None], area[None, :])
         seen_sep, seen_over = set(), set()
         for i in range(len(ds)):
             for j in range(i + 1, len(ds)):
