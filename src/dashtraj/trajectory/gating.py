@@ -344,8 +344,8 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
 
     Raises:
         GatingError: an empty track, a weight that is negative or not finite, the
-            wrong number of weights, an anchor or an `apart` index out of range, an
-            unknown method.
+            wrong number of weights, an anchor or an `apart` / `together` index out of
+            range, an unknown method.
 
     Example:
         >>> r = gate_tracks(town01, [track_a, twin_track, track_b])  # doctest: +SKIP
