@@ -74,6 +74,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="share of recordings in val (default 0.2)")
     d.add_argument("--seed", type=seed_int, default=0, help="split seed (default 0)")
     _randomize_args(d, "image")
+    d.add_argument("--workers", type=positive_int, default=1,
+                   help="render processes, one recording each at a time (default 1; the "
+                        "same files for any count)")
     add_output_args(d)
     d.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     d.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -231,11 +234,14 @@ def run_detection(args: argparse.Namespace) -> int:
                                 "each recording once, or its frames leak between train and val")
         seen[key] = p
     recs = [Recording.open(p) for p in args.recordings]
-    bar = _bar(args, _frame_total(recs, args.every), "frame")
+    parallel = args.workers > 1 and len(recs) > 1
+    bar = _bar(args, len(recs) if parallel else _frame_total(recs, args.every),
+               "recording" if parallel else "frame")
     try:
         with atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:
             info = build_detection_dataset(recs, tmp, cfg,
-                                           progress=bar.update if bar is not None else None)
+                                           progress=bar.update if bar is not None else None,
+                                           workers=args.workers)
             # data.yaml names the set's folder: the final one, not the temporary sibling
             (tmp / "data.yaml").write_text(data_yaml(out), encoding="utf-8")
     finally:

@@ -120,7 +120,7 @@ def data_yaml(out_dir: Path) -> str:
 
 
 def build_detection_dataset(recordings, out_dir, config: DetectionConfig = DetectionConfig(),
-                            progress=None) -> dict:
+                            progress=None, workers: int = 1) -> dict:
     """Render recordings into a YOLO detection set (layout in the module docstring).
 
     Args:
@@ -128,7 +128,12 @@ def build_detection_dataset(recordings, out_dir, config: DetectionConfig = Detec
         out_dir: output directory (created; existing files of the same names are
             overwritten).
         config: a ``DetectionConfig``.
-        progress: called with no argument after each frame, or None.
+        progress: called with no argument after each frame (each recording with
+            ``workers`` > 1), or None.
+        workers: processes rendering one recording each at a time (each its own GL
+            context, started with ``spawn``); 1 renders in this process. The set's files
+            are the same bytes for any count (every image depends only on its recording,
+            observer and frame).
 
     Returns:
         the ``dataset.json`` dict: config, split_by ("recording" | "observer"), the
@@ -147,13 +152,11 @@ def build_detection_dataset(recordings, out_dir, config: DetectionConfig = Detec
         (out / "images" / split).mkdir(parents=True, exist_ok=True)
         (out / "labels" / split).mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(config.seed)
-    w, h = config.size
-    counts = {s: {"images": 0, "labels": 0, "background": 0} for s in ("train", "val")}
-    class_counts = np.zeros(15, np.int64)
     if len(recs) > 1:
         split_by = "recording"
         rec_val = split_units(len(recs), config.val_fraction, rng)
         val_units = [str(recs[i].path) for i in np.flatnonzero(rec_val)]
+        val_of = [bool(v) for v in rec_val]
     else:
         split_by = "observer"
         obs = observer_ids(recs[0])
@@ -162,33 +165,29 @@ def build_detection_dataset(recordings, out_dir, config: DetectionConfig = Detec
         obs_val = dict(zip(obs, split_units(len(obs), config.val_fraction, rng).tolist(),
                            strict=True))
         val_units = [o for o in obs if obs_val[o]]
-    look_rows: list[dict] = []
-    for ri, rec in enumerate(recs):
-        look_for = None
-        if config.randomize:
-            from dashtraj.render.randomize import frame_rng, random_look
+        val_of = [obs_val]
+    jobs = [(ri, str(rec.path), val_of[ri], str(out), config) for ri, rec in enumerate(recs)]
+    if workers <= 1 or len(recs) == 1:
+        parts = [_render_recording(*job, rec=rec, progress=progress)
+                 for job, rec in zip(jobs, recs, strict=True)]
+    else:
+        import multiprocessing as mp
 
-            def look_for(o, k, ri=ri):
-                return random_look(frame_rng(config.randomize_seed, ri, o, k))
-        for rf in recording_frames(rec, config.every_s, (w, h), look_for=look_for):
-            is_val = rec_val[ri] if split_by == "recording" else obs_val[rf.observer_id]
-            split = "val" if is_val else "train"
-            stem = f"r{ri:02d}_{rec.path.name}_o{rf.observer_id}_{rf.frame:06d}"
-            lines = yolo_lines(rf.frame_data.labels, w, h, config.min_box_height_px,
-                               config.max_occlusion)
-            (out / "images" / split / f"{stem}.jpg").write_bytes(encode_jpeg(rf.frame_data.rgb))
-            (out / "labels" / split / f"{stem}.txt").write_text(
-                "".join(f"{ln}\n" for ln in lines), encoding="utf-8")
-            if config.randomize:
-                look_rows.append({"image": f"images/{split}/{stem}.jpg",
-                                  **look_for(rf.observer_id, rf.frame).flat()})
-            counts[split]["images"] += 1
-            counts[split]["labels"] += len(lines)
-            counts[split]["background"] += int(not lines)
-            for ln in lines:
-                class_counts[int(ln.split()[0])] += 1
-            if progress is not None:
-                progress()
+        parts = []
+        with mp.get_context("spawn").Pool(min(workers, len(recs))) as pool:
+            for part in pool.imap(_render_job, jobs, chunksize=1):
+                parts.append(part)
+                if progress is not None:
+                    progress()
+    counts = {s: {"images": 0, "labels": 0, "background": 0} for s in ("train", "val")}
+    class_counts = np.zeros(15, np.int64)
+    look_rows: list[dict] = []
+    for part in parts:
+        for s in counts:
+            for k in counts[s]:
+                counts[s][k] += part["counts"][s][k]
+        class_counts += part["class_counts"]
+        look_rows.extend(part["looks"])
     (out / "data.yaml").write_text(data_yaml(out), encoding="utf-8")
     from dashtraj.world.camera import DETECTION_CLASSES
 
@@ -207,6 +206,52 @@ def build_detection_dataset(recordings, out_dir, config: DetectionConfig = Detec
     (out / "dataset.json").write_text(json.dumps(info, indent=1, sort_keys=True) + "\n",
                                       encoding="utf-8")
     return info
+
+
+def _render_job(job: tuple) -> dict:
+    """A worker process's `_render_recording` (opens the recording by path)."""
+    return _render_recording(*job)
+
+
+def _render_recording(ri: int, rec_path: str, val, out_dir: str, config: DetectionConfig,
+                      rec=None, progress=None) -> dict:
+    """Write the images and labels of recording ``ri``; ``val`` is its split (bool) or,
+    split by observer, {observer id: bool}. Returns its counts, class counts and look rows."""
+    if rec is None:
+        from dashtraj.world.recording import Recording
+
+        rec = Recording.open(rec_path)
+    out = Path(out_dir)
+    w, h = config.size
+    counts = {s: {"images": 0, "labels": 0, "background": 0} for s in ("train", "val")}
+    class_counts = np.zeros(15, np.int64)
+    look_rows: list[dict] = []
+    look_for = None
+    if config.randomize:
+        from dashtraj.render.randomize import frame_rng, random_look
+
+        def look_for(o, k):
+            return random_look(frame_rng(config.randomize_seed, ri, o, k))
+    for rf in recording_frames(rec, config.every_s, (w, h), look_for=look_for):
+        is_val = val[rf.observer_id] if isinstance(val, dict) else val
+        split = "val" if is_val else "train"
+        stem = f"r{ri:02d}_{rec.path.name}_o{rf.observer_id}_{rf.frame:06d}"
+        lines = yolo_lines(rf.frame_data.labels, w, h, config.min_box_height_px,
+                           config.max_occlusion)
+        (out / "images" / split / f"{stem}.jpg").write_bytes(encode_jpeg(rf.frame_data.rgb))
+        (out / "labels" / split / f"{stem}.txt").write_text(
+            "".join(f"{ln}\n" for ln in lines), encoding="utf-8")
+        if config.randomize:
+            look_rows.append({"image": f"images/{split}/{stem}.jpg",
+                              **look_for(rf.observer_id, rf.frame).flat()})
+        counts[split]["images"] += 1
+        counts[split]["labels"] += len(lines)
+        counts[split]["background"] += int(not lines)
+        for ln in lines:
+            class_counts[int(ln.split()[0])] += 1
+        if progress is not None:
+            progress()
+    return {"counts": counts, "class_counts": class_counts, "looks": look_rows}
 
 
 def _write_looks(out: Path, rows: list[dict], seed: int) -> dict:
