@@ -71,3 +71,26 @@ def test_one_epoch_trains_resumes_and_exports(tmp_path):
     assert det.names == DETECTION_CLASSES
     raw = det.run_raw(np.zeros((2, 384, 640, 3), np.uint8))
     assert raw.shape == (2, 19, 80 * 48 + 40 * 24 + 20 * 12)
+
+
+def test_loading_processes_give_the_same_weights_and_val_every_skips_epochs(tmp_path):
+    """--workers only moves the loading into other processes: each image's augmentation
+    draws from its own generator, so 0 and 2 workers train the same weights. With
+    val_every, only every n-th epoch and the last are scored (log.jsonl, best.pt)."""
+    from dashtraj.train.detector_recipes import get_recipe
+    from dashtraj.train.detector_train import train
+
+    data = tmp_path / "set"
+    _tiny_set(data)
+    recipe = replace(get_recipe("gpu"), batch=2, warmup=2, val_images=2, val_every=3,
+                     threads=1)
+    runs = {}
+    for w in (0, 2):
+        run = tmp_path / f"run{w}"
+        s = train(data, run, recipe, seed=0, epochs=2, log=lambda m: None, workers=w)
+        assert s["epochs"] == 2 and s["steps"] == 4
+        runs[w] = torch.load(run / "last.pt", weights_only=False)
+        assert [json.loads(x)["epoch"] for x in (run / "log.jsonl").read_text().splitlines()] \
+            == [2]
+    for k, v in runs[0]["model"].items():
+        assert torch.equal(v, runs[2]["model"][k]), k

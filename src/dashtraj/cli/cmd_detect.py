@@ -10,8 +10,10 @@ from pathlib import Path
 
 from dashtraj.cli._args import fraction, int_at_least, positive_float, seed
 from dashtraj.outputs import add_output_args
+from dashtraj.train.detector_recipes import RECIPES
 
 positive_int = int_at_least(1)
+non_negative_int = int_at_least(0)
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp")
 
 
@@ -51,14 +53,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "Train the EfficientNet-Lite0 detector on a set made by 'dashtraj "
             "detection-dataset'. Writes DIR/last.pt (every 50 steps; a rerun resumes from "
             "it), DIR/best.pt (best validation mAP50-95), DIR/log.jsonl, DIR/steps.jsonl, "
-            "DIR/curves.png, DIR/recipe.json. Recipes: cpu (the shipped weights, 2 CPU "
-            "cores) and paper (the paper's schedule, for a GPU)."
+            "DIR/curves.png, DIR/recipe.json. Recipes: cpu (2 CPU cores), gpu (whole "
+            "frames, the whole backbone trained; for a GPU) and paper (the paper's "
+            "schedule, for a GPU)."
         ),
     )
     t.add_argument("data", metavar="DATA", help="YOLO set folder (data.yaml, images/, labels/)")
     t.add_argument("-o", "--output", required=True, metavar="DIR", help="run folder")
-    t.add_argument("--recipe", choices=("cpu", "paper"), default="cpu",
-                   help="cpu (the shipped weights) or paper (GPU) (default cpu)")
+    t.add_argument("--recipe", choices=tuple(RECIPES), default="cpu",
+                   help="cpu, gpu or paper (default cpu)")
     t.add_argument("--seed", type=seed, default=0, help="seed (default 0)")
     t.add_argument("--epochs", type=positive_int, default=None,
                    help="override the recipe's epoch count")
@@ -67,6 +70,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    "budget; a rerun without it resumes to the end)")
     t.add_argument("--max-images", type=positive_int, default=None,
                    help="use only the first N images of each split (smoke tests)")
+    t.add_argument("--workers", type=non_negative_int, default=0,
+                   help="data-loading processes (default 0: in the training process; the "
+                   "same batches for any count)")
     t.add_argument("--json", action="store_true", help="print the summary as JSON")
     t.set_defaults(func=run_train)
 
@@ -104,7 +110,8 @@ def run_train(args: argparse.Namespace) -> int:
 
     Path(args.output).mkdir(parents=True, exist_ok=True)
     s = train(args.data, args.output, recipe, seed=args.seed, epochs=args.epochs,
-              max_images=args.max_images, stop_after=args.stop_after_epoch, log=log)
+              max_images=args.max_images, stop_after=args.stop_after_epoch, log=log,
+              workers=args.workers)
     if args.json:
         print(json.dumps(s))
     else:
