@@ -43,7 +43,11 @@ def _sim_config(path) -> dict:
                               "vehicle_classes") if k in c}
 
 
-def _split_counts(set_dir: Path, names) -> dict:
+def _split_counts(set_dir: Path, names, ds: dict) -> dict:
+    """Boxes per class and split, counted in the set's label files; where the set is not
+    on this machine (trained elsewhere), its dataset.json's counts of both splits."""
+    if not (set_dir / "labels").is_dir():
+        return {"train+val": {n: int(ds["class_counts"].get(n, 0)) for n in names}}
     out = {}
     for split in ("train", "val"):
         counts = [0] * len(names)
@@ -66,6 +70,12 @@ def main(argv=None) -> int:
     ap.add_argument("--external", type=Path, default=None,
                     help="eval.json of 'detector eval-external' on real CARLA frames")
     ap.add_argument("--hardware-note", default="2 CPU cores, shared with other jobs; no GPU")
+    ap.add_argument("--render-note", default="",
+                    help="how the set's images were rendered, where not by Mesa's llvmpipe")
+    ap.add_argument("--determinism-note", default=(
+        "same seed and thread count give the same weights on a CPU (torch's CPU kernels are "
+        "deterministic for a fixed thread count); a resumed run repeats the data order and "
+        "augmentation draws exactly"))
     args = ap.parse_args(argv)
 
     from dashtraj.cli.cmd_detect import format_table
@@ -118,7 +128,7 @@ def main(argv=None) -> int:
                  "val_recordings": _recordings(ds["val"]),
                  "simulate": _sim_config(ds["recordings"][0]),
                  "dataset_config": ds["config"], "counts": ds["counts"],
-                 "class_counts": _split_counts(args.dataset, names)},
+                 "class_counts": _split_counts(args.dataset, names, ds)},
         "heldout_eval": {k: ev[k] for k in ev if k not in ("recordings",)}
         | {"recordings": _recordings(ev["recordings"])},
         "note": args.note,
@@ -133,13 +143,27 @@ def main(argv=None) -> int:
     (args.out / "MODEL.json").write_text(json.dumps(card, indent=1) + "\n", encoding="utf-8")
     t = card["training"]
     cc = card["data"]["class_counts"]
-    rows = "\n".join(f"| {n} | {cc['train'][n]} | {cc['val'][n]} |" for n in names)
+    cols = list(cc)
+    rows = "\n".join(f"| {n} | " + " | ".join(str(cc[c][n]) for c in cols) + " |"
+                     for n in names)
     dcfg = card["data"]["dataset_config"]
     looks = ("**domain-randomized**: every image drew its own weather, sun, scene colours, "
              "textures and camera effects (`--randomize --randomize-seed "
              f"{dcfg.get('randomize_seed', 0)}`; the ranges are in the set's dataset.json, "
              "the draws in its looks.parquet)" if dcfg.get("randomize")
              else "in the renderer's default look (no domain randomization)")
+    r = recipe["recipe"]
+    lo, hi = r["scale"]
+    if r.get("crop"):
+        augmentation = (f"Random rescale (x{lo:g}-{hi:g}) and {r['crop'][1]}x{r['crop'][0]} "
+                        f"crops (centred on a labelled vehicle {r['focus_p']:.0%} of the "
+                        "time),")
+    else:
+        augmentation = (f"Whole frames letterboxed to {r['imgsz'][1]}x{r['imgsz'][0]}, "
+                        f"rescaled by a random factor in x{lo:g}-{hi:g} (cut or padded),")
+    # the CPUs of the machine writing the card, which is the training one only by default
+    cpus = (f"; {card['hardware']['cpu_count']} CPUs visible"
+            if args.hardware_note == ap.get_default("hardware_note") else "")
     external = ""
     if ext is not None:
         from dashtraj.cli.cmd_detect import format_external_table
@@ -182,21 +206,21 @@ Rendered by `dashtraj detection-dataset` (640x360 JPEG, every {card['data']['dat
 occlusion <= {card['data']['dataset_config']['max_occlusion']}), {looks}, from recordings of
 `dashtraj simulate {' '.join(f'--{k} {v}' for k, v in card['data']['simulate'].items())}`
 (balanced mix: every class an equal share of the vehicles, buses capped at the catalog's two
-liveries). Split by recording.
+liveries). Split by recording.{(' ' + args.render_note) if args.render_note else ''}
 
 - train recordings (town: seeds): {json.dumps(card['data']['train_recordings'])}
 - val recordings: {json.dumps(card['data']['val_recordings'])}
 - images: train {ds['counts']['train']['images']}, val {ds['counts']['val']['images']}
 
-| class | train boxes | val boxes |
-|---|---|---|
+| class | {' | '.join(f'{c} boxes' for c in cols)} |
+|---|{'---|' * len(cols)}
 {rows}
 
 Held out for the evaluation below (never trained on): seeds 900-901 of town01, town10 and
 CARLA's Town01, and CARLA's **Town10HD** (a town never used in training).
 
 ## Augmentation
-Random rescale (x0.6-1.25) and 320x192 crops (centred on a labelled vehicle 4 times in 5),
+{augmentation}
 brightness/contrast/saturation jitter. **No flips**, following the paper ("such augmentation
 will produce images with incorrect labels"): a horizontal flip keeps the 15 labels (`side`
 does not say left or right) but turns right-hand traffic into left-hand traffic, so oncoming
@@ -210,10 +234,8 @@ Recipe `{recipe['recipe']['name']}`: `{json.dumps(recipe['recipe'])}`
 (`make weights` runs the whole pipeline: recordings, set, training, export, eval.)
 Progress: {t['steps_done']} of {t['steps_planned']} planned steps, {t['epochs_done']} full
 epochs; wall time of the run so far {(t['wall_s'] or 0) / 60:.0f} min.
-Hardware: {card['hardware']['note']}; {card['hardware']['cpu_count']} CPUs visible.
-Determinism: same seed and thread count give the same weights on a CPU (torch's CPU kernels
-are deterministic for a fixed thread count); a resumed run repeats the data order and
-augmentation draws exactly.
+Hardware: {card['hardware']['note']}{cpus}.
+Determinism: {args.determinism_note}.
 
 ## Held-out evaluation (`dashtraj detector eval`, 1280x720 frames)
 {format_table(ev)}

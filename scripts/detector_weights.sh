@@ -4,7 +4,11 @@
 # held-out recordings. Every stage skips work whose output already exists, so a rerun
 # resumes (training resumes from DIR/last.pt).
 #   usage: scripts/detector_weights.sh [WORK_DIR]   (default runs/detector)
-#   env:   DASHTRAJ=path/to/dashtraj  RECIPE=cpu|paper  SEED=0  EPOCHS=(recipe's)
+#   env:   DASHTRAJ=path/to/dashtraj  RECIPE=cpu|gpu|paper  SEED=0  EPOCHS=(recipe's)
+#          WORKERS=1 (render and loading processes)  TRAIN_SEEDS="100 ... 109"
+#          CARD_OUT=src/dashtraj/data/detector (where the model and its card go)
+#   The shipped gpu model (src/dashtraj/data/detector_gpu):
+#          RECIPE=gpu WORKERS=15 TRAIN_SEEDS="$(seq 100 119)" CARD_OUT=src/dashtraj/data/detector_gpu
 #          STOP_AFTER=N (stop after epoch N of the EPOCHS schedule; rerun without it to go on)
 #          CARLA_FRAMES=../shared/carla_frames (scored with eval-external when present)
 set -euo pipefail
@@ -14,17 +18,20 @@ RECIPE=${RECIPE:-cpu}
 SEED=${SEED:-0}
 EPOCHS=${EPOCHS:-}
 STOP_AFTER=${STOP_AFTER:-}
+WORKERS=${WORKERS:-1}
+TRAIN_SEEDS=${TRAIN_SEEDS:-$(seq 100 109)}
+CARD_OUT=${CARD_OUT:-src/dashtraj/data/detector}
 CARLA_FRAMES=${CARLA_FRAMES:-../shared/carla_frames}
 TOWN01_REAL=${TOWN01_REAL:-../shared/maps/carla/Town01.xodr}
 TOWN10_REAL=${TOWN10_REAL:-../shared/maps/carla/Town10HD.xodr}
 mkdir -p "$WORK/recs" "$WORK/heldout"
 SIM=(--duration 45 --no-until-target-arrives --observers 6 --agents 40 --vehicle-mix balanced
      --vehicle-classes car,truck,bus,motorcycle,bicycle -q)
-# training towns: the built-in town01 and town10 and CARLA's real Town01; seeds 100-109
+# training towns: the built-in town01 and town10 and CARLA's real Town01; TRAIN_SEEDS
 train=()
 for town in town01 town10 "$TOWN01_REAL"; do
   tag=$(basename "$town" .xodr)
-  for seed in $(seq 100 109); do
+  for seed in $TRAIN_SEEDS; do
     rec="$WORK/recs/${tag}_s${seed}"
     [ -f "$rec/meta.json" ] && grep -q '"complete": true' "$rec/meta.json" \
       || "$DT" simulate --town "$town" --seed "$seed" "${SIM[@]}" -o "$rec" --overwrite
@@ -44,9 +51,10 @@ for spec in "town01 900" "town10 900" "$TOWN01_REAL 900" "$TOWN10_REAL 900" "$TO
 done
 [ -f "$WORK/dataset/dataset.json" ] \
   || "$DT" detection-dataset "${train[@]}" -o "$WORK/dataset" --every 2.0 --size 640x360 \
-       --seed 0 --randomize --randomize-seed 0 -q
+       --seed 0 --randomize --randomize-seed 0 -q --workers "$WORKERS"
 "$DT" detector train "$WORK/dataset" -o "$WORK/train" --recipe "$RECIPE" --seed "$SEED" \
-  ${EPOCHS:+--epochs "$EPOCHS"} ${STOP_AFTER:+--stop-after-epoch "$STOP_AFTER"}
+  ${EPOCHS:+--epochs "$EPOCHS"} ${STOP_AFTER:+--stop-after-epoch "$STOP_AFTER"} \
+  --workers $(( WORKERS > 1 ? WORKERS - 1 : 0 ))
 "$DT" detector export "$WORK/train/best.pt" -o "$WORK/detector.onnx" --overwrite
 "$DT" detector eval "${held[@]}" --model "$WORK/detector.onnx" --every 8 --plot \
   -o "$WORK/eval" --overwrite -q
@@ -58,4 +66,5 @@ if [ -d "$CARLA_FRAMES/images" ]; then
 fi
 # copy the model into the package with its card (MODEL.md, MODEL.json)
 "${PYTHON:-.venv/bin/python}" scripts/detector_card.py --run "$WORK/train" \
-  --dataset "$WORK/dataset" --onnx "$WORK/detector.onnx" --eval "$WORK/eval/eval.json" "${ext[@]}"
+  --dataset "$WORK/dataset" --onnx "$WORK/detector.onnx" --eval "$WORK/eval/eval.json" "${ext[@]}" \
+  --out "$CARD_OUT"

@@ -101,7 +101,7 @@ class ExperimentConfig:
             `target_sightings`).
         gate: with ``look-alike`` or ``appearance``, the spatio-temporal gate on the
             lane graph.
-        detector: ``vision``: "shipped" (the ONNX detector in the package), "oracle"
+        detector: ``vision``: "shipped" or "gpu" (the ONNX detectors in the package), "oracle"
             or a path to an .onnx model.
         reid_model: ``vision``: the ReID .onnx model (None: the shipped one; its
             calibrated threshold must lie beside it).
@@ -347,12 +347,12 @@ def reconstruct_and_score(road_map, truth, sightings: list, methods, out: Path |
 
 
 def detector_of(name: str) -> str:
-    """The perceive detector of an experiment's `detector` setting ("shipped" → the
-    package's ONNX detector)."""
-    if name == "shipped":
-        from dashtraj.perception.detect import default_model_path
+    """The perceive detector of an experiment's `detector` setting ("shipped", "gpu" → the
+    package's ONNX detectors)."""
+    from dashtraj.perception.detect import SHIPPED_DETECTORS, default_model_path
 
-        return str(default_model_path())
+    if name in SHIPPED_DETECTORS:
+        return str(default_model_path(name))
     return name
 
 

@@ -213,3 +213,42 @@ def test_the_cpu_recipe_is_the_one_the_shipped_model_was_trained_with():
     assert recipe == card["recipe"]
     assert card["epochs_done"] == recipe["epochs"]
     assert card["steps_done"] == card["steps_planned"]
+
+
+def test_the_gpu_model_is_what_its_card_says_and_finds_each_orientation(gl_ctx):
+    """The second shipped detector (`--detector gpu`, data/detector_gpu/): its card names
+    this file (bytes, sha256) and the gpu recipe as `detector train --recipe gpu` runs it;
+    on the built-in world's renders it still finds a car ahead, oncoming and crossing,
+    each with a box of IoU >= 0.5."""
+    from dataclasses import asdict
+
+    from dashtraj.experiments import detector_of
+    from dashtraj.render.scene import Renderer
+    from dashtraj.render.synthetic import STRAIGHT_XODR
+    from dashtraj.roads import RoadMap
+    from dashtraj.train.detector_recipes import get_recipe
+
+    path = default_model_path("gpu")
+    assert detector_of("gpu") == str(path) != detector_of("shipped")
+    assert detector_of("shipped") == str(default_model_path())
+    card = json.loads((path.parent / "MODEL.json").read_text())
+    assert card["bytes"] == path.stat().st_size and card["sha256"] == _sha256(path)
+    recipe = {k: list(v) if isinstance(v, tuple) else v
+              for k, v in asdict(get_recipe("gpu")).items()}
+    assert card["training"]["recipe"] == recipe
+    det = YoloDetector(path, conf=0.25)
+    assert det.names == DETECTION_CLASSES and det.input_hw == (384, 640)
+    r = Renderer(RoadMap.from_string(STRAIGHT_XODR, name="straight"), 1280, 720, 90.0,
+                 ctx=gl_ctx)
+    r.set_look(preset(LOOK))
+    try:
+        frames = {k: r.render(CAM, [(1, _car(), x, y, 0.0, yaw)])
+                  for k, (x, y, yaw) in SCENES.items()}
+    finally:
+        r.release()
+    for expected, frame in frames.items():
+        (lab,) = [lab for lab in frame.labels if lab.visible_pixels > 0]
+        d = det.detect([frame.rgb])[0]
+        assert len(d) >= 1, f"{expected}: no detection"
+        iou = box_iou(d.boxes, np.array([lab.visible_box], float))[:, 0]
+        assert iou.max() >= 0.5, expected

@@ -36,9 +36,10 @@ def add_vision_args(p: argparse.ArgumentParser, default_sightings: str | None = 
                    help="the target's sightings: from pixels with appearance ReID (vision, "
                         "the default); the oracle with --noise; or the camera pipeline "
                         "with the target's tracks picked by true identity (detections)")
-    p.add_argument("--detector", default="shipped", metavar="shipped|oracle|M.onnx",
+    p.add_argument("--detector", default="shipped", metavar="shipped|gpu|oracle|M.onnx",
                    help="vision: the detector (default shipped: the package's ONNX model; "
-                        "oracle: the renderer's exact boxes)")
+                        "gpu: the package's model trained on GPU renders, better on real "
+                        "CARLA frames; oracle: the renderer's exact boxes)")
     p.add_argument("--reid-model", default=None, metavar="M.onnx",
                    help="vision: the ReID model (default: the shipped one)")
     p.add_argument("--reid-threshold", default=None, metavar="FILE",
@@ -64,11 +65,11 @@ def vision_settings(args) -> dict:
     the argument, exit 2, on a bad value)."""
     from dashtraj.render.look import PRESETS
 
-    if args.detector not in ("shipped", "oracle"):
+    if args.detector not in ("shipped", "gpu", "oracle"):
         p = Path(args.detector)
         if p.suffix.lower() != ".onnx" or not p.is_file():
-            raise ArgumentError(f"--detector {args.detector!r}: expected shipped, oracle or an "
-                                "existing .onnx file")
+            raise ArgumentError(f"--detector {args.detector!r}: expected shipped, gpu, oracle "
+                                "or an existing .onnx file")
     if args.reid_model is not None and not Path(args.reid_model).is_file():
         raise ArgumentError(f"--reid-model {args.reid_model!r}: no such file")
     if args.reid_threshold is not None and not Path(args.reid_threshold).is_file():

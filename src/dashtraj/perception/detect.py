@@ -35,9 +35,17 @@ class DetectorError(DashtrajError):
     """A model or names file that cannot be used; the message names the file."""
 
 
-def default_model_path() -> Path:
-    """The shipped detector: ``dashtraj/data/detector/detector.onnx``."""
-    return Path(__file__).resolve().parent.parent / "data" / "detector" / "detector.onnx"
+SHIPPED_DETECTORS = {"shipped": "detector", "gpu": "detector_gpu"}
+"""The package's detectors by name, each ``dashtraj/data/<folder>/detector.onnx`` with its
+card (MODEL.md): ``shipped`` (the default; cpu recipe on Mesa llvmpipe renders, the
+built-in world's renderer) and ``gpu`` (gpu recipe on renders of NVIDIA's OpenGL: better
+on real CARLA frames, worse on the built-in world's renders)."""
+
+
+def default_model_path(name: str = "shipped") -> Path:
+    """A shipped detector's ONNX file (``SHIPPED_DETECTORS``; default the default one)."""
+    return (Path(__file__).resolve().parent.parent / "data" / SHIPPED_DETECTORS[name]
+            / "detector.onnx")
 
 
 # ----------------------------------------------------------------------------- letterbox
