@@ -106,6 +106,8 @@ results: $(STAMP)
 
 # Reproduce the shipped detector (src/dashtraj/data/detector/): recordings, YOLO set, cpu-recipe
 # training (resumes), ONNX export, held-out eval; hours on 2 CPU cores. WORK=runs/detector.
+# The second shipped model (data/detector_gpu, --detector gpu), on a GPU machine: make weights
+# RECIPE=gpu WORKERS=15 TRAIN_SEEDS="$(seq 100 119)" CARD_OUT=src/dashtraj/data/detector_gpu
 weights: $(STAMP)
 	$(PY) -c 'import torch' 2>/dev/null || $(PY) -m pip install -q torch==2.13.0
 	$(PY) -m pip install -q -e '.[train]'

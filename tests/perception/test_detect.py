@@ -75,6 +75,9 @@ def test_nms_matches_brute_force(seed):
     classes = rng.integers(0, 3, n)
     keep = nms(boxes, scores, 0.5, classes)
     assert keep.tolist() == _nms_reference(boxes, scores, 0.5, classes)
+    # max_keep stops early with the first boxes of the full answer
+    for k in (1, 5, len(keep), len(keep) + 3):
+        assert nms(boxes, scores, 0.5, classes, max_keep=k).tolist() == keep[:k].tolist()
     # class-agnostic: a subset of the class-aware result, pairwise below the threshold
     agn = nms(boxes, scores, 0.5)
     ov = box_iou(boxes[agn], boxes[agn])

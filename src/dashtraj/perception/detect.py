@@ -124,17 +124,19 @@ def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def nms(boxes: np.ndarray, scores: np.ndarray, iou: float,
-        classes: np.ndarray | None = None) -> np.ndarray:
+        classes: np.ndarray | None = None, max_keep: int | None = None) -> np.ndarray:
     """Greedy NMS: indices of the kept boxes, best score first.
 
     A box is dropped when it overlaps a kept, higher-scoring box *of the same class*
     (``classes`` given) or of any class (None) by IoU > ``iou``. Ties in score keep the
-    lower index first (stable order).
+    lower index first (stable order). ``max_keep``: stop once that many are kept (the
+    first ``max_keep`` of the full answer; an early model scored at conf 0.001 has
+    thousands of candidates that suppress few others, and the loop would visit each).
     """
     boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
     order = np.argsort(-np.asarray(scores, np.float64), kind="stable")
     keep = []
-    while len(order):
+    while len(order) and (max_keep is None or len(keep) < max_keep):
         i = order[0]
         keep.append(i)
         rest = order[1:]
@@ -178,7 +180,7 @@ def postprocess(raw: np.ndarray, conf: float = DEFAULT_MIN_SCORE, iou: float = 0
             sel = sel[np.argsort(-score[sel], kind="stable")[:max_candidates]]
         cx, cy, w, h = r[0, sel], r[1, sel], r[2, sel], r[3, sel]
         boxes = np.stack([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2], 1)
-        keep = nms(boxes, score[sel], iou, cls[sel])[:max_det]
+        keep = nms(boxes, score[sel], iou, cls[sel], max_keep=max_det)
         out.append(np.concatenate([boxes[keep], score[sel][keep, None],
                                    cls[sel][keep, None].astype(np.float64)], 1)
                    .astype(np.float64).reshape(-1, 6))

@@ -60,7 +60,7 @@ RECIPES = {
     "cpu": Recipe(),
     # a GPU's: whole letterboxed frames (4x the pixels of a cpu crop) at the cpu recipe's
     # scale range, the whole backbone trained, batch 32 (load with --workers); validated
-    # after the last epoch only (scoring an early model at conf 0.001 took minutes)
+    # after the last epoch only (the one run of it had a budget of minutes)
     "gpu": Recipe(name="gpu", crop=None, epochs=6, batch=32, lr=1.5e-3, lr_final=1.5e-5,
                   warmup=300, freeze_blocks=0, val_images=200, threads=4, val_every=1000),
     "paper": Recipe(name="paper", crop=None, scale=(0.9, 1.1), epochs=110, batch=16,
