@@ -7,10 +7,10 @@
 #   env:   DASHTRAJ=path/to/dashtraj  RECIPE=cpu|gpu|paper  SEED=0  EPOCHS=(recipe's)
 #          WORKERS=1 (render and loading processes)  TRAIN_SEEDS="100 ... 109"
 #          CARD_OUT=src/dashtraj/data/detector (where the model and its card go)
-#   The shipped gpu model (src/dashtraj/data/detector_gpu):
-#          RECIPE=gpu WORKERS=15 TRAIN_SEEDS="$(seq 100 119)" CARD_OUT=src/dashtraj/data/detector_gpu
 #          STOP_AFTER=N (stop after epoch N of the EPOCHS schedule; rerun without it to go on)
 #          CARLA_FRAMES=../shared/carla_frames (scored with eval-external when present)
+#   The shipped gpu model (src/dashtraj/data/detector_gpu):
+#          RECIPE=gpu WORKERS=15 TRAIN_SEEDS="$(seq 100 119)" CARD_OUT=src/dashtraj/data/detector_gpu
 set -euo pipefail
 WORK=${1:-runs/detector}
 DT=${DASHTRAJ:-.venv/bin/dashtraj}

@@ -199,17 +199,21 @@ def test_detect_cli_writes_yolo_labels_and_previews(tmp_path, capsys):
         assert len(err) == 1 and err[0].startswith("dashtraj: error:"), err
 
 
-def test_the_cpu_recipe_is_the_one_the_shipped_model_was_trained_with():
-    """`make weights` trains `detector train --recipe cpu` with no overrides: the recipe must
-    be the one the shipped model's card records (it once said 3 epochs while the model had
-    been trained for 20), or the command would not reproduce the model it ships."""
+def _recipe_as_in_card(name: str) -> dict:
+    """A training recipe as a model card's JSON holds it (tuples as lists)."""
     from dataclasses import asdict
 
     from dashtraj.train.detector_recipes import get_recipe
 
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(get_recipe(name)).items()}
+
+
+def test_the_cpu_recipe_is_the_one_the_shipped_model_was_trained_with():
+    """`make weights` trains `detector train --recipe cpu` with no overrides: the recipe must
+    be the one the shipped model's card records (it once said 3 epochs while the model had
+    been trained for 20), or the command would not reproduce the model it ships."""
     card = json.loads(MODEL_CARD.read_text())["training"]
-    recipe = {k: list(v) if isinstance(v, tuple) else v
-              for k, v in asdict(get_recipe("cpu")).items()}
+    recipe = _recipe_as_in_card("cpu")
     assert recipe == card["recipe"]
     assert card["epochs_done"] == recipe["epochs"]
     assert card["steps_done"] == card["steps_planned"]
@@ -220,22 +224,17 @@ def test_the_gpu_model_is_what_its_card_says_and_finds_each_orientation(gl_ctx):
     this file (bytes, sha256) and the gpu recipe as `detector train --recipe gpu` runs it;
     on the built-in world's renders it still finds a car ahead, oncoming and crossing,
     each with a box of IoU >= 0.5."""
-    from dataclasses import asdict
-
     from dashtraj.experiments import detector_of
     from dashtraj.render.scene import Renderer
     from dashtraj.render.synthetic import STRAIGHT_XODR
     from dashtraj.roads import RoadMap
-    from dashtraj.train.detector_recipes import get_recipe
 
     path = default_model_path("gpu")
     assert detector_of("gpu") == str(path) != detector_of("shipped")
     assert detector_of("shipped") == str(default_model_path())
     card = json.loads((path.parent / "MODEL.json").read_text())
     assert card["bytes"] == path.stat().st_size and card["sha256"] == _sha256(path)
-    recipe = {k: list(v) if isinstance(v, tuple) else v
-              for k, v in asdict(get_recipe("gpu")).items()}
-    assert card["training"]["recipe"] == recipe
+    assert card["training"]["recipe"] == _recipe_as_in_card("gpu")
     det = YoloDetector(path, conf=0.25)
     assert det.names == DETECTION_CLASSES and det.input_hw == (384, 640)
     r = Renderer(RoadMap.from_string(STRAIGHT_XODR, name="straight"), 1280, 720, 90.0,

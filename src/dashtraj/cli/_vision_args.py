@@ -63,12 +63,14 @@ def add_vision_args(p: argparse.ArgumentParser, default_sightings: str | None = 
 def vision_settings(args) -> dict:
     """ExperimentConfig keyword arguments of the vision options, checked (one line naming
     the argument, exit 2, on a bad value)."""
+    from dashtraj.perception.detect import SHIPPED_DETECTORS
     from dashtraj.render.look import PRESETS
 
-    if args.detector not in ("shipped", "gpu", "oracle"):
+    names = (*SHIPPED_DETECTORS, "oracle")
+    if args.detector not in names:
         p = Path(args.detector)
         if p.suffix.lower() != ".onnx" or not p.is_file():
-            raise ArgumentError(f"--detector {args.detector!r}: expected shipped, gpu, oracle "
+            raise ArgumentError(f"--detector {args.detector!r}: expected {', '.join(names)} "
                                 "or an existing .onnx file")
     if args.reid_model is not None and not Path(args.reid_model).is_file():
         raise ArgumentError(f"--reid-model {args.reid_model!r}: no such file")
