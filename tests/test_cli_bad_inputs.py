@@ -351,6 +351,8 @@ CASES: list[tuple[str, list[str], str]] = [
      "argument --epochs: expected an integer >= 1"),
     ("reid-eval-threads", ["reid", "eval", "--data", "{OUT_DIR}", "--threads", "0"],
      "argument --threads: expected an integer >= 1"),
+    ("reid-eval-rerank-lambda", ["reid", "eval", "--data", "{OUT_DIR}", "--rerank-lambda", "2"],
+     "argument --rerank-lambda: expected a number in [0, 1]"),
     # --- reid embed / query on a sightings database
     ("reid-embed-missing-db", ["reid", "embed", "{MISSING}.db"], "does not exist"),
     ("reid-embed-not-a-db", ["reid", "embed", "{GARBAGE_XODR}"], "is not a sightings database"),

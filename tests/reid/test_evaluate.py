@@ -135,3 +135,33 @@ def test_cli_flip_reports_it_and_scores_like_the_library(tmp_path, capsys):
     ref = evaluate_features(e.embed(q.paths), e.embed(g.paths), q, g)
     assert out["flip"] is True and out["queries"] == 2
     assert out["map"] == pytest.approx(ref["map"]) and out["rank1"] == ref["rank1"]
+
+
+def test_cli_rerank_reports_both_and_scores_like_the_library(tmp_path, capsys):
+    """`reid eval --rerank` scores the re-ranked distances, names its parameters and keeps
+    the figures without re-ranking beside them."""
+    import json
+
+    from PIL import Image
+
+    from dashtraj.reid.embed import ReidEmbedder
+    from dashtraj.reid.evaluate import evaluate_features
+
+    rng = np.random.default_rng(4)
+    for sub, names in (("image_query", ["0001_c001_a.jpg", "0002_c001_b.jpg"]),
+                       ("image_test", ["0001_c002_c.jpg", "0002_c002_d.jpg", "0001_c003_f.jpg",
+                                       "0003_c003_e.jpg"])):
+        (tmp_path / sub).mkdir()
+        for n in names:
+            Image.fromarray(rng.integers(0, 255, (40, 60, 3), np.uint8)).save(tmp_path / sub / n)
+    assert main(["reid", "eval", "--data", str(tmp_path), "--rerank", "--rerank-k1", "2",
+                 "--rerank-k2", "1", "--json", "--threads", "1"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    q, g = open_veri(tmp_path)
+    e = ReidEmbedder(threads=1)
+    qf, gf = e.embed(q.paths), e.embed(g.paths)
+    rr = evaluate_features(qf, gf, q, g, rerank={"k1": 2, "k2": 1, "lambda_value": 0.3})
+    plain = evaluate_features(qf, gf, q, g)
+    assert out["rerank"] == {"k1": 2, "k2": 1, "lambda_value": 0.3}
+    assert out["map"] == pytest.approx(rr["map"]) and out["rank1"] == rr["rank1"]
+    assert out["without_rerank"]["map"] == pytest.approx(plain["map"])

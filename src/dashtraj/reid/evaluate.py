@@ -159,8 +159,19 @@ def evaluate_rank(distmat: np.ndarray, q_pids, g_pids, q_camids, g_camids,
             "rank10": float(cmc[min(9, max_rank - 1)]), "queries": n, "skipped": skipped}
 
 
-def evaluate_features(qf, gf, q: VeriSplit, g: VeriSplit, normalize: bool = True) -> dict:
-    """``evaluate_rank`` on the squared L2 distances of (optionally L2-normalised) features."""
+def evaluate_features(qf, gf, q: VeriSplit, g: VeriSplit, normalize: bool = True,
+                      rerank: dict | None = None) -> dict:
+    """``evaluate_rank`` on the squared L2 distances of (optionally L2-normalised) features.
+
+    ``rerank``: None, or the keyword arguments (``k1``, ``k2``, ``lambda_value``) of
+    ``dashtraj.reid.rerank.k_reciprocal_rerank``, which then re-ranks the distances (it
+    sees every query and gallery image; VeRi's same-camera rule applies to the result).
+    """
     if normalize:
         qf, gf = l2_normalize(qf), l2_normalize(gf)
-    return evaluate_rank(distance_matrix(qf, gf), q.pids, g.pids, q.camids, g.camids)
+    d = distance_matrix(qf, gf)
+    if rerank is not None:
+        from dashtraj.reid.rerank import k_reciprocal_rerank
+
+        d = k_reciprocal_rerank(d, distance_matrix(qf, qf), distance_matrix(gf, gf), **rerank)
+    return evaluate_rank(d, q.pids, g.pids, q.camids, g.camids)
