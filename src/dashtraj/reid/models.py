@@ -44,14 +44,17 @@ def model_names() -> list[str]:
     return list(MODEL_NAMES)
 
 
-def build_model(name: str, num_classes: int, pretrained: bool = True) -> ReidNet:
+def build_model(name: str, num_classes: int, pretrained: bool = True,
+                frozen_blocks: int | None = None) -> ReidNet:
     """A ReID network by name (see ``model_names()``): random weights, except the
     backbones in ``PRETRAINED``, which start from their ImageNet weights when
-    ``pretrained`` (False when a checkpoint is loaded over them). Imports torch.
+    ``pretrained`` (False when a checkpoint is loaded over them). ``frozen_blocks``:
+    EfficientNet-Lite0's stem and first blocks kept frozen (None: its default, 5; other
+    backbones train every layer and refuse a value). Imports torch.
 
     Raises:
         UnknownModelError (a KeyError): the name is not registered; lists the valid names.
-        ValueError: num_classes < 1.
+        ValueError: num_classes < 1, or frozen_blocks for a backbone without it.
     """
     if name not in MODEL_NAMES:
         raise UnknownModelError(f"unknown ReID model {name!r}; valid names: "
@@ -60,7 +63,10 @@ def build_model(name: str, num_classes: int, pretrained: bool = True) -> ReidNet
         raise ValueError(f"num_classes must be >= 1, got {num_classes}")
     from dashtraj.train.reid_nets import BACKBONES, ReidNet
 
-    body, channels = BACKBONES[name]()
+    if frozen_blocks is not None and name != "efficientnet_lite0":
+        raise ValueError(f"frozen_blocks applies to efficientnet_lite0 only, not {name}")
+    body, channels = (BACKBONES[name]() if frozen_blocks is None
+                      else BACKBONES[name](frozen_blocks=frozen_blocks))
     net = ReidNet(body, channels, num_classes)
     if pretrained and name in PRETRAINED:
         body.load_pretrained()

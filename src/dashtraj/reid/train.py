@@ -23,7 +23,11 @@ smoothing 0.1) + batch-hard triplet on batches of 16 identities × 4 images, 4 e
 (≈ 218k images: ≈ 1 h at the 60 img/s of one idle thread; 79 min measured on the 2-core
 machine with other jobs beside it). ``cpu_osnet`` is the earlier from-scratch recipe:
 ``osnet_x0_25`` at 128 × 128, Adam 2e-3, half an epoch of warm-up, cosine, batch 64,
-6 epochs (≈ 1.5 h at 65 img/s).
+6 epochs (≈ 1.5 h at 65 img/s). ``gpu`` is the ``cpu`` recipe's network and input for a
+GPU: every layer trained (``frozen_blocks=0``), batches of 32 identities × 4 images, Adam
+1e-3 with one epoch of warm-up and cosine decay, 30 epochs; the shipped embedding's size
+and speed stay. A run trains on the GPU when torch sees one (``device``), on the CPU
+otherwise.
 
 Determinism: batches and augmentation come from ``numpy.random.default_rng([seed,
 epoch])`` and weights from ``torch.manual_seed(seed)``; on the CPU with the same thread
@@ -68,6 +72,8 @@ class Recipe:
         channels_last: NHWC memory layout (1.5–2× faster on this CPU).
         flip: random horizontal flip. translate: random shift, fraction of the size.
         checkpoint_every: steps between checkpoints.
+        frozen_blocks: EfficientNet-Lite0's first blocks kept at their ImageNet weights
+            (``dashtraj.train.reid_nets.Lite0Trunk``); None: the backbone's default (5).
     """
 
     name: str
@@ -89,6 +95,7 @@ class Recipe:
     flip: bool = True
     translate: float = 0.0625
     checkpoint_every: int = 100
+    frozen_blocks: int | None = None
 
 
 RECIPES = {
@@ -99,7 +106,41 @@ RECIPES = {
     "paper": Recipe(name="paper", model="osnet_x1_0", height=256, width=256, epochs=60,
                     batch_size=32, lr=3e-4, schedule="step", warmup_epochs=0.0,
                     milestones=(20, 40)),
+    "gpu": Recipe(name="gpu", model="efficientnet_lite0", height=128, width=128, epochs=30,
+                  batch_size=128, lr=1e-3, schedule="cosine", warmup_epochs=1.0, triplet=True,
+                  frozen_blocks=0, checkpoint_every=500),
 }
+"""Training recipes by name (module docstring)."""
+
+
+def _same_recipe(old: dict, recipe: Recipe) -> bool:
+    """Whether a run.json recipe is ``recipe`` (fields added since that run was written
+    count as equal when ``recipe`` keeps their defaults)."""
+    new = json.loads(json.dumps(asdict(recipe)))
+    defaults = json.loads(json.dumps(asdict(Recipe(name="", model="", height=1, width=1,
+                                                   epochs=1, batch_size=1, lr=1.0))))
+    return all(old.get(k, defaults[k]) == v for k, v in new.items()) and set(old) <= set(new)
+
+
+def resolve_device(device: str | None = None):
+    """The torch device of a run: ``None`` or "auto" = the first GPU when torch sees one,
+    else the CPU; "cpu", "cuda" or "cuda:N" as given.
+
+    Raises TrainError: a name torch does not know, or CUDA asked for where there is none.
+    """
+    import torch
+
+    if device in (None, "auto"):
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        d = torch.device(device)
+    except (RuntimeError, TypeError):
+        raise TrainError(f"--device {device!r}: expected auto, cpu, cuda or cuda:N") from None
+    if d.type not in ("cpu", "cuda"):
+        raise TrainError(f"--device {device!r}: expected auto, cpu, cuda or cuda:N")
+    if d.type == "cuda" and not torch.cuda.is_available():
+        raise TrainError(f"--device {device}: torch sees no CUDA device here")
+    return d
 
 
 def lr_at(recipe: Recipe, epoch_f: float) -> float:
@@ -207,25 +248,33 @@ def augment(images: np.ndarray, recipe: Recipe, rng: np.random.Generator) -> np.
     return out
 
 
-def _to_tensor(batch: np.ndarray, channels_last: bool):
+def _to_tensor(batch: np.ndarray, channels_last: bool, device=None):
+    """(N, H, W, 3) uint8 → normalised (N, 3, H, W) float32 on ``device`` (None: the CPU);
+    the bytes travel as uint8 and are normalised there."""
     import torch
 
-    x = torch.from_numpy(np.array(batch, np.uint8)).permute(0, 3, 1, 2).float().div_(255.0)
-    mean = torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1)
-    std = torch.tensor(IMAGENET_STD).view(1, 3, 1, 1)
+    x = torch.from_numpy(np.array(batch, np.uint8))
+    if device is not None and torch.device(device).type != "cpu":
+        x = x.pin_memory().to(device, non_blocking=True)
+    x = x.permute(0, 3, 1, 2).float().div_(255.0)
+    mean = torch.tensor(IMAGENET_MEAN, device=x.device).view(1, 3, 1, 1)
+    std = torch.tensor(IMAGENET_STD, device=x.device).view(1, 3, 1, 1)
     x = (x - mean) / std
     return x.contiguous(memory_format=torch.channels_last) if channels_last else x.contiguous()
 
 
-def embed_array(model, images: np.ndarray, channels_last: bool, batch: int = 128) -> np.ndarray:
-    """Embeddings (N, 512) float32 of (N, H, W, 3) uint8 images with a torch model (eval)."""
+def embed_array(model, images: np.ndarray, channels_last: bool, batch: int = 128,
+                device=None) -> np.ndarray:
+    """Embeddings (N, 512) float32 of (N, H, W, 3) uint8 images with a torch model (eval)
+    on ``device`` (None: the CPU)."""
     import torch
 
     model.eval()
     out = []
     with torch.inference_mode():
         for i in range(0, len(images), batch):
-            out.append(model(_to_tensor(images[i:i + batch], channels_last)).float().numpy())
+            x = _to_tensor(images[i:i + batch], channels_last, device)
+            out.append(model(x).float().cpu().numpy())
     return np.concatenate(out) if out else np.zeros((0, 512), np.float32)
 
 
@@ -296,7 +345,7 @@ def plot_curves(history: list[dict], path: Path) -> None:
 def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
           resume: bool = False, overwrite: bool = False, max_hours: float | None = None,
           threads: int | None = None, command: str | None = None, init: str | Path | None = None,
-          extra_train: tuple[str, ...] = (), log=print) -> dict:
+          extra_train: tuple[str, ...] = (), device: str | None = None, log=print) -> dict:
     """Train (or resume) a run; returns the final run summary (also in run.json).
 
     Args:
@@ -312,9 +361,13 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
         extra_train: more training folders of DATA (e.g. ``image_train_moving`` from
             ``dashtraj reid moving-train``), their images added to ``image_train``'s; every
             identity in them must be one of ``image_train``'s (the classes stay those).
+        device: "auto" or None (a GPU when torch sees one), "cpu", "cuda", "cuda:N"
+            (``resolve_device``). On a GPU cuDNN picks its fastest kernels and TF32
+            matrix products are allowed: runs repeat only approximately there.
 
     Raises:
-        TrainError: bad data folder, run folder conflicts, resume of a different run.
+        TrainError: bad data folder, run folder conflicts, resume of a different run,
+            an unusable device.
     """
     import torch
     import torch.nn.functional as F
@@ -327,6 +380,11 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
             return None
     if threads:
         torch.set_num_threads(threads)
+    dev = resolve_device(device)
+    if dev.type == "cuda":
+        torch.backends.cudnn.benchmark = True  # one input size: tune once
+        torch.backends.cuda.matmul.allow_tf32 = True
+        torch.backends.cudnn.allow_tf32 = True
     if not (data / "image_train").is_dir():
         raise TrainError(f"{data}: no image_train/ (a VeRi-layout folder from "
                          "'dashtraj reid-dataset' or VeRi-776 itself)")
@@ -396,12 +454,12 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
                 "command": command, "num_classes": len(pids), "train_images": len(labels),
                 "class_pids": pids, "torch": torch.__version__,
                 "init": str(Path(init).resolve()) if init else None,
-                "threads": torch.get_num_threads()}
+                "threads": torch.get_num_threads(), "device": str(dev)}
     if extra_train:
         run_info["extra_train"] = list(extra_train)
     if resume:
         old = json.loads((out / "run.json").read_text())
-        if old["recipe"] != json.loads(json.dumps(asdict(recipe))) or old["seed"] != seed:
+        if not _same_recipe(old["recipe"], recipe) or old["seed"] != seed:
             raise TrainError(f"--resume: {out}/run.json has another recipe or seed "
                              f"({old['recipe']['name']}, seed {old['seed']})")
         if old.get("extra_train", []) != list(extra_train):
@@ -425,9 +483,9 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
                  for q, s in val_sets.items()}
 
     torch.manual_seed(seed)
-    model = build_model(recipe.model, len(pids))
-    if recipe.channels_last:
-        model = model.to(memory_format=torch.channels_last)
+    model = build_model(recipe.model, len(pids), frozen_blocks=recipe.frozen_blocks)
+    model = model.to(dev, memory_format=torch.channels_last if recipe.channels_last
+                     else torch.preserve_format)
     opt = torch.optim.Adam(model.parameters(), lr=recipe.lr, weight_decay=recipe.weight_decay)
     state = {"epoch": 0, "step_in_epoch": 0, "global_step": 0, "history": [],
              "best": None, "wall_s": 0.0}
@@ -440,11 +498,14 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
         opt.load_state_dict(ck["optimizer"])
         state = ck["state"]
         torch.set_rng_state(ck["torch_rng"])
+        if dev.type == "cuda" and ck.get("cuda_rng") is not None:
+            torch.cuda.set_rng_state_all(ck["cuda_rng"])
         log(f"resumed {out} at epoch {state['epoch']} step {state['step_in_epoch']}")
 
     def checkpoint():
         _save_atomic({"model": model.state_dict(), "optimizer": opt.state_dict(),
                       "state": state, "torch_rng": torch.get_rng_state(),
+                      "cuda_rng": torch.cuda.get_rng_state_all() if dev.type == "cuda" else None,
                       "recipe": asdict(recipe), "num_classes": len(pids)}, ckpt_path)
 
     logf = open(out / "log.jsonl", "a", encoding="utf-8")
@@ -465,8 +526,8 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
                     g["lr"] = lr
                 idx = np.sort(batches[s])
                 rng = np.random.default_rng([seed, ep, s, 7])
-                xb = _to_tensor(augment(x_train[idx], recipe, rng), recipe.channels_last)
-                yb = torch.from_numpy(labels[idx])
+                xb = _to_tensor(augment(x_train[idx], recipe, rng), recipe.channels_last, dev)
+                yb = torch.from_numpy(labels[idx]).to(dev)
                 logits, feats = model(xb, return_features=True)
                 loss = F.cross_entropy(logits, yb, label_smoothing=recipe.label_smoothing)
                 if recipe.triplet:
@@ -506,9 +567,9 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
             rec = {"epoch": ep + 1, "loss": tot[0] / max(tot[2], 1),
                    "train_acc": tot[1] / max(tot[2], 1), "wall_s": state["wall_s"], "val": {}}
             if gallery is not None:
-                gf = embed_array(model, x_gal, recipe.channels_last)
+                gf = embed_array(model, x_gal, recipe.channels_last, device=dev)
                 for q, split in val_sets.items():
-                    qf = embed_array(model, x_val[q], recipe.channels_last)
+                    qf = embed_array(model, x_val[q], recipe.channels_last, device=dev)
                     r = evaluate_features(qf, gf, split, gallery)
                     rec["val"][q] = {k: r[k] for k in ("rank1", "rank5", "rank10", "map",
                                                        "minp", "queries")}

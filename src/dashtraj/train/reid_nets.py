@@ -357,7 +357,8 @@ class Lite0Trunk(nn.Module):
             gives an 8 × 8 map instead of 4 × 4, at about twice the training cost here.
         frozen_blocks: the stem and this many first blocks keep their ImageNet weights and
             BatchNorm statistics in training (5: everything up to stride 8, 40 channels;
-            the high-resolution layers that cost most of the backward pass on a CPU).
+            the high-resolution layers that cost most of the backward pass on a CPU; 0:
+            nothing frozen, the stem included).
     """
 
     def __init__(self, last_stride: int = 2, frozen_blocks: int = 5):
@@ -380,6 +381,8 @@ class Lite0Trunk(nn.Module):
 
     def _frozen(self) -> list[nn.Module]:
         t = self.trunk
+        if self.frozen_blocks <= 0:
+            return []
         return [t._conv_stem, t._bn0, *t._blocks[:self.frozen_blocks]]
 
     def train(self, mode: bool = True):
@@ -414,7 +417,7 @@ class Lite0Trunk(nn.Module):
 # ---------------------------------------------------------------------------------------------
 # registry
 
-BACKBONES: dict[str, Callable[[], tuple[nn.Module, int]]] = {
+BACKBONES: dict[str, Callable[..., tuple[nn.Module, int]]] = {
     "osnet_x1_0": lambda: _osnet((64, 256, 384, 512)),
     "osnet_x0_75": lambda: _osnet((48, 192, 288, 384)),
     "osnet_x0_5": lambda: _osnet((32, 128, 192, 256)),
@@ -424,5 +427,5 @@ BACKBONES: dict[str, Callable[[], tuple[nn.Module, int]]] = {
     "resnet50": lambda: _resnet((3, 4, 6, 3)),
     "resnet152": lambda: _resnet((3, 8, 36, 3)),
     "inceptionv4": _inceptionv4,
-    "efficientnet_lite0": lambda: (Lite0Trunk(), 1280),
+    "efficientnet_lite0": lambda **kw: (Lite0Trunk(**kw), 1280),
 }
