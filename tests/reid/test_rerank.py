@@ -41,6 +41,15 @@ def test_lambda_one_without_expansion_keeps_the_original_order():
                                   np.argsort(d.astype(np.float32), 1, kind="stable"))
 
 
+def test_expansion_wider_than_the_neighbourhood():
+    """k2 > k1 + 1 (the query expansion reaches past the k-reciprocal neighbourhood)."""
+    q, g, ids = _clusters(seed=3, ids=20)
+    d = distance_matrix(q, g)
+    out = k_reciprocal_rerank(d, distance_matrix(q, q), distance_matrix(g, g), k1=2, k2=6)
+    assert out.shape == d.shape and np.isfinite(out).all()
+    assert evaluate_rank(out, *ids)["rank1"] > 0.5
+
+
 def test_same_input_same_bytes():
     q, g, _ = _clusters(seed=2, ids=20)
     args = (distance_matrix(q, g), distance_matrix(q, q), distance_matrix(g, g))

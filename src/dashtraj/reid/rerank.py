@@ -88,7 +88,7 @@ def k_reciprocal_rerank(q_g: np.ndarray, q_q: np.ndarray, g_g: np.ndarray, k1: i
     d = np.square(np.block([[q_q, q_g], [q_g.T, g_g]])).astype(np.float32)
     d /= np.maximum(d.max(axis=0), np.finfo(np.float32).tiny)
     d = np.ascontiguousarray(d.T)  # row i: image i's distances over column maxima
-    rank = _top_k(d, k1 + 1)
+    rank = _top_k(d, max(k1 + 1, k2))
     recip = _reciprocal_sets(rank, k1)
     half = int(np.around(k1 / 2.0))
     recip_half = [set(r.tolist()) for r in _reciprocal_sets(rank, half)]
