@@ -331,3 +331,13 @@ def test_device_choice_and_old_runs_resume(tmp_path):
     rj.write_text(json.dumps(info))
     train(tmp_path / "data", tmp_path / "a", _recipe(1), seed=3, threads=1, resume=True,
           log=None)
+
+
+def test_gpu_recipe_with_another_backbone_freezes_nothing():
+    """--recipe gpu --model osnet_x0_25: frozen blocks are Lite0's, so the field drops."""
+    from dashtraj.reid.train import recipe_for
+
+    r = recipe_for("gpu", "osnet_x0_25")
+    assert r.frozen_blocks is None and r.model == "osnet_x0_25"
+    build_model(r.model, 6, frozen_blocks=r.frozen_blocks)  # builds, no ValueError
+    assert recipe_for("gpu").frozen_blocks == 0

@@ -67,3 +67,13 @@ def test_bad_parameters_are_refused(kw, match):
 def test_mismatched_shapes_are_refused():
     with pytest.raises(ValueError, match="do not fit"):
         k_reciprocal_rerank(np.ones((2, 3)), np.ones((3, 3)), np.ones((3, 3)))
+
+
+def test_too_many_images_is_a_clean_error(monkeypatch):
+    """Past MAX_IMAGES the dense matrix is refused with a DashtrajError (exit 2 in the CLI)."""
+    from dashtraj.errors import DashtrajError
+    from dashtraj.reid import rerank
+
+    monkeypatch.setattr(rerank, "MAX_IMAGES", 4)
+    with pytest.raises(DashtrajError, match="at most 4"):
+        k_reciprocal_rerank(np.ones((2, 3)), np.ones((2, 2)), np.ones((3, 3)))

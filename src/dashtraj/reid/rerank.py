@@ -26,6 +26,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from dashtraj.errors import DashtrajError
+
+
+class RerankError(DashtrajError, ValueError):
+    """Inputs re-ranking cannot take (the message names them)."""
+
+
 MAX_IMAGES = 30_000
 """Largest queries + gallery accepted (the dense distance matrix is 4 N² bytes: 3.6 GB)."""
 
@@ -68,23 +75,23 @@ def k_reciprocal_rerank(q_g: np.ndarray, q_q: np.ndarray, g_g: np.ndarray, k1: i
         (n_query, n_gallery) float32 distances; smaller is more similar.
 
     Raises:
-        ValueError: shapes that do not fit together, k1 < 1, k2 < 1, λ outside [0, 1], or
-            more than ``MAX_IMAGES`` images.
+        RerankError (a ValueError): shapes that do not fit together, k1 < 1, k2 < 1, λ
+            outside [0, 1], or more than ``MAX_IMAGES`` images.
     """
     from scipy import sparse
 
     q_g, q_q, g_g = (np.asarray(a, np.float64) for a in (q_g, q_q, g_g))
     nq, ng = q_g.shape
     if q_q.shape != (nq, nq) or g_g.shape != (ng, ng):
-        raise ValueError(f"distance matrices do not fit: query-gallery {q_g.shape}, "
-                         f"query-query {q_q.shape}, gallery-gallery {g_g.shape}")
+        raise RerankError(f"distance matrices do not fit: query-gallery {q_g.shape}, "
+                          f"query-query {q_q.shape}, gallery-gallery {g_g.shape}")
     if k1 < 1 or k2 < 1 or not 0.0 <= lambda_value <= 1.0:
-        raise ValueError(f"re-ranking needs k1 ≥ 1, k2 ≥ 1 and 0 ≤ λ ≤ 1 (got k1={k1}, "
-                         f"k2={k2}, λ={lambda_value})")
+        raise RerankError(f"re-ranking needs k1 ≥ 1, k2 ≥ 1 and 0 ≤ λ ≤ 1 (got k1={k1}, "
+                          f"k2={k2}, λ={lambda_value})")
     n = nq + ng
     if n > MAX_IMAGES:
-        raise ValueError(f"re-ranking {n} images needs a {n} x {n} distance matrix; at most "
-                         f"{MAX_IMAGES} are accepted")
+        raise RerankError(f"--rerank: {n} query and gallery images need a {n} x {n} distance "
+                          f"matrix; at most {MAX_IMAGES} are accepted")
     d = np.square(np.block([[q_q, q_g], [q_g.T, g_g]])).astype(np.float32)
     d /= np.maximum(d.max(axis=0), np.finfo(np.float32).tiny)
     d = np.ascontiguousarray(d.T)  # row i: image i's distances over column maxima

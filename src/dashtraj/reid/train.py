@@ -615,7 +615,9 @@ def recipe_for(name: str, model: str | None = None, **overrides) -> Recipe:
 
         if model not in model_names():
             raise TrainError(f"--model {model!r}: valid names: {', '.join(model_names())}")
-        r = replace(r, model=model)
+        # frozen blocks are EfficientNet-Lite0's; another backbone trains every layer
+        r = replace(r, model=model,
+                    frozen_blocks=r.frozen_blocks if model == "efficientnet_lite0" else None)
     return replace(r, **{k: v for k, v in overrides.items() if v is not None})
 
 
