@@ -99,7 +99,7 @@ def k_reciprocal_rerank(q_g: np.ndarray, q_q: np.ndarray, g_g: np.ndarray, k1: i
     recip = _reciprocal_sets(rank, k1)
     half = int(np.around(k1 / 2.0))
     recip_half = [set(r.tolist()) for r in _reciprocal_sets(rank, half)]
-    rows, cols, vals = [], [], []
+    cols, vals = [], []
     for i in range(n):
         r = recip[i]
         own = set(r.tolist())
@@ -110,11 +110,11 @@ def k_reciprocal_rerank(q_g: np.ndarray, q_q: np.ndarray, g_g: np.ndarray, k1: i
                 expanded |= cand
         idx = np.fromiter(sorted(expanded), np.int64, len(expanded))
         w = np.exp(-d[i, idx])
-        rows.append(np.full(len(idx), i, np.int64))
         cols.append(idx)
         vals.append(w / w.sum())
-    v = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                          shape=(n, n), dtype=np.float64)
+    indptr = np.concatenate([[0], np.cumsum([len(c) for c in cols])])
+    v = sparse.csr_matrix((np.concatenate(vals), np.concatenate(cols), indptr), shape=(n, n),
+                          dtype=np.float64)
     if k2 > 1:  # local query expansion: the mean of V over the k2 nearest images
         kk = min(k2, n)
         avg = sparse.csr_matrix((np.full(n * kk, 1.0 / kk), rank[:, :kk].ravel(),

@@ -43,7 +43,7 @@ import math
 import os
 import sys
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import MISSING, asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -117,9 +117,11 @@ def _same_recipe(old: dict, recipe: Recipe) -> bool:
     """Whether a run.json recipe is ``recipe`` (fields added since that run was written
     count as equal when ``recipe`` keeps their defaults)."""
     new = json.loads(json.dumps(asdict(recipe)))
-    defaults = json.loads(json.dumps(asdict(Recipe(name="", model="", height=1, width=1,
-                                                   epochs=1, batch_size=1, lr=1.0))))
-    return all(old.get(k, defaults[k]) == v for k, v in new.items()) and set(old) <= set(new)
+    defaults = json.loads(json.dumps({f.name: f.default for f in fields(Recipe)
+                                      if f.default is not MISSING}))
+    return (set(old) <= set(new)
+            and all(old[k] == v if k in old else k in defaults and defaults[k] == v
+                    for k, v in new.items()))
 
 
 def resolve_device(device: str | None = None):
