@@ -150,3 +150,47 @@ def test_visible_falls_back_to_a_full_scan_when_boxes_miss_pixels():
         counts, vboxes = _visible(inst, vs, boxes)
         assert counts.tolist() == [72, 18]
         assert vboxes == [(20, 10, 29, 18), (3, 2, 9, 5)]
+
+
+def test_hull_vertices_project_like_every_vertex(pair):
+    """``vehicle_boxes`` with the meshes' hull rows: the same points' hull, the same
+    bounds and boxes as projecting every vertex, for vehicles in front of the camera,
+    crossing its near plane (cameras inside and just behind vehicles) and behind it."""
+    from dashtraj.render.labels import ConvexHull, vehicle_boxes
+    from dashtraj.render.scene import as_instances, place
+
+    r = pair[0]
+    rng = np.random.default_rng(11)
+    crossing = 0
+    for k in range(12):
+        cam, vs = random_scene(rng, 10)
+        if k % 3 == 0:  # the camera inside the first vehicle, looking along it
+            _, ident, x, y, z, yaw = vs[0]
+            cam = (x - 0.5, y, 1.2, yaw, 0.0, 0.0)
+        insts = as_instances(vs)
+        rows = [r._mesh_rows(v) for v in insts]
+        counts = np.array([len(m[1]) for m in rows])
+        starts = np.concatenate([[0], np.cumsum(counts)])
+        world = np.concatenate([
+            np.column_stack(place(v.x, v.y, v.z, np.cos(np.radians(v.yaw_deg)),
+                                  np.sin(np.radians(v.yaw_deg)), m[1][:, :3].astype(np.float64)))
+            for v, m in zip(insts, rows, strict=True)])  # fmt: skip
+        hull = np.concatenate([m[2] + s for m, s in zip(rows, starts[:-1], strict=True)])
+        assert len(hull) < 0.25 * len(world)
+        full = vehicle_boxes(r, cam, world, starts)
+        fast = vehicle_boxes(r, cam, world, starts, hull)
+        np.testing.assert_array_equal(fast.boxes, full.boxes)
+        np.testing.assert_array_equal(fast.lo, full.lo)
+        np.testing.assert_array_equal(fast.hi, full.hi)
+        np.testing.assert_array_equal(fast.has, full.has)
+        for i in range(len(vs)):
+            a = full.uv[full.offsets[i] : full.offsets[i + 1]]
+            b = fast.uv[fast.offsets[i] : fast.offsets[i + 1]]
+            if len(a) != len(b):  # hull vertices only: the same 2-D hull
+                assert len(b) < len(a)
+                ha, hb = ConvexHull(a), ConvexHull(b)
+                assert hb.volume == pytest.approx(ha.volume, rel=1e-9)
+            else:  # clipped whole, as before (or empty: behind the camera)
+                crossing += len(a) > 0
+                np.testing.assert_array_equal(a, b)
+    assert crossing >= 4

@@ -146,13 +146,33 @@ def clipped_projection(
             own = np.concatenate([own, owner[cross]])
             order = np.argsort(own, kind="stable")
             pts, own = pts[order], own[order]
+    return _project(pts, k), np.searchsorted(own, np.arange(n + 1))
+
+
+def _project(pts: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """(P, 2) pixels of (P, 3) OpenCV camera points in front of the camera."""
     uv = np.empty((len(pts), 2))
     for j in (0, 1):  # (f * x) / z + c, in this order
         np.multiply(pts[:, j], k[j, j], out=uv[:, j])
         uv[:, j] /= pts[:, 2]
         uv[:, j] += k[j, 2]
-    offsets = np.searchsorted(own, np.arange(n + 1))
-    return uv, offsets
+    return uv
+
+
+def hull_rows(positions: np.ndarray) -> np.ndarray:
+    """Sorted rows of a mesh's (3T, 3) vertex list that are the vertices of its 3-D
+    convex hull (one row per hull vertex); every row when the hull is degenerate.
+
+    The projection of a mesh lying in front of the camera has the same convex hull and
+    the same pixel bounds as the projection of these rows (a central projection maps
+    the hull onto the hull, and its u and v are extreme at hull vertices)."""
+    pts = np.asarray(positions, np.float64)
+    uniq, first = np.unique(pts, axis=0, return_index=True)
+    try:
+        vertices = ConvexHull(uniq).vertices
+    except (QhullError, ValueError):  # flat or too few points
+        return np.arange(len(pts))
+    return np.sort(first[vertices])
 
 
 def _poly_area(p: np.ndarray) -> float:
@@ -223,18 +243,26 @@ class VehicleProjection:
 
 
 def vehicle_boxes(
-    renderer, camera_pose, world: np.ndarray, starts: np.ndarray
+    renderer, camera_pose, world: np.ndarray, starts: np.ndarray, hull: np.ndarray | None = None
 ) -> VehicleProjection:
     """Project every vehicle's vertices (``world`` (3T, 3), vehicle i owning rows
     starts[i]:starts[i + 1]) and bound its pixels: every pixel a vehicle can cover
-    lies in its box (the rasterizer only covers pixel centres inside its triangles)."""
+    lies in its box (the rasterizer only covers pixel centres inside its triangles).
+
+    ``hull`` (sorted rows of ``world``, ``hull_rows`` of each vehicle's mesh): a
+    vehicle wholly in front of the near plane is projected by its hull vertices only
+    (the same hull and bounds, a tenth of the points); one that crosses the plane is
+    clipped and projected whole, as without ``hull``."""
     from dashtraj.render.scene import NEAR_M, world_to_opencv
 
     n = len(starts) - 1
     w, h = renderer.width, renderer.height
     m = world_to_opencv(camera_pose)
     owner = np.repeat(np.arange(n), np.diff(starts))
-    uv, off = clipped_projection(world, owner, n, m, renderer.k, NEAR_M)
+    if hull is None:
+        uv, off = clipped_projection(world, owner, n, m, renderer.k, NEAR_M)
+    else:
+        uv, off = _hull_projection(world, owner, hull, n, m, renderer.k, NEAR_M)
     has = off[1:] > off[:-1]
     lo = np.full((n, 2), np.nan)
     hi = np.full((n, 2), np.nan)
@@ -252,6 +280,24 @@ def vehicle_boxes(
         ]
     )
     return VehicleProjection(uv, off, lo, hi, has, boxes)
+
+
+def _hull_projection(world, owner, hull, n, m, k, near):
+    """``clipped_projection``'s (uv, offsets) with the hull vertices alone standing for
+    each vehicle that lies wholly in front of the near plane (``vehicle_boxes``)."""
+    own_h = owner[hull]
+    c = world[hull] @ m[:3, :3].T + m[:3, 3]
+    crossing = np.zeros(n, bool)
+    crossing[own_h[c[:, 2] < near]] = True  # its nearest vertex is a hull vertex
+    if not crossing.any():  # the usual case
+        return _project(c, k), np.searchsorted(own_h, np.arange(n + 1))
+    front = ~crossing[own_h]
+    rows = crossing[owner]
+    uv_c, off_c = clipped_projection(world[rows], owner[rows], n, m, k, near)
+    own = np.concatenate([own_h[front], np.repeat(np.arange(n), np.diff(off_c))])
+    order = np.argsort(own, kind="stable")
+    uv = np.concatenate([_project(c[front], k), uv_c])[order]
+    return uv, np.searchsorted(own[order], np.arange(n + 1))
 
 
 def _visible(instance: np.ndarray, vehicles, boxes: np.ndarray):

@@ -380,7 +380,7 @@ class Renderer:
         self._caster_draws: dict[tuple, list] = {}
         self._caster_boxes: dict[tuple, np.ndarray] = {}
         self._shadow_rows: dict[tuple, np.ndarray] = {}
-        self._vdata: dict[int, tuple[Mesh, np.ndarray]] = {}
+        self._vdata: dict[int, tuple[Mesh, np.ndarray, np.ndarray]] = {}
         self._moderngl = moderngl
         self.set_look(look if look is not None else LookConfig())
 
@@ -778,14 +778,18 @@ class Renderer:
             for e, o in zip(self._static, out, strict=True)
         ]
 
-    def _mesh_rows(self, v: VehicleInstance) -> tuple[Mesh, np.ndarray]:
-        """Cached (mesh, (N, 11) float32 model-frame rows) of a vehicle's mesh."""
+    def _mesh_rows(self, v: VehicleInstance) -> tuple[Mesh, np.ndarray, np.ndarray]:
+        """Cached (mesh, (N, 11) float32 model-frame rows, rows of its convex hull's
+        vertices (``labels.hull_rows``)) of a vehicle's mesh."""
+        from dashtraj.render.labels import hull_rows
+
         mesh = vehicle_mesh(v.model, v.rgb)
         hit = self._vdata.get(id(mesh))
         if hit is None or hit[0] is not mesh:
             if len(self._vdata) > 1024:
                 self._vdata.clear()
-            hit = (mesh, mesh.interleaved(0.0))
+            data = mesh.interleaved(0.0)
+            hit = (mesh, data, hull_rows(data[:, :3]))
             self._vdata[id(mesh)] = hit
         return hit
 
@@ -822,6 +826,8 @@ class Renderer:
         rows = [self._mesh_rows(v) for v in vs]
         counts = np.array([len(r[1]) for r in rows], np.int64)
         starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        hull = np.concatenate([r[2] + s0 for r, s0 in zip(rows, starts[:-1].tolist(), strict=True)]
+                              ) if n else None
         ranges = list(zip(starts[:-1].tolist(), counts.tolist(), strict=True))
         if n:
             data = np.concatenate([r[1] for r in rows])
@@ -843,7 +849,7 @@ class Renderer:
         else:
             world = np.zeros((0, 3))
         if labels and n:
-            proj = vehicle_boxes(self, pose, world, starts)
+            proj = vehicle_boxes(self, pose, world, starts, hull)
             drawn = proj.boxes_nonempty()
         else:
             proj = None
@@ -873,7 +879,7 @@ class Renderer:
             region = None  # without depth, ids are only needed where vehicles can be
             if not depth:
                 if proj is None and n:
-                    proj = vehicle_boxes(self, pose, world, starts)
+                    proj = vehicle_boxes(self, pose, world, starts, hull)
                 b = proj.boxes[drawn] if n else np.zeros((0, 4), np.int64)
                 b = b[(b[:, 2] > b[:, 0]) & (b[:, 3] > b[:, 1])]
                 region = (0, 0, 0, 0)
