@@ -175,16 +175,44 @@ def hull_rows(positions: np.ndarray) -> np.ndarray:
     return np.sort(first[vertices])
 
 
-def _poly_area(p: np.ndarray) -> float:
+def _poly_area(p) -> float:
+    """Area of a simple polygon ((P, 2) array or list of (x, y)), shoelace formula."""
     if len(p) < 3:
         return 0.0
-    x, y = p[:, 0], p[:, 1]
-    return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+    pts = p.tolist() if isinstance(p, np.ndarray) else p
+    twice = 0.0
+    x0, y0 = pts[-1]
+    for x1, y1 in pts:
+        twice += x0 * y1 - y0 * x1
+        x0, y0 = x1, y1
+    return 0.5 * abs(twice)
 
 
-def _clip_polygon(poly: np.ndarray, w: float, h: float) -> np.ndarray:
-    """Sutherland–Hodgman clip of a convex polygon (P, 2) to [0, w] × [0, h]."""
-    pts = [(float(x), float(y)) for x, y in np.asarray(poly, np.float64)]
+def _convex_hull(points: list) -> list:
+    """Convex hull of 2-D points (list of (x, y)), counter-clockwise, without collinear
+    points (Andrew's monotone chain); fewer than 3 points when they are collinear."""
+    pts = sorted(set(points))
+    if len(pts) < 3:
+        return pts
+
+    def half(seq):
+        out = []
+        for p in seq:
+            while len(out) >= 2:
+                (ax, ay), (bx, by) = out[-2], out[-1]
+                if (bx - ax) * (p[1] - ay) - (by - ay) * (p[0] - ax) > 0:
+                    break
+                out.pop()
+            out.append(p)
+        return out[:-1]
+
+    return half(pts) + half(reversed(pts))
+
+
+def _clip_polygon(poly, w: float, h: float) -> list:
+    """Sutherland–Hodgman clip of a convex polygon ((P, 2) array or list of (x, y)) to
+    [0, w] × [0, h]: the clipped polygon's vertices, a list of (x, y)."""
+    pts = poly.tolist() if isinstance(poly, np.ndarray) else list(poly)
     for axis, bound, keep_less in ((0, 0.0, False), (0, w, True), (1, 0.0, False), (1, h, True)):
         if not pts:
             break
@@ -199,7 +227,7 @@ def _clip_polygon(poly: np.ndarray, w: float, h: float) -> np.ndarray:
                 t = (bound - p[axis]) / (q[axis] - p[axis])
                 out.append((p[0] + t * (q[0] - p[0]), p[1] + t * (q[1] - p[1])))
         pts = out
-    return np.array(pts, np.float64).reshape(-1, 2)
+    return pts
 
 
 def truncation(uv: np.ndarray, width: int, height: int, lo=None, hi=None) -> float:
@@ -214,9 +242,8 @@ def truncation(uv: np.ndarray, width: int, height: int, lo=None, hi=None) -> flo
         return 0.0
     if hi[0] <= 0 or hi[1] <= 0 or lo[0] >= width or lo[1] >= height:
         return 1.0
-    try:
-        hull = uv[ConvexHull(uv).vertices]
-    except (QhullError, ValueError):  # degenerate (a line or a point)
+    hull = _convex_hull([tuple(p) for p in np.asarray(uv, np.float64).tolist()])
+    if len(hull) < 3:  # degenerate (a line or a point)
         inside = (uv[:, 0] >= 0) & (uv[:, 0] <= width) & (uv[:, 1] >= 0) & (uv[:, 1] <= height)
         return float(1.0 - inside.mean())
     area = _poly_area(hull)
