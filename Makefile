@@ -7,9 +7,10 @@ export MPLBACKEND := Agg
 
 .PHONY: setup demo test lint bench clean weights reid-data reid-train reid-threshold results
 
-$(STAMP): pyproject.toml scripts/install_render_deps.sh
+$(STAMP): pyproject.toml scripts/install_render_deps.sh scripts/fetch_mesa.sh
 	bash scripts/install_render_deps.sh || echo "warning: could not install the EGL/Mesa packages; rendering tests will skip"
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	bash scripts/fetch_mesa.sh $(VENV)/mesa || echo "warning: could not fetch Mesa 25 (faster rendering); the system's Mesa is used"
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[dev]'
 	touch $(STAMP)

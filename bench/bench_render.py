@@ -28,6 +28,13 @@ Geometry (``--no-geometry`` skips it): the same frames without the street clutte
 without the contact shadows under the vehicles (the cost of the new geometry), on the
 straight street and on Town01 when ``../shared/maps/carla`` is there.
 
+Mesa (``--no-mesa`` skips it; only where a private Mesa is installed, ``scripts/fetch_mesa.sh``):
+the default look at 640×360 without MSAA, labels included, timed in alternating child
+processes with the private Mesa (Mesa 25 from Debian bookworm-backports) and with the
+system's (``DASHTRAJ_MESA=system``; Debian 12: Mesa 22.3): the peer is the system's
+rasterizer, same frames, same run. Each round is one process per side (``--mesa-rounds``);
+the figure is the median over rounds of each process's median CPU ms per frame.
+
 Passes (``--no-passes`` skips it): where a frame of the default look goes (640×360, no
 MSAA, labels included), pass by pass (``Renderer.pass_times``: each pass ends with
 ``ctx.finish()``, so llvmpipe's deferred rasterization counts toward the pass that
@@ -40,6 +47,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -81,9 +90,17 @@ def main(argv=None) -> int:
     ap.add_argument("--no-geometry", action="store_true",
                     help="skip the cost of the clutter and the contact shadows")
     ap.add_argument("--no-passes", action="store_true", help="skip the per-pass costs")
+    ap.add_argument("--no-mesa", action="store_true",
+                    help="skip the private Mesa vs the system's Mesa comparison")
+    ap.add_argument("--mesa-rounds", type=int, default=6)
+    ap.add_argument("--time-only", action="store_true",
+                    help="print one JSON line: median CPU ms of the default look at 640x360, "
+                         "no MSAA (the Mesa comparison's child processes)")
     ap.add_argument("--json", type=Path, help="write the results here")
     args = ap.parse_args(argv)
     os.environ["LP_NUM_THREADS"] = str(args.threads)
+    if args.time_only:
+        return time_only(args.frames, args.vehicles, args.threads)
 
     from dashtraj.render.gl import context_info, create_context
     from dashtraj.render.scene import Renderer
@@ -133,6 +150,8 @@ def main(argv=None) -> int:
                 f"p90 {run['ms_p90']:.2f} ms); {n_view}/{args.vehicles} vehicles visible, "
                 f"llvmpipe threads {args.threads}"
             )
+    if not args.no_mesa:
+        results["mesa"] = mesa_costs(args.mesa_rounds, args.frames, args.threads)
     if not args.no_passes:
         results["passes"] = pass_costs(ctx, m, vehicles, args.frames)
     if not args.no_effects:
@@ -142,6 +161,61 @@ def main(argv=None) -> int:
     if args.json:
         args.json.write_text(json.dumps(results, indent=2))
     return 0
+
+
+def time_only(frames: int, n_vehicles: int, threads: int) -> int:
+    """Print {"gl": ..., "cpu_ms_median": ...} of the default look, 640x360, no MSAA."""
+    from dashtraj.render.gl import context_info, create_context
+    from dashtraj.render.scene import Renderer
+    from dashtraj.render.synthetic import STRAIGHT_XODR
+    from dashtraj.roads import RoadMap
+
+    ctx = create_context(threads)
+    m = RoadMap.from_string(STRAIGHT_XODR, name="straight")
+    vehicles = scene_vehicles(n_vehicles, np.random.default_rng(0))
+    r = Renderer(m, 640, 360, 90.0, msaa=0, ctx=ctx)
+    r.render((-95.0, 1.75, 1.6, 0.0, 0.0, 0.0), vehicles)  # warm up
+    cpu = []
+    for i in range(frames):
+        c = time.process_time()
+        r.render((-95.0 + 0.05 * i, 1.75, 1.6, 0.0, 0.0, 0.0), vehicles)
+        cpu.append(time.process_time() - c)
+    print(json.dumps({"gl": context_info(ctx)["GL_VERSION"],
+                      "cpu_ms_median": 1e3 * float(np.median(cpu))}))
+    return 0
+
+
+def mesa_costs(rounds: int, frames: int, threads: int) -> dict | None:
+    """The private Mesa against the system's, in alternating child processes (module
+    docstring); None when no private Mesa is installed."""
+    from dashtraj.render.gl import private_mesa_dir
+
+    d = private_mesa_dir()
+    if d is None:
+        print("mesa: no private Mesa (scripts/fetch_mesa.sh) in use; comparison skipped")
+        return None
+    sides = {"private": str(d), "system": "system"}
+    runs = {k: [] for k in sides}
+    gl = {}
+    for _ in range(rounds):
+        for k, value in sides.items():
+            env = {**os.environ, "DASHTRAJ_MESA": value}
+            env.pop("__EGL_VENDOR_LIBRARY_FILENAMES", None)
+            out = subprocess.run([sys.executable, __file__, "--time-only", "--frames", str(frames),
+                                  "--threads", str(threads)], env=env, check=True,
+                                 capture_output=True, text=True).stdout
+            row = json.loads(out.strip().splitlines()[-1])
+            gl[k] = row["gl"]
+            runs[k].append(row["cpu_ms_median"])
+    med = {k: float(np.median(v)) for k, v in runs.items()}
+    ratio = med["system"] / med["private"]
+    print(f"mesa, 640x360, no MSAA, default look, labels included (CPU ms/frame, one core; "
+          f"{rounds} alternating processes each):")
+    for k in sides:
+        print(f"  {k:8s} {gl[k]:40s} {med[k]:6.2f} ms = {1e3 / med[k]:6.1f} fps  "
+              f"(rounds: {', '.join(f'{x:.2f}' for x in runs[k])})")
+    print(f"  the private Mesa is {ratio:.2f}x the system's speed")
+    return {"gl": gl, "cpu_ms_median": med, "rounds": runs, "speedup_vs_system": ratio}
 
 
 def pass_costs(ctx, road_map, vehicles, frames: int = 60) -> list[dict]:
