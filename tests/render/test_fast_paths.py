@@ -165,7 +165,7 @@ def test_hull_vertices_project_like_every_vertex(pair):
     for k in range(12):
         cam, vs = random_scene(rng, 10)
         if k % 3 == 0:  # the camera inside the first vehicle, looking along it
-            _, ident, x, y, z, yaw = vs[0]
+            _, _, x, y, _, yaw = vs[0]
             cam = (x - 0.5, y, 1.2, yaw, 0.0, 0.0)
         insts = as_instances(vs)
         rows = [r._mesh_rows(v) for v in insts]
