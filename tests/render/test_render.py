@@ -240,20 +240,18 @@ def test_truncation_of_polygons():
     assert truncation(sq - 50.0, 100, 100) == 1.0
 
 
-def test_truncation_against_qhull_and_a_monte_carlo_estimate():
-    """The monotone-chain hull against qhull's (scipy), and the clipped share against
-    a Monte-Carlo estimate of the hull's area outside the image."""
+def test_truncation_against_a_monte_carlo_estimate():
+    """The share of the points' hull outside the image against a Monte-Carlo estimate
+    (the hull's area from the shoelace formula against qhull's own)."""
     from scipy.spatial import ConvexHull, Delaunay
 
-    from dashtraj.render.labels import _convex_hull, _poly_area
+    from dashtraj.render.labels import _poly_area
 
     rng = np.random.default_rng(5)
     for _ in range(20):
         pts = rng.normal(size=(int(rng.integers(3, 200)), 2)) * rng.uniform(20, 200) + 50
-        hull = _convex_hull([tuple(p) for p in pts.tolist()])
         ref = ConvexHull(pts)
-        assert sorted(hull) == sorted(tuple(p) for p in pts[ref.vertices].tolist())
-        assert _poly_area(hull) == pytest.approx(ref.volume, rel=1e-12)
+        assert _poly_area(pts[ref.vertices]) == pytest.approx(ref.volume, rel=1e-12)
         samples = rng.uniform(pts.min(0), pts.max(0), size=(40_000, 2))
         inside_hull = Delaunay(pts[ref.vertices]).find_simplex(samples) >= 0
         in_image = ((samples >= 0) & (samples <= [120, 90])).all(axis=1)

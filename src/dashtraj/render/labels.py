@@ -188,27 +188,6 @@ def _poly_area(p) -> float:
     return 0.5 * abs(twice)
 
 
-def _convex_hull(points: list) -> list:
-    """Convex hull of 2-D points (list of (x, y)), counter-clockwise, without collinear
-    points (Andrew's monotone chain); fewer than 3 points when they are collinear."""
-    pts = sorted(set(points))
-    if len(pts) < 3:
-        return pts
-
-    def half(seq):
-        out = []
-        for p in seq:
-            while len(out) >= 2:
-                (ax, ay), (bx, by) = out[-2], out[-1]
-                if (bx - ax) * (p[1] - ay) - (by - ay) * (p[0] - ax) > 0:
-                    break
-                out.pop()
-            out.append(p)
-        return out[:-1]
-
-    return half(pts) + half(reversed(pts))
-
-
 def _clip_polygon(poly, w: float, h: float) -> list:
     """Sutherland–Hodgman clip of a convex polygon ((P, 2) array or list of (x, y)) to
     [0, w] × [0, h]: the clipped polygon's vertices, a list of (x, y)."""
@@ -242,8 +221,9 @@ def truncation(uv: np.ndarray, width: int, height: int, lo=None, hi=None) -> flo
         return 0.0
     if hi[0] <= 0 or hi[1] <= 0 or lo[0] >= width or lo[1] >= height:
         return 1.0
-    hull = _convex_hull([tuple(p) for p in np.asarray(uv, np.float64).tolist()])
-    if len(hull) < 3:  # degenerate (a line or a point)
+    try:  # qhull, then plain Python on the hull's few vertices (numpy's overhead dominates)
+        hull = np.asarray(uv, np.float64)[ConvexHull(uv).vertices].tolist()
+    except (QhullError, ValueError):  # degenerate (a line or a point)
         inside = (uv[:, 0] >= 0) & (uv[:, 0] <= width) & (uv[:, 1] >= 0) & (uv[:, 1] <= height)
         return float(1.0 - inside.mean())
     area = _poly_area(hull)
