@@ -41,8 +41,10 @@ def test_localization_eval_json_and_scatter(small_run, gl_available, tmp_path, c
     assert main(["localization", "eval", str(small_run.path), "--json", "--plot",
                  str(png), "--track-every", "0.5"]) == 0
     r = json.loads(capsys.readouterr().out)
-    for n in ("paper", "ground", "fused", "tracked", "smoothed"):
+    for n in ("paper", "ground", "fused", "tracked", "smoothed", "mapped"):
         assert {"rmse_lt20_m", "rmse_20_60_m", "median_lt20_m", "n_lt20"} <= set(r[n])
+    assert r["mapped"]["n_lt20"] == r["smoothed"]["n_lt20"]
+    assert r["mapped"]["rmse_lt20_m"] <= r["smoothed"]["rmse_lt20_m"] + 1e-9
     assert r["fused"]["rmse_lt20_m"] < 1.5  # 320 x 180 pixels
     assert r["agnostic_nms"] is None
     assert r["fused"]["rmse_lt20_m"] < r["paper"]["rmse_lt20_m"]

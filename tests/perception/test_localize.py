@@ -253,3 +253,40 @@ def test_smoothed_carries_later_clean_boxes_back_to_a_track_born_occluded(crossi
     assert np.allclose(err_s[~flagged][-10:], err_f[~flagged][-10:])
     smoothed.reset()
     assert smoothed.smoothed() == []
+
+
+def test_snap_to_lanes_moves_an_off_road_position_along_its_ray():
+    """The straight test road: driving lanes from y = -7 to 7 m, sidewalks beyond. A car
+    in the far left lane at (-60, -5.25), seen from (-95, 1.75), read 60 m away (its bottom
+    hidden: too far) lands on the sidewalk beyond the road; along its ray the nearest
+    point on a lane (0.25 m inside its outer edge) is 45.9 m away. Positions on a lane,
+    and rays that meet no lane within [0.4 D, 1.6 D + 2], are left alone."""
+    from dashtraj.perception.localize import Localized, snap_to_lanes
+    from dashtraj.roads import RoadMap
+    from render_scene import STRAIGHT_XODR
+
+    road = RoadMap.from_string(STRAIGHT_XODR, name="straight")
+    pose = CameraPose(-95.0, 1.75, 1.6, 0.0)
+    bearing = np.degrees(np.arctan2(-7.0, 35.0))
+    dist = np.array([60.0, 35.7, 30.0])  # too far (off road), right, off road and no lane
+    bear = np.array([bearing, bearing, 90.0])
+    x, y = place(pose, dist, bear)
+    loc = Localized(dist, bear, x, y, np.ones(3), np.ones(3, bool), np.zeros(3, np.int64))
+    out = snap_to_lanes(road, pose, loc)
+    lane_edge = (1.75 + 7.25) / np.sin(np.radians(-bearing))  # 45.89 m
+    assert out.distance_m[0] == pytest.approx(lane_edge, abs=0.3)
+    true_d = np.hypot(35.0, 7.0)
+    assert abs(out.distance_m[0] - true_d) < 0.5 * (60.0 - true_d)  # 24.3 m off -> 10.2 m
+    assert out.distance_m[1:].tolist() == dist[1:].tolist()
+    assert (out.x[0], out.y[0]) == pytest.approx(place(pose, out.distance_m[0], bearing))
+    assert out.bearing_deg.tolist() == bear.tolist() and out.sigma_m.tolist() == [1.0] * 3
+
+
+def test_mapped_needs_the_road_map():
+    from dashtraj.perception.localize import MappedLocalizer
+
+    loc = build_localizer("mapped")
+    assert isinstance(loc, MappedLocalizer) and loc.road_map is None
+    loc.localize(np.zeros((0, 4)), np.zeros(0, np.int64), SPEC, CameraPose(0, 0, 1.6, 0), t=0.0)
+    with pytest.raises(LocalizationError, match="road map"):
+        loc.smoothed()

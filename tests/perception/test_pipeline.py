@@ -196,3 +196,24 @@ def test_smoothed_localizer_rewrites_the_positions_when_the_observer_ends(small_
         return float(np.sqrt(np.mean(np.square(e))))
 
     assert rmse(db_) <= rmse(da) + 1e-9
+
+
+def test_mapped_localizer_in_perceive_keeps_smoothed_on_lane_positions(small_run, small_db,
+                                                                       tmp_path):
+    """``mapped`` gets the recording's map in ``perceive``: the same detections as
+    ``smoothed``; positions already on a vehicle lane stay bit for bit, the others move
+    only along their own ray (bearing and camera unchanged)."""
+    from dashtraj.perception.pipeline import PerceiveConfig, perceive
+
+    path, _ = small_db
+    other = tmp_path / "mapped.db"
+    perceive(small_run, other, PerceiveConfig(observers=(1, 3), localizer="mapped"))
+    with SightingsDB.open(other) as a, SightingsDB.open(path) as b:
+        assert a.run_info()["config"]["localizer"] == "mapped"
+        da, db_ = a.detections(), b.detections()
+        assert [(d.observer_id, d.frame, d.idx) for d in da] == \
+            [(d.observer_id, d.frame, d.idx) for d in db_]
+        assert all(abs(p.bearing_deg - q.bearing_deg) < 1e-9 for p, q in zip(da, db_,
+                                                                            strict=True))
+        same = sum(p.x == q.x and p.y == q.y for p, q in zip(da, db_, strict=True))
+        assert same >= 0.9 * len(da)

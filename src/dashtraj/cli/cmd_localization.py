@@ -31,8 +31,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     add_frame_source_args(e, every_s=0.5)
     e.add_argument("--localizers", nargs="+", metavar="NAME",
-                   default=["paper", "ground", "fused", "tracked", "smoothed"],
-                   help="estimators (default all: paper ground fused tracked smoothed)")
+                   default=["paper", "ground", "fused", "tracked", "smoothed", "mapped"],
+                   help="estimators (default all: paper ground fused tracked smoothed mapped)")
     e.add_argument("--track-every", type=positive_float, default=0.1, metavar="S",
                    help="frame period fed to the sequential estimators (tracked, smoothed), scored "
                         "every --every seconds like the others (default 0.1, perceive's)")

@@ -29,7 +29,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "localize them (paper: Eq. 3; ground: bottom edge on the road; fused; tracked: "
             "fused, or the track's ground-plane filter for truncated or occluded boxes; smoothed: "
             "the same filter forward and backward in time, positions rewritten when the "
-            "observer's frames end), map-match "
+            "observer's frames end; mapped: smoothed, and a position beside every lane moved "
+            "along its ray onto the nearest one), map-match "
             "them to waypoints, and write the SQLite sightings database (with the crops of "
             "the detections within the ReID range)."
         ),
@@ -41,7 +42,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_detector_filter_args(p)
     p.add_argument("--tracker", default="ego", help="sort or ego (default ego)")
     p.add_argument("--localizer", default="smoothed",
-                   help="paper, ground, fused, tracked or smoothed (default smoothed)")
+                   help="paper, ground, fused, tracked, smoothed or mapped (default smoothed)")
     p.add_argument("--mu-h", type=positive_float, metavar="PX",
                    help="Eq. 3's calibrated sensor constant (dashtraj localization calibrate)")
     p.add_argument("--every", type=positive_float, default=0.1, metavar="S",

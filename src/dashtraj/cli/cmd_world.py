@@ -89,8 +89,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     s.add_argument("--tracker", choices=("sort", "ego"), default="ego",
                    help="with --detector: the tracker (default ego)")
     s.add_argument("--localizer", default="smoothed",
-                   help="with --detector: paper, ground, fused, tracked or smoothed (default "
-                        "smoothed)")
+                   help="with --detector: paper, ground, fused, tracked, smoothed or mapped "
+                        "(default smoothed)")
     s.add_argument("--noise", choices=("none", "paper"), default="none",
                    help="oracle localization noise: none or paper (default none)")
     s.add_argument("--vehicle", default="target", metavar="ID|target|all",

@@ -206,15 +206,19 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
     """Position and distance errors per estimator, in bands of true distance.
 
     Only detections matched to a vehicle count (all, with the oracle), in the frames every
-    ``every_s`` seconds. A sequential estimator (``tracked``, ``smoothed``) is fed every
+    ``every_s`` seconds. A sequential estimator (``tracked``, ``smoothed``, ``mapped``: the
+    recording's map) is fed every
     frame at ``track_every_s`` (perceive's default period), a new one per observer, and
     scored on the same frames as the others (an offline one, ``smoothed``, once the
-    observer's frames ended). Returns
+    observer's frames ended; ``mapped`` too). Returns
     (summary {estimator: {"rmse_lt20_m", "median_lt20_m", "rmse_20_60_m",
     "median_20_60_m", "dist_rmse_lt20_m", "dist_rmse_20_60_m", "n_lt20", "n_20_60"}},
     samples {"true_m": (N,), estimator: (N,) estimated distance, estimator + "_err":
     (N,) position error}).
     """
+    from dashtraj.perception.localize import NEEDS_MAP
+
+    road_map = None
     locs = {n: build_localizer(n, mu_h) for n in localizers}
     seq = [n for n, loc in locs.items() if getattr(loc, "sequential", False)]
     offline = [n for n in seq if getattr(locs[n], "offline", False)]
@@ -237,6 +241,10 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
     for rec in recordings:
         spec = image_camera(rec, size)
         keys, xs, ys, n_v = _truth_positions(rec)
+        if NEEDS_MAP & set(localizers):
+            from dashtraj.roads import RoadMap
+
+            road_map = RoadMap.from_file(rec.map_path)
         current = None
         index = 0
         for ef in eval_frames(rec, detector, period, size, agnostic_iou=agnostic_iou,
@@ -246,7 +254,7 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
                 flush()
                 current = ef.observer_id
                 index = 0
-                locs.update({n: build_localizer(n, mu_h) for n in seq})
+                locs.update({n: build_localizer(n, mu_h, road_map=road_map) for n in seq})
             seq_out = {n: locs[n].localize(d.boxes, d.class_ids, spec, ef.pose, t=ef.t)
                        for n in seq}  # every frame, all detections: the tracks need them
             index += 1

@@ -51,6 +51,14 @@ Estimators (`LOCALIZERS`, chosen by name with `build_localizer`):
   with its track in both directions; else it takes the two filters' inverse-covariance
   fusion (the other direction alone where one has no history: a track *born* truncated
   or occluded gets its later, clean boxes' evidence carried back).
+- ``mapped``: ``smoothed``, then the road map's word (`MappedLocalizer`, needs the map):
+  a position that lies more than ``trigger_m`` outside every driving, parking and
+  shoulder lane moves along its own ray (the bearing is what a camera measures well) to
+  the nearest distance that lies on one (`snap_to_lanes`). A box whose bottom edge is
+  hidden by something no detector reports (a kerb, a raised sidewalk, a hedge seen from
+  1.6 m) or by a part of another vehicle reads too far with every cue at once (the
+  bottom edge is too high and the box too short), and such a position usually lands
+  beside the road; a vehicle is on one.
 """
 
 from __future__ import annotations
@@ -62,6 +70,7 @@ import numpy as np
 
 from dashtraj.errors import DashtrajError
 from dashtraj.perception.detections import ORIENTATION_OF_CLASS, VEHICLE_CLASS_INDEX
+from dashtraj.roads.types import LaneType
 from dashtraj.world.camera import CameraSpec
 
 CLASS_HEIGHT_M: tuple[float, ...] = (1.6, 3.5, 3.5, 1.45, 1.45)
@@ -83,6 +92,9 @@ paper's way from 51 known distances (the paper got 599.46 for its camera):
 ``dashtraj simulate --town town01 --seed 1 --duration 60 -o cal`` then
 ``dashtraj localization calibrate cal -n 51 --seed 0`` (seed 1 is a calibration seed,
 never an evaluation one)."""
+
+VEHICLE_LANES = LaneType.Driving | LaneType.Parking | LaneType.Shoulder
+"""Lanes a vehicle can stand on (parked cars stand on the shoulder in CARLA's towns)."""
 
 PAPER_SIGMA_REL = 0.20
 GROUND_SIGMA_PX = 1.0
@@ -477,17 +489,72 @@ class SmoothedLocalizer(TrackedLocalizer):
                          np.ones(n, bool), m.evidence)
 
 
+def snap_to_lanes(road_map, pose: CameraPose, loc: Localized, trigger_m: float = 1.0,
+                  margin_m: float = 0.25, near: float = 0.4, far: float = 1.6,
+                  step_m: float = 0.25) -> Localized:
+    """Move each position lying more than ``trigger_m`` outside every vehicle lane
+    (`VEHICLE_LANES`: driving, parking, shoulder) along its ray, bearing kept, to the
+    nearest distance within [``near`` D, ``far`` D + 2 m] (sampled every ``step_m``) whose
+    point lies within ``margin_m`` of such a lane; none there: unchanged. ``sigma_m``,
+    ``valid`` and ``evidence`` are kept."""
+    n = len(loc.x)
+    if n == 0:
+        return loc
+    lanes = road_map.project(np.column_stack([loc.x, loc.y]), VEHICLE_LANES)
+    off = np.flatnonzero(np.abs(lanes.lateral_m) - 0.5 * lanes.lane_width > trigger_m)
+    if len(off) == 0:
+        return loc
+    d = np.asarray(loc.distance_m, np.float64)[off]
+    r0, r1 = np.maximum(1.0, near * d), far * d + 2.0
+    r = r0[:, None] + step_m * np.arange(int(np.ceil((r1 - r0).max() / step_m)) + 1)[None, :]
+    x, y = place(pose, r, np.asarray(loc.bearing_deg, np.float64)[off][:, None])
+    q = road_map.project(np.column_stack([x.ravel(), y.ravel()]), VEHICLE_LANES)
+    on = ((np.abs(q.lateral_m) - 0.5 * q.lane_width).reshape(r.shape) <= margin_m)
+    cost = np.where(on & (r <= r1[:, None]), np.abs(r - d[:, None]), np.inf)
+    best = cost.argmin(axis=1)
+    found = np.isfinite(cost[np.arange(len(off)), best])
+    dist = np.array(loc.distance_m, np.float64)
+    dist[off[found]] = r[found, best[found]]
+    x, y = place(pose, dist, loc.bearing_deg)
+    return Localized(dist, loc.bearing_deg, x, y, loc.sigma_m, loc.valid, loc.evidence)
+
+
+@dataclass
+class MappedLocalizer(SmoothedLocalizer):
+    """``smoothed``, then each smoothed position that lies off every vehicle lane of
+    ``road_map`` moved along its ray onto the nearest one (`snap_to_lanes`). Offline
+    like ``smoothed``; its forward estimates (`localize`) are ``tracked``'s."""
+
+    name: str = "mapped"
+    road_map: object = field(default=None, repr=False)
+    trigger_m: float = 1.0
+
+    def smoothed(self) -> list[Localized]:
+        if self.road_map is None:
+            raise LocalizationError("the mapped localizer needs the road map")
+        out = SmoothedLocalizer.smoothed(self)
+        return [snap_to_lanes(self.road_map, frame[2], o, self.trigger_m)
+                for frame, o in zip(self._frames, out, strict=True)]
+
+
 LOCALIZERS: dict[str, type] = {"paper": PaperLocalizer, "ground": GroundLocalizer,
                                "fused": FusedLocalizer, "tracked": TrackedLocalizer,
-                               "smoothed": SmoothedLocalizer}
+                               "smoothed": SmoothedLocalizer, "mapped": MappedLocalizer}
 """Estimators by name (see the module docstring)."""
 
+NEEDS_MAP = frozenset({"mapped"})
+"""Estimators that take the recording's road map (``build_localizer(..., road_map=)``)."""
 
-def build_localizer(name: str, mu_h: float | None = None):
-    """An estimator by name; ``mu_h`` overrides Eq. 3's constant (paper, fused).
+
+def build_localizer(name: str, mu_h: float | None = None, road_map=None):
+    """An estimator by name; ``mu_h`` overrides Eq. 3's constant (paper, fused); the
+    ``mapped`` estimator takes ``road_map`` (a ``RoadMap``; None: it refuses to smooth).
 
     Raises LocalizationError listing the valid names."""
     if name not in LOCALIZERS:
         raise LocalizationError(f"unknown localizer {name!r}; valid: {', '.join(LOCALIZERS)}")
     cls = LOCALIZERS[name]
-    return cls() if mu_h is None else cls(mu_h=mu_h)
+    kw = {} if mu_h is None else {"mu_h": mu_h}
+    if name in NEEDS_MAP:
+        kw["road_map"] = road_map
+    return cls(**kw)

@@ -56,7 +56,7 @@ class PerceiveConfig:
 
     Attributes:
         detector: "oracle" or a path to an .onnx model. tracker: "sort" or "ego".
-        localizer: "paper", "ground", "fused", "tracked" or "smoothed". mu_h: Eq. 3's
+        localizer: "paper", "ground", "fused", "tracked", "smoothed" or "mapped". mu_h: Eq. 3's
             constant (None: default).
         every_s: frame period, seconds (a multiple of the recording's step).
         size: (W, H) of the rendered images, pixels, or None for the recording's camera.
@@ -166,7 +166,7 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
     detector = build_detector(config.detector, 2 if config.threads is None else config.threads,
                               config.agnostic_nms_iou, config.min_score)
     tracker = build_tracker(config.tracker, spec)
-    localizer = build_localizer(config.localizer, config.mu_h)
+    localizer = build_localizer(config.localizer, config.mu_h, road_map=road_map)
     tstats = _TrackStats()
     mount = recording.config.camera
     batch = Batch(observer_id)
