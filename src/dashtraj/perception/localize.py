@@ -519,22 +519,138 @@ def snap_to_lanes(road_map, pose: CameraPose, loc: Localized, trigger_m: float =
     return Localized(dist, loc.bearing_deg, x, y, loc.sigma_m, loc.valid, loc.evidence)
 
 
+ROOF_FRACTION: tuple[float, ...] = (0.55, 0.95, 0.95, 0.6, 0.6)
+"""Share of a vehicle's length and its width the roof spans (car cabin; truck and bus
+boxes; a rider), per class (car, truck, bus, motorcycle, bicycle)."""
+
+
+def _camera_frame(pose: CameraPose, p: np.ndarray) -> np.ndarray:
+    """(..., 3) CARLA world points → (..., 3) (depth along the optical axis, right, up)."""
+    yaw, pitch = math.radians(pose.yaw_deg), math.radians(pose.pitch_deg)
+    dx, dy, dz = p[..., 0] - pose.x, p[..., 1] - pose.y, p[..., 2] - pose.z
+    fwd = dx * math.cos(yaw) + dy * math.sin(yaw)
+    right = -dx * math.sin(yaw) + dy * math.cos(yaw)
+    return np.stack([fwd * math.cos(pitch) + dz * math.sin(pitch), right,
+                     -fwd * math.sin(pitch) + dz * math.cos(pitch)], axis=-1)
+
+
+def _visible_extent(spec: CameraSpec, a: np.ndarray, b: np.ndarray, near_m: float = 0.3):
+    """Segments a → b ((N, S, 3), camera frame) clipped to the part in front of
+    ``near_m`` and between the image's left and right borders; returns the (N,) min and
+    max column and max and min row over what is left (±inf where nothing is)."""
+    f, w, h = spec.focal_px, spec.width_px, spec.height_px
+    t0, t1 = np.zeros(a.shape[:-1]), np.ones(a.shape[:-1])
+    ok = np.ones(a.shape[:-1], bool)
+    for n, c in (((1.0, 0.0, 0.0), -near_m), ((w / 2, f, 0.0), 0.0), ((w / 2, -f, 0.0), 0.0)):
+        ga, gb = a @ np.asarray(n) + c, b @ np.asarray(n) + c  # inside where >= 0
+        ok &= (ga >= 0) | (gb >= 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = ga / (ga - gb)
+        t0 = np.where((ga < 0) & (gb >= 0), np.maximum(t0, t), t0)
+        t1 = np.where((ga >= 0) & (gb < 0), np.minimum(t1, t), t1)
+    ok &= t1 >= t0
+    ends = np.concatenate([a + t0[..., None] * (b - a), a + t1[..., None] * (b - a)], axis=1)
+    ok = np.concatenate([ok, ok], axis=1)
+    z = np.where(ok, ends[..., 0], 1.0)
+    u = w / 2 + f * ends[..., 1] / z
+    v = h / 2 - f * ends[..., 2] / z
+    return (np.where(ok, u, np.inf).min(1), np.where(ok, u, -np.inf).max(1),
+            np.where(ok, v, -np.inf).max(1), np.where(ok, v, np.inf).min(1))
+
+
+def _model_extent(spec: CameraSpec, pose: CameraPose, cx, cy, yaw_deg, vc: int):
+    """Visible (min column, max column, bottom row, top row) of a class-typical vehicle
+    (body box from its ground clearance, roof, wheel contacts) centred at (cx, cy) on the
+    road, heading ``yaw_deg``, arrays (N,)."""
+    length, width, height = CLASS_LENGTH_M[vc], CLASS_WIDTH_M[vc], CLASS_HEIGHT_M[vc]
+    sx, sy = np.array([1.0, 1.0, -1.0, -1.0]), np.array([1.0, -1.0, -1.0, 1.0])
+    c = np.cos(np.radians(yaw_deg))[:, None]
+    s = np.sin(np.radians(yaw_deg))[:, None]
+    cx, cy = np.asarray(cx)[:, None], np.asarray(cy)[:, None]
+
+    def ring(lx, ly, z):  # four corners (N, 4, 3), world
+        return np.stack([cx + c * lx - s * ly, cy + s * lx + c * ly,
+                         np.broadcast_to(pose.ground_z + z, (len(cx), 4))], axis=-1)
+
+    body = ring(sx * length / 2, sy * width / 2, CLASS_CLEARANCE_M[vc])
+    roof = ring(sx * ROOF_FRACTION[vc] * length / 2, sy * 0.9 * width / 2, height)
+    wheels = ring(sx * CLASS_WHEELBASE_M[vc] / 2, sy * max(width / 2 - 0.15, 0.05), 0.0)
+    a = np.concatenate([body, roof, body, wheels], axis=1)
+    b = np.concatenate([np.roll(body, -1, 1), np.roll(roof, -1, 1), roof, wheels], axis=1)
+    return _visible_extent(spec, _camera_frame(pose, a), _camera_frame(pose, b))
+
+
+def fit_cut_boxes(road_map, spec: CameraSpec, pose: CameraPose, boxes, class_ids,
+                  loc: Localized, radius_m: float = 8.0, step_m: float = 0.5,
+                  prior_m: float = 2.0, prior_rel: float = 0.05) -> Localized:
+    """Re-place each box cut by the left or the right image border (not both) where a
+    class-typical vehicle standing on a lane centre, heading along the lane, would show
+    the same box: its uncut edge column, bottom row (the lowest pixel *inside* the image)
+    and top row (weighted less: heights vary), among the lane-centre points within
+    ``radius_m`` of its current estimate, which also weighs in (σ = ``prior_m`` +
+    ``prior_rel`` × distance). A cut box's centre column is not the vehicle's and its
+    bottom row is wherever the vehicle's near side leaves the image, so the
+    per-detection cues misread it; the lane says how the vehicle stands. Other boxes,
+    and cut boxes no candidate explains, are unchanged."""
+    ev = np.asarray(loc.evidence)
+    cut = (ev & (CUT_LEFT | CUT_RIGHT)) != 0
+    cut &= (ev & (CUT_LEFT | CUT_RIGHT)) != (CUT_LEFT | CUT_RIGHT)
+    if not cut.any():
+        return loc
+    boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+    x, y = np.array(loc.x, np.float64), np.array(loc.y, np.float64)
+    offsets = np.arange(-radius_m, radius_m + 1e-9, step_m)
+    gx, gy = np.meshgrid(offsets, offsets)
+    for i in np.flatnonzero(cut):
+        lanes = road_map.project(np.column_stack([x[i] + gx.ravel(), y[i] + gy.ravel()]),
+                                 VEHICLE_LANES)
+        cand = np.unique(np.round(np.column_stack([lanes.x, lanes.y, lanes.yaw]) * 4.0) / 4.0,
+                         axis=0)
+        vc = int(VEHICLE_CLASS_INDEX[int(class_ids[i])])
+        umin, umax, vbot, vtop = _model_extent(spec, pose, cand[:, 0], cand[:, 1], cand[:, 2], vc)
+        b = boxes[i]
+        w, h = b[2] - b[0], b[3] - b[1]
+        inner, seen = (umax, b[2]) if ev[i] & CUT_LEFT else (umin, b[0])
+        prior = prior_m + prior_rel * math.hypot(x[i] - pose.x, y[i] - pose.y)
+        with np.errstate(invalid="ignore"):
+            cost = (((inner - seen) / (2.0 + 0.05 * w)) ** 2
+                    + ((vbot - b[3]) / (2.0 + 0.03 * h)) ** 2
+                    + ((vtop - b[1]) / (4.0 + 0.15 * h)) ** 2
+                    + (np.hypot(cand[:, 0] - x[i], cand[:, 1] - y[i]) / prior) ** 2)
+        cost = np.where(np.isfinite(cost), cost, np.inf)
+        k = int(np.argmin(cost))
+        if np.isfinite(cost[k]):
+            x[i], y[i] = cand[k, 0], cand[k, 1]
+    dx, dy = x - pose.x, y - pose.y
+    bearing = (np.degrees(np.arctan2(dy, dx)) - pose.yaw_deg + 180.0) % 360.0 - 180.0
+    return Localized(np.hypot(dx, dy), bearing, x, y, loc.sigma_m, loc.valid, loc.evidence)
+
+
 @dataclass
 class MappedLocalizer(SmoothedLocalizer):
-    """``smoothed``, then each smoothed position that lies off every vehicle lane of
-    ``road_map`` moved along its ray onto the nearest one (`snap_to_lanes`). Offline
-    like ``smoothed``; its forward estimates (`localize`) are ``tracked``'s."""
+    """``smoothed``, then the road map's word: each smoothed position that lies off every
+    vehicle lane of ``road_map`` moved along its ray onto the nearest one
+    (`snap_to_lanes`), and each box cut by the left or right image border re-placed where
+    a vehicle on a lane would show that box (`fit_cut_boxes`). Offline like
+    ``smoothed``; its forward estimates (`localize`) are ``tracked``'s."""
 
     name: str = "mapped"
     road_map: object = field(default=None, repr=False)
     trigger_m: float = 1.0
+    fit_cut: bool = True
 
     def smoothed(self) -> list[Localized]:
         if self.road_map is None:
             raise LocalizationError("the mapped localizer needs the road map")
         out = SmoothedLocalizer.smoothed(self)
-        return [snap_to_lanes(self.road_map, frame[2], o, self.trigger_m)
-                for frame, o in zip(self._frames, out, strict=True)]
+        spec = self._tracker.spec if self._tracker is not None else None
+        res = []
+        for (boxes, class_ids, pose, *_), o in zip(self._frames, out, strict=True):
+            o = snap_to_lanes(self.road_map, pose, o, self.trigger_m)
+            if self.fit_cut and spec is not None:
+                o = fit_cut_boxes(self.road_map, spec, pose, boxes, class_ids, o)
+            res.append(o)
+        return res
 
 
 LOCALIZERS: dict[str, type] = {"paper": PaperLocalizer, "ground": GroundLocalizer,
