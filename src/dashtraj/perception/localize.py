@@ -58,7 +58,10 @@ Estimators (`LOCALIZERS`, chosen by name with `build_localizer`):
   hidden by something no detector reports (a kerb, a raised sidewalk, a hedge seen from
   1.6 m) or by a part of another vehicle reads too far with every cue at once (the
   bottom edge is too high and the box too short), and such a position usually lands
-  beside the road; a vehicle is on one.
+  beside the road; a vehicle is on one. Then each box cut by the left or right image
+  border is re-placed where a class-typical vehicle on a nearby lane centre, heading
+  along its lane, would show that box (`fit_cut_boxes`): a cut box's centre column and
+  lowest pixel are not the vehicle's.
 """
 
 from __future__ import annotations
@@ -558,19 +561,19 @@ def _visible_extent(spec: CameraSpec, a: np.ndarray, b: np.ndarray, near_m: floa
             np.where(ok, v, -np.inf).max(1), np.where(ok, v, np.inf).min(1))
 
 
-def _model_extent(spec: CameraSpec, pose: CameraPose, cx, cy, yaw_deg, vc: int):
+def _model_extent(spec: CameraSpec, pose: CameraPose, cx, cy, cz, yaw_deg, vc: int):
     """Visible (min column, max column, bottom row, top row) of a class-typical vehicle
-    (body box from its ground clearance, roof, wheel contacts) centred at (cx, cy) on the
-    road, heading ``yaw_deg``, arrays (N,)."""
+    (body box from its ground clearance, roof, wheel contacts) standing at (cx, cy) on
+    the road at elevation cz, heading ``yaw_deg``, arrays (N,)."""
     length, width, height = CLASS_LENGTH_M[vc], CLASS_WIDTH_M[vc], CLASS_HEIGHT_M[vc]
     sx, sy = np.array([1.0, 1.0, -1.0, -1.0]), np.array([1.0, -1.0, -1.0, 1.0])
     c = np.cos(np.radians(yaw_deg))[:, None]
     s = np.sin(np.radians(yaw_deg))[:, None]
-    cx, cy = np.asarray(cx)[:, None], np.asarray(cy)[:, None]
+    cx, cy, cz = (np.asarray(v, np.float64)[:, None] for v in (cx, cy, cz))
 
     def ring(lx, ly, z):  # four corners (N, 4, 3), world
         return np.stack([cx + c * lx - s * ly, cy + s * lx + c * ly,
-                         np.broadcast_to(pose.ground_z + z, (len(cx), 4))], axis=-1)
+                         np.broadcast_to(cz + z, (len(cx), 4))], axis=-1)
 
     body = ring(sx * length / 2, sy * width / 2, CLASS_CLEARANCE_M[vc])
     roof = ring(sx * ROOF_FRACTION[vc] * length / 2, sy * 0.9 * width / 2, height)
@@ -604,10 +607,12 @@ def fit_cut_boxes(road_map, spec: CameraSpec, pose: CameraPose, boxes, class_ids
     for i in np.flatnonzero(cut):
         lanes = road_map.project(np.column_stack([x[i] + gx.ravel(), y[i] + gy.ravel()]),
                                  VEHICLE_LANES)
-        cand = np.unique(np.round(np.column_stack([lanes.x, lanes.y, lanes.yaw]) * 4.0) / 4.0,
-                         axis=0)
+        pts = np.column_stack([lanes.x, lanes.y, lanes.yaw, lanes.z])
+        _, first = np.unique(np.round(pts[:, :3] * 4.0), axis=0, return_index=True)
+        cand = pts[np.sort(first)]  # one per 0.25 m (and degree) of lane centre
         vc = int(VEHICLE_CLASS_INDEX[int(class_ids[i])])
-        umin, umax, vbot, vtop = _model_extent(spec, pose, cand[:, 0], cand[:, 1], cand[:, 2], vc)
+        umin, umax, vbot, vtop = _model_extent(spec, pose, cand[:, 0], cand[:, 1], cand[:, 3],
+                                               cand[:, 2], vc)
         b = boxes[i]
         w, h = b[2] - b[0], b[3] - b[1]
         inner, seen = (umax, b[2]) if ev[i] & CUT_LEFT else (umin, b[0])
