@@ -194,6 +194,14 @@ def place(pose: CameraPose, distance_m, bearing_deg):
     return pose.x + d * np.cos(ang), pose.y + d * np.sin(ang)
 
 
+def localized_at(pose: CameraPose, x, y, sigma_m, valid, evidence) -> Localized:
+    """`Localized` of world positions (x, y): the inverse of `place` (ground distance from
+    the camera and signed bearing from its yaw, in (-180, 180])."""
+    dx, dy = x - pose.x, y - pose.y
+    bearing = (np.degrees(np.arctan2(dy, dx)) - pose.yaw_deg + 180.0) % 360.0 - 180.0
+    return Localized(np.hypot(dx, dy), bearing, x, y, sigma_m, valid, evidence)
+
+
 def paper_distance(spec: CameraSpec, boxes, class_ids, mu_h: float) -> np.ndarray:
     """Eq. 3: D = H_real f I_H / (μ_h h_px), metres, per box (h_px = box height)."""
     h_real = np.asarray(CLASS_HEIGHT_M)[VEHICLE_CLASS_INDEX[np.asarray(class_ids)]]
@@ -390,10 +398,7 @@ class TrackedLocalizer:
         trust |= ~np.isfinite(tr.innovation_d2)
         x = np.where(trust, m.x, tr.positions[:, 0])
         y = np.where(trust, m.y, tr.positions[:, 1])
-        dx, dy = x - pose.x, y - pose.y
-        bearing = (np.degrees(np.arctan2(dy, dx)) - pose.yaw_deg + 180.0) % 360.0 - 180.0
-        return Localized(np.hypot(dx, dy), bearing, x, y, m.sigma_m, np.ones(n, bool),
-                         m.evidence)
+        return localized_at(pose, x, y, m.sigma_m, np.ones(n, bool), m.evidence)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -486,10 +491,7 @@ class SmoothedLocalizer(TrackedLocalizer):
         only_f = ~trust & b_new & ~f_new
         xy[only_b] = b.xy[only_b]
         xy[only_f] = f.xy[only_f]
-        dx, dy = xy[:, 0] - pose.x, xy[:, 1] - pose.y
-        bearing = (np.degrees(np.arctan2(dy, dx)) - pose.yaw_deg + 180.0) % 360.0 - 180.0
-        return Localized(np.hypot(dx, dy), bearing, xy[:, 0], xy[:, 1], m.sigma_m,
-                         np.ones(n, bool), m.evidence)
+        return localized_at(pose, xy[:, 0], xy[:, 1], m.sigma_m, np.ones(n, bool), m.evidence)
 
 
 def snap_to_lanes(road_map, pose: CameraPose, loc: Localized, trigger_m: float = 1.0,
@@ -626,9 +628,7 @@ def fit_cut_boxes(road_map, spec: CameraSpec, pose: CameraPose, boxes, class_ids
         k = int(np.argmin(cost))
         if np.isfinite(cost[k]):
             x[i], y[i] = cand[k, 0], cand[k, 1]
-    dx, dy = x - pose.x, y - pose.y
-    bearing = (np.degrees(np.arctan2(dy, dx)) - pose.yaw_deg + 180.0) % 360.0 - 180.0
-    return Localized(np.hypot(dx, dy), bearing, x, y, loc.sigma_m, loc.valid, loc.evidence)
+    return localized_at(pose, x, y, loc.sigma_m, loc.valid, loc.evidence)
 
 
 @dataclass

@@ -27,9 +27,8 @@ process then preloads its libraries and points EGL's vendor loader at it, so the
 uses it and the rest of the system keeps its own Mesa. A frame of the default look costs
 about 18 % less CPU than with Debian 12's Mesa 22 (``bench/bench_render.py`` times both in
 one run) and the images are the same but for a few pixels off by one level (labels
-identical). ``DASHTRAJ_MESA=system``
-uses the system's Mesa; ``DASHTRAJ_MESA=DIR`` another such directory. ``private_mesa()``
-says which one a process uses.
+identical). ``DASHTRAJ_MESA=system`` uses the system's Mesa; ``DASHTRAJ_MESA=DIR`` another
+such directory. ``private_mesa()`` says which one a process uses.
 
 Threads, and why setting them often seems to do nothing:
 
