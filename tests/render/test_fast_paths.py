@@ -175,10 +175,12 @@ def test_hull_vertices_project_like_every_vertex(pair):
             np.column_stack(place(v.x, v.y, v.z, np.cos(np.radians(v.yaw_deg)),
                                   np.sin(np.radians(v.yaw_deg)), m[1][:, :3].astype(np.float64)))
             for v, m in zip(insts, rows, strict=True)])  # fmt: skip
-        hull = np.concatenate([m[2] + s for m, s in zip(rows, starts[:-1], strict=True)])
-        assert len(hull) < 0.25 * len(world)
-        full = vehicle_boxes(r, cam, world, starts)
-        fast = vehicle_boxes(r, cam, world, starts, hull)
+        tri = np.concatenate([m[2] + s for m, s in zip(rows, starts[:-1], strict=True)])
+        hull = np.concatenate([m[4] + s for m, s in zip(rows, starts[:-1], strict=True)])
+        assert len(hull) < 0.25 * len(tri)
+        full = vehicle_boxes(r, cam, world[tri], np.concatenate([[0], np.cumsum(
+            [len(m[2]) for m in rows])]))  # the triangle list itself
+        fast = vehicle_boxes(r, cam, world, starts, hull, tri)
         np.testing.assert_array_equal(fast.boxes, full.boxes)
         np.testing.assert_array_equal(fast.lo, full.lo)
         np.testing.assert_array_equal(fast.hi, full.hi)
@@ -194,3 +196,21 @@ def test_hull_vertices_project_like_every_vertex(pair):
                 crossing += len(a) > 0
                 np.testing.assert_array_equal(a, b)
     assert crossing >= 4
+
+
+def test_vehicles_are_drawn_indexed_with_the_same_triangles(pair):
+    """Each vehicle mesh is uploaded once per distinct vertex and drawn through indices
+    that rebuild its triangle list row for row; the silhouette indices share a vertex
+    per position (the silhouette pass reads positions only)."""
+    from dashtraj.render.scene import as_instances
+
+    r = pair[0]
+    for model in MODELS:
+        inst = as_instances([(1, identity(model, (90, 120, 200)), 0.0, 0.0, 0.0, 0.0)])[0]
+        mesh, rows, tri, sil, hull = r._mesh_rows(inst)
+        ref = mesh.interleaved(0.0)
+        assert np.array_equal(rows[tri], ref)
+        assert np.array_equal(rows[sil][:, :3], ref[:, :3])
+        assert len(rows) < 0.7 * len(ref)  # flat-shaded: faces share their corners
+        assert len(np.unique(sil)) < 0.4 * len(ref)
+        assert np.all(np.diff(hull) > 0) and hull[-1] < len(rows)

@@ -250,12 +250,15 @@ class VehicleProjection:
 
 
 def vehicle_boxes(
-    renderer, camera_pose, world: np.ndarray, starts: np.ndarray, hull: np.ndarray | None = None
+    renderer, camera_pose, world: np.ndarray, starts: np.ndarray, hull: np.ndarray | None = None,
+    tri: np.ndarray | None = None,
 ) -> VehicleProjection:
-    """Project every vehicle's vertices (``world`` (3T, 3), vehicle i owning rows
+    """Project every vehicle's vertices (``world`` (V, 3), vehicle i owning rows
     starts[i]:starts[i + 1]) and bound its pixels: every pixel a vehicle can cover
     lies in its box (the rasterizer only covers pixel centres inside its triangles).
 
+    ``tri`` ((3T,) rows of ``world``, vehicle by vehicle): the triangle list, where
+    ``world`` holds each vertex once; without it ``world`` is the triangle list.
     ``hull`` (sorted rows of ``world``, ``hull_rows`` of each vehicle's mesh): a
     vehicle wholly in front of the near plane is projected by its hull vertices only
     (the same hull and bounds, a tenth of the points); one that crosses the plane is
@@ -266,10 +269,12 @@ def vehicle_boxes(
     w, h = renderer.width, renderer.height
     m = world_to_opencv(camera_pose)
     owner = np.repeat(np.arange(n), np.diff(starts))
+    if tri is None:
+        tri = np.arange(len(world))
     if hull is None:
-        uv, off = clipped_projection(world, owner, n, m, renderer.k, NEAR_M)
+        uv, off = clipped_projection(world[tri], owner[tri], n, m, renderer.k, NEAR_M)
     else:
-        uv, off = _hull_projection(world, owner, hull, n, m, renderer.k, NEAR_M)
+        uv, off = _hull_projection(world, owner, hull, n, m, renderer.k, NEAR_M, tri)
     has = off[1:] > off[:-1]
     lo = np.full((n, 2), np.nan)
     hi = np.full((n, 2), np.nan)
@@ -289,9 +294,10 @@ def vehicle_boxes(
     return VehicleProjection(uv, off, lo, hi, has, boxes)
 
 
-def _hull_projection(world, owner, hull, n, m, k, near):
+def _hull_projection(world, owner, hull, n, m, k, near, tri):
     """``clipped_projection``'s (uv, offsets) with the hull vertices alone standing for
-    each vehicle that lies wholly in front of the near plane (``vehicle_boxes``)."""
+    each vehicle that lies wholly in front of the near plane (``vehicle_boxes``; ``tri``:
+    the triangle list as rows of ``world``)."""
     own_h = owner[hull]
     c = world[hull] @ m[:3, :3].T + m[:3, 3]
     crossing = np.zeros(n, bool)
@@ -299,7 +305,7 @@ def _hull_projection(world, owner, hull, n, m, k, near):
     if not crossing.any():  # the usual case
         return _project(c, k), np.searchsorted(own_h, np.arange(n + 1))
     front = ~crossing[own_h]
-    rows = crossing[owner]
+    rows = tri[crossing[owner[tri]]]
     uv_c, off_c = clipped_projection(world[rows], owner[rows], n, m, k, near)
     own = np.concatenate([own_h[front], np.repeat(np.arange(n), np.diff(off_c))])
     order = np.argsort(own, kind="stable")

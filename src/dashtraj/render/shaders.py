@@ -62,8 +62,8 @@ uniform float cloud;
 uniform vec3 cam_pos;
 uniform vec3 wb;
 uniform vec4 gamma_fit;
-uniform float vig_mult;
-uniform float vig_falloff;
+uniform vec4 vig_lo;
+uniform vec4 vig_hi;
 uniform float noise_std;
 uniform float seed;
 uniform vec2 img_size;
@@ -93,7 +93,10 @@ vec3 camera_response(vec3 c) {
     c = gamma_fit.x * c + gamma_fit.y * r + gamma_fit.z * sqrt(r) + gamma_fit.w * c * c;
     vec2 q = (gl_FragCoord.xy - 0.5 * img_size) / (0.5 * img_size.x);
     float r2 = dot(q, q);
-    c *= 1.0 / (1.0 + vig_mult * 0.25 * pow(r2, 0.5 * vig_falloff) * 4.0);
+    // vignetting 1 / (1 + multiplier r2^(falloff/2)) as a degree-7 polynomial in r2
+    // (``scene.vignette_fit``): multiply-adds instead of a pow
+    c *= ((((((vig_hi.w * r2 + vig_hi.z) * r2 + vig_hi.y) * r2 + vig_hi.x) * r2 + vig_lo.w) * r2
+           + vig_lo.z) * r2 + vig_lo.y) * r2 + vig_lo.x;
 #ifdef NOISE
     vec2 px = gl_FragCoord.xy + seed * vec2(17.17, 91.3);
     float nz = hash12(px) + hash12(px + 53.7) - 1.0;
@@ -116,7 +119,6 @@ uniform vec3 prop_tint;
 uniform float mark_wear;
 uniform float road_wear;
 uniform sampler2D shadow_map;
-uniform float shadow_px;
 
 in vec3 v_light;
 in vec3 v_world;
@@ -283,7 +285,7 @@ vec3 shade() {
     float sh = 1.0;
 #ifdef SHADOWS
     if (v_light.x > 0.0 && v_light.y > 0.0 && v_light.x < 1.0 && v_light.y < 1.0 && v_light.z < 1.0)
-        sh = step(v_light.z - 0.002, texelFetch(shadow_map, ivec2(v_light.xy * shadow_px), 0).r);
+        sh = step(v_light.z - 0.002, texture(shadow_map, v_light.xy).r);  // nearest texel
 #endif
     sh *= step(0.0, ndl);
     float direct = sunk * lam * (1.0 - shadow_strength * (1.0 - sh));
