@@ -284,7 +284,8 @@ vec3 shade() {
     float lam = max((ndl + wrap) / (1.0 + wrap), 0.0);
     float sh = 1.0;
 #ifdef SHADOWS
-    if (v_light.x > 0.0 && v_light.y > 0.0 && v_light.x < 1.0 && v_light.y < 1.0 && v_light.z < 1.0)
+    if (ndl >= 0.0 && v_light.x > 0.0 && v_light.y > 0.0 && v_light.x < 1.0 && v_light.y < 1.0
+        && v_light.z < 1.0)  // faces away from the sun are dark anyway: no lookup
         sh = step(v_light.z - 0.002, texture(shadow_map, v_light.xy).r);  // nearest texel
 #endif
     sh *= step(0.0, ndl);
@@ -293,16 +294,22 @@ vec3 shade() {
     vec3 col = alb * (amb + sun_rgb * direct);
 #ifdef SPECULAR
     vec3 V = vd / max(dist, 1e-4);
-    vec3 h = normalize(sun_dir + V);
-    float sp = exp2(shin * log2(max(dot(n, h), 1e-4))) * (shin + 8.0) / 25.0;
-    col += spec * 0.04 * sp * sun_rgb * sh;
+    // llvmpipe runs a branch only where some fragment of the block takes it: matte
+    // fragments (walls, foliage, dry road) skip the highlight and the reflection
+    if (spec > 0.0) {
+        vec3 h = normalize(sun_dir + V);
+        float sp = exp2(shin * log2(max(dot(n, h), 1e-4))) * (shin + 8.0) / 25.0;
+        col += spec * 0.04 * sp * sun_rgb * sh;
+    }
 #endif
 #if defined(REFLECT) && defined(TEXTURES)
-    float c = max(dot(n, V), 0.0);
-    float c5 = 1.0 - c;
-    c5 = c5 * c5 * c5 * c5 * c5;
-    float fr = refl + (1.0 - refl) * c5 * min(1.0, refl * 8.0);
-    col = mix(col, sky_color(reflect(-V, n)) * 0.75, clamp(fr, 0.0, 1.0));
+    if (refl > 0.0) {
+        float c = max(dot(n, V), 0.0);
+        float c5 = 1.0 - c;
+        c5 = c5 * c5 * c5 * c5 * c5;
+        float fr = refl + (1.0 - refl) * c5 * min(1.0, refl * 8.0);
+        col = mix(col, sky_color(reflect(-V, n)) * 0.75, clamp(fr, 0.0, 1.0));
+    }
 #endif
 #if defined(G_VEHICLE) || defined(G_PROPS)
     col = mix(col, alb * 1.8, emit);
@@ -389,7 +396,13 @@ void main() {
     vec3 c = sky_color(d);
     float sd = max(dot(d, sun_dir), 0.0);
     float clear = 1.0 - cloud;
-    c += sun_rgb * clear * (0.03 * pow(sd, 6.0) + 0.2 * pow(sd, 200.0));
+    // sd^6 and sd^200 by squaring (pow is exp2(log2) on llvmpipe)
+    float s2 = sd * sd;
+    float s8 = s2 * s2;
+    s8 *= s8;
+    float s64 = s8 * s8;
+    s64 *= s64;
+    c += sun_rgb * clear * (0.03 * s2 * s2 * s2 + 0.2 * s64 * s64 * s64 * s8);
     if (sd > 0.99985) c += sun_rgb * 6.0 * clear;
 #ifdef CLOUDS
     if (d.z > 0.0) {
