@@ -214,3 +214,31 @@ def test_vehicles_are_drawn_indexed_with_the_same_triangles(pair):
         assert len(rows) < 0.7 * len(ref)  # flat-shaded: faces share their corners
         assert len(np.unique(sil)) < 0.4 * len(ref)
         assert np.all(np.diff(hull) > 0) and hull[-1] < len(rows)
+
+
+def test_cached_static_shadows_equal_drawn_ones_and_forget_history(gl_ctx, straight_map):
+    """The static casters' shadow depth, cached per (snapped) light box and copied into
+    the shadow map, gives the bytes of drawing them every frame; and a frame does not
+    depend on the frames before it (the box is a function of the pose)."""
+    vehicles = [(i + 1, identity(MODELS[i % len(MODELS)], (60 + 20 * i, 90, 200 - 15 * i), i),
+                 -70.0 + 6.0 * i, (-5.25, -1.75, 1.75, 5.25)[i % 4], 0.0, 180.0 * (i % 2))
+                for i in range(8)]  # fmt: skip
+    cached = Renderer(straight_map, 320, 180, 90.0, msaa=0, ctx=gl_ctx)
+    drawn = Renderer(straight_map, 320, 180, 90.0, msaa=0, ctx=gl_ctx)
+    assert cached._static_shadow is not None and cached._casters  # llvmpipe: GL 4.5
+    drawn._static_shadow = None
+    hits = 0
+    try:
+        for i in range(12):
+            pose = (-80.0 + 0.3 * i, 1.75, 1.6, 0.5 * i, 0.0, 0.0)
+            key = cached._static_shadow_key
+            a, b = cached.render(pose, vehicles), drawn.render(pose, vehicles)
+            hits += key is not None and key == cached._static_shadow_key
+            assert a.rgb.tobytes() == b.rgb.tobytes(), pose
+        assert hits >= 3  # nearby poses share the box
+        fresh = Renderer(straight_map, 320, 180, 90.0, msaa=0, ctx=gl_ctx)
+        assert fresh.render(pose, vehicles).rgb.tobytes() == a.rgb.tobytes()
+        fresh.release()
+    finally:
+        cached.release()
+        drawn.release()

@@ -195,3 +195,23 @@ def test_blur_has_the_requested_sigma(sigma):
     assert abs(math.sqrt((b * (y - 20) ** 2).sum()) - sigma) < tol
     flat = np.full((9, 9, 3), 77, np.uint8)
     assert (blur(flat, sigma) == 77).all()
+
+
+def test_vignette_polynomial_follows_carla_lens_circle():
+    """The shader's vignetting polynomial (``vignette_fit``) stays within 0.6 levels of
+    1 / (1 + multiplier · r^falloff) over the randomized ranges at 16:9 and 4:3, and is
+    exactly 1 without vignetting."""
+    from dashtraj.render.scene import vignette_fit
+
+    for aspect in (360 / 640, 3 / 4):
+        r2_max = 1.0 + aspect**2
+        s = np.linspace(0.0, r2_max, 2001).astype(np.float32)
+        for m in (0.0, 0.35, 0.8, 1.5):
+            for f in (3.0, 4.2, 5.0, 6.0):
+                a = np.array(vignette_fit(m, f, r2_max), np.float32)
+                got = np.full_like(s, a[-1])
+                for c in a[-2::-1]:  # Horner, in float32 like the shader
+                    got = got * s + c
+                want = 1.0 / (1.0 + m * s.astype(np.float64) ** (f / 2))
+                assert np.abs(got - want).max() * 255 < 0.6, (aspect, m, f)
+    assert vignette_fit(0.0, 5.0, 1.3) == (1.0,) + (0.0,) * 7

@@ -69,6 +69,7 @@ SKY_MARGIN = 0.03  # sky pass: share of the rows drawn below the horizon (map ed
 SHADOW_MAP_PX = 512  # side of the sun's shadow map, texels
 SHADOW_RANGE_M = 45.0  # shadows are drawn this far along the optical axis
 SHADOW_CASTER_REACH_M = 60.0  # casters up to this far toward the sun from the shadowed area
+SHADOW_SNAP_M = 4.0  # the shadow map's box snaps outward to this grid (in the sun's frame)
 
 
 def intrinsics(width: int, height: int, fov_deg: float) -> np.ndarray:
@@ -313,6 +314,13 @@ class Renderer:
         self._shadow_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self._shadow_tex.repeat_x = self._shadow_tex.repeat_y = False
         self._fbo_shadow = ctx.framebuffer(depth_attachment=self._shadow_tex)
+        # the static casters' depth for the last light box, copied into the shadow map
+        # while the box stays the same (``_shadow_pass``; needs glCopyImageSubData, GL 4.3)
+        self._static_shadow = None
+        self._static_shadow_key = None
+        if ctx.version_code >= 430:
+            tex = ctx.depth_texture((SHADOW_MAP_PX, SHADOW_MAP_PX))
+            self._static_shadow = (tex, ctx.framebuffer(depth_attachment=tex))
         size = (self.width, self.height)
         self._fbos = []
         if self.msaa:
@@ -531,7 +539,8 @@ class Renderer:
     def light_matrix(self, pose) -> np.ndarray:
         """(4, 4) world → clip matrix of the sun's orthographic shadow map: it covers the
         camera's view frustum up to ``SHADOW_RANGE_M`` and the casters up to
-        ``SHADOW_CASTER_REACH_M`` toward the sun."""
+        ``SHADOW_CASTER_REACH_M`` toward the sun, in a box snapped outward to
+        ``SHADOW_SNAP_M`` in the sun's frame."""
         sun = self._lighting.sun_dir
         k, w, h = self.k, self.width, self.height
         uv = np.array([[0, 0], [w, 0], [0, h], [w, h]], float)
@@ -550,6 +559,10 @@ class Renderer:
         lo, hi = lp.min(axis=0), lp.max(axis=0)
         lo[2] -= SHADOW_CASTER_REACH_M
         hi[2] += 5.0
+        # snapped outward to a grid: nearby poses share the box (and the static casters'
+        # cached depth, ``_shadow_pass``), and the box depends on this pose alone
+        lo = np.floor(lo / SHADOW_SNAP_M) * SHADOW_SNAP_M
+        hi = np.ceil(hi / SHADOW_SNAP_M) * SHADOW_SNAP_M
         scale = 2.0 / (hi - lo)
         out = np.eye(4)
         out[:3, :3] = rot * scale[:, None]
@@ -557,30 +570,59 @@ class Renderer:
         return out
 
     def _shadow_pass(self, pose, vs) -> bytes:
-        """Draw the sun's shadow map (pass 0): the vehicles whose boxes touch the light's
-        frustum, as their shadow casters (``meshes.shadow_caster_mesh``), and the static
-        caster groups by tile. Returns the light matrix (column-major float32 bytes)."""
+        """Draw the sun's shadow map (pass 0): the static caster groups by tile, then the
+        vehicles whose boxes touch the light's frustum, as their shadow casters
+        (``meshes.shadow_caster_mesh``). Returns the light matrix (column-major float32
+        bytes).
+
+        The static casters' depth is drawn into a cache once per light box (the box is
+        snapped, so consecutive frames usually share it) and copied into the map: the
+        same texels as drawing them every frame, since nothing else about them changes."""
         mgl = self._moderngl
         self._lap("scene setup (vehicles, culling, projection)")
         lm = self.light_matrix(pose)
         lmb = lm.T.astype("f4").tobytes()
         ctx = self.ctx
-        self._fbo_shadow.use()
-        self._fbo_shadow.clear(depth=1.0)
         ctx.enable(mgl.DEPTH_TEST)
         ctx.enable(mgl.CULL_FACE)  # closed meshes: the faces toward the sun suffice
         ctx.front_face = "ccw"
-        self._prog_depth["mvp"].write(lmb)
+        cache = self._static_shadow if self._casters else None
+        if cache is None:
+            self._fbo_shadow.use()
+            self._fbo_shadow.clear(depth=1.0)
+            self._draw_static_casters(lm, lmb)
+        else:
+            if self._static_shadow_key != lmb:
+                cache[1].use()
+                cache[1].clear(depth=1.0)
+                self._draw_static_casters(lm, lmb)
+                self._static_shadow_key = lmb
+            import ctypes
+
+            args = [ctypes.c_uint, ctypes.c_uint, ctypes.c_int, ctypes.c_int, ctypes.c_int,
+                    ctypes.c_int]
+            copy = gl_function("glCopyImageSubData", *args, *args, ctypes.c_int, ctypes.c_int,
+                               ctypes.c_int)
+            tex_2d = 0x0DE1
+            copy(cache[0].glo, tex_2d, 0, 0, 0, 0, self._shadow_tex.glo, tex_2d, 0, 0, 0, 0,
+                 SHADOW_MAP_PX, SHADOW_MAP_PX, 1)
+            self._fbo_shadow.use()
         if len(vs):
             self._draw_casters(vs, lm)
+        self._shadow_tex.use(2)
+        self._lap("shadow map")
+        return lmb
+
+    def _draw_static_casters(self, lm: np.ndarray, lmb: bytes) -> None:
+        """Draw the static caster groups' tiles in the light's frustum into the bound
+        depth framebuffer."""
+        mgl = self._moderngl
+        self._prog_depth["mvp"].write(lmb)
         runs = self._static_runs(lm)
         for i in self._casters:
             vaos = self._static[i][0]
             for first, count in runs[i]:
                 vaos[4].render(mgl.TRIANGLES, first=first, vertices=count)
-        self._shadow_tex.use(2)
-        self._lap("shadow map")
-        return lmb
 
     def _draw_sky(self, pose) -> None:
         """Fill the pixels no geometry covered (depth still 1) with the sky, in the rows
@@ -1158,6 +1200,9 @@ class Renderer:
         self._sky_buf.release()
         self._fbo_shadow.release()
         self._shadow_tex.release()
+        if self._static_shadow is not None:
+            self._static_shadow[1].release()
+            self._static_shadow[0].release()
         self._noise.release()
 
 
