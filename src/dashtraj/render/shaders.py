@@ -428,8 +428,9 @@ def variant(source: str, group: str | None = None, legacy: bool = False, shadows
             textures: bool = True, noise: bool = True, clouds: bool = False,
             wet: bool = False) -> str:
     """``source`` (``FS_ALL``, ``FS_COLOR`` or ``SKY_FS``) with the ``#define`` lines of one
-    variant: llvmpipe runs every branch of a shader under masks, so features that are
-    off are compiled out instead of skipped."""
+    variant: llvmpipe runs both sides of a branch that any fragment of a block takes
+    (under masks; it skips a branch only where no fragment takes it), so features that
+    are off are compiled out instead of branched around."""
     defs = ["#version 330"]
     if group is not None:
         defs.append(f"#define G_{group.upper()}")
