@@ -201,10 +201,16 @@ def mesa_costs(rounds: int, frames: int, threads: int) -> dict | None:
         for k, value in sides.items():
             env = {**os.environ, "DASHTRAJ_MESA": value}
             env.pop("__EGL_VENDOR_LIBRARY_FILENAMES", None)
-            out = subprocess.run([sys.executable, __file__, "--time-only", "--frames", str(frames),
-                                  "--threads", str(threads)], env=env, check=True,
-                                 capture_output=True, text=True).stdout
-            row = json.loads(out.strip().splitlines()[-1])
+            proc = subprocess.run([sys.executable, __file__, "--time-only", "--frames",
+                                   str(frames), "--threads", str(threads)], env=env,
+                                  capture_output=True, text=True)
+            lines = proc.stdout.strip().splitlines()
+            if proc.returncode != 0 or not lines:
+                why = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+                print(f"mesa: the {k} Mesa's child process failed (exit {proc.returncode}: "
+                      f"{why}); comparison skipped")
+                return None
+            row = json.loads(lines[-1])
             gl[k] = row["gl"]
             runs[k].append(row["cpu_ms_median"])
     med = {k: float(np.median(v)) for k, v in runs.items()}
