@@ -183,8 +183,8 @@ def run_eval(args: argparse.Namespace) -> int:
     dt = time.time() - t0
     rerank = ({"k1": args.rerank_k1, "k2": args.rerank_k2, "lambda_value": args.rerank_lambda}
               if args.rerank else None)
-    plain = evaluate_features(qf, gf, q, g)
-    r = evaluate_features(qf, gf, q, g, rerank=rerank) if rerank else plain
+    r = evaluate_features(qf, gf, q, g, rerank=rerank)
+    plain = r["without_rerank"] if rerank else r
     keys = ("rank1", "rank5", "rank10", "map", "minp")
     out = {"data": args.data, "query": args.query, "model": str(emb.path), "flip": emb.flip,
            "rerank": rerank, **{k: r[k] for k in keys}, "queries": r["queries"],

@@ -165,13 +165,16 @@ def evaluate_features(qf, gf, q: VeriSplit, g: VeriSplit, normalize: bool = True
 
     ``rerank``: None, or the keyword arguments (``k1``, ``k2``, ``lambda_value``) of
     ``dashtraj.reid.rerank.k_reciprocal_rerank``, which then re-ranks the distances (it
-    sees every query and gallery image; VeRi's same-camera rule applies to the result).
+    sees every query and gallery image; VeRi's same-camera rule applies to the result);
+    the figures of the plain distances come beside, under ``"without_rerank"``.
     """
     if normalize:
         qf, gf = l2_normalize(qf), l2_normalize(gf)
     d = distance_matrix(qf, gf)
-    if rerank is not None:
-        from dashtraj.reid.rerank import k_reciprocal_rerank
+    plain = evaluate_rank(d, q.pids, g.pids, q.camids, g.camids)
+    if rerank is None:
+        return plain
+    from dashtraj.reid.rerank import k_reciprocal_rerank
 
-        d = k_reciprocal_rerank(d, distance_matrix(qf, qf), distance_matrix(gf, gf), **rerank)
-    return evaluate_rank(d, q.pids, g.pids, q.camids, g.camids)
+    d = k_reciprocal_rerank(d, distance_matrix(qf, qf), distance_matrix(gf, gf), **rerank)
+    return {**evaluate_rank(d, q.pids, g.pids, q.camids, g.camids), "without_rerank": plain}
