@@ -410,6 +410,7 @@ def train(data_dir, out_dir, recipe: Recipe, seed: int = 0, epochs: int | None =
     Returns:
         a summary dict (epochs, steps, best map50 and map50_95, wall time, paths).
     """
+    from dashtraj.reid.train import resolve_device  # auto: a GPU when torch sees one
     from dashtraj.train.detector_model import build_detector
     from dashtraj.world.camera import DETECTION_CLASSES
 
@@ -430,7 +431,7 @@ def train(data_dir, out_dir, recipe: Recipe, seed: int = 0, epochs: int | None =
     torch.set_num_threads(recipe.threads)
     torch.manual_seed(seed)
     # a GPU, where one is at hand, only makes it faster (same recipe, same data order)
-    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    device = resolve_device()
     torch.backends.cudnn.benchmark = device.type == "cuda"  # one input size: tune once
     model = build_detector(len(names), pretrained=True).to(device,
                                                            memory_format=torch.channels_last)
