@@ -944,7 +944,9 @@ class Renderer:
             drawn = proj.boxes_nonempty()
         else:
             proj = None
-            drawn = _vehicles_in_frustum(world, starts, mvp64) if n else np.zeros(0, bool)
+            # a vehicle's box is its hull vertices' box
+            drawn = (_vehicles_in_frustum(world[hull], np.searchsorted(hull, starts), mvp64)
+                     if n else np.zeros(0, bool))
         vruns = _runs([ranges[i] for i in np.flatnonzero(drawn)])
         n_shadow = self._upload_contact_shadows(vs, drawn) if n else 0
         self._runs = self._static_runs(mvp64)
