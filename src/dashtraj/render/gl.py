@@ -25,8 +25,8 @@ The private Mesa: ``scripts/fetch_mesa.sh`` (run by ``make setup`` on Debian 12)
 Mesa 25's llvmpipe from bookworm-backports into ``<venv>/mesa``; the first context of a
 process then preloads its libraries and points EGL's vendor loader at it, so the renderer
 uses it and the rest of the system keeps its own Mesa. A frame of the default look costs
-about 18 % less CPU than with Debian 12's Mesa 22 (``bench/bench_render.py`` times both in
-one run) and the images are the same but for a few pixels off by one level (labels
+15–24 % less CPU than with Debian 12's Mesa 22 (1.18–1.31× in ``bench/bench_render.py``
+runs, which time both) and the images are the same but for a few pixels off by one level (labels
 identical). ``DASHTRAJ_MESA=system`` uses the system's Mesa; ``DASHTRAJ_MESA=DIR`` another
 such directory. ``private_mesa()`` says which one a process uses.
 
