@@ -3,8 +3,8 @@
 # unpacked into DEST (default .venv/mesa) and used by dashtraj.render.gl.create_context
 # only; nothing on the system changes (no apt install, no root needed beyond reading).
 #
-# Why: a frame of the default look costs about 18 % less CPU with Mesa 25.0 than with Debian
-# 12's Mesa 22.3 (bench/bench_render.py times both in one run). The images are the
+# Why: a frame of the default look costs 15-24 % less CPU with Mesa 25.0 than with Debian
+# 12's Mesa 22.3 (1.18-1.31x in bench/bench_render.py runs, which time both). The images are the
 # same to the byte but for a few pixels off by one level (and labels identical): checked
 # on 680 labelled vehicles and 3 full frames.
 #
