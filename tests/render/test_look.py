@@ -215,3 +215,31 @@ def test_vignette_polynomial_follows_carla_lens_circle():
                 want = 1.0 / (1.0 + m * s.astype(np.float64) ** (f / 2))
                 assert np.abs(got - want).max() * 255 < 0.6, (aspect, m, f)
     assert vignette_fit(0.0, 5.0, 1.3) == (1.0,) + (0.0,) * 7
+
+
+def _noise_reference(size: int, seed: int) -> np.ndarray:
+    """The noise texture as first written: complex FFTs, ranks by a stable argsort."""
+    rng = np.random.default_rng(seed)
+    f = np.fft.fftfreq(size)
+    r = np.hypot(f[:, None], f[None, :])
+    out = np.empty((size, size, 4), np.uint8)
+    filters = (np.exp(-((r / 0.25) ** 2)), np.exp(-((r / 0.005) ** 2)),
+               np.exp(-((r / 0.02) ** 2)),
+               np.where(r > 0, 1.0 / np.maximum(r, 1.0 / size) ** 1.6, 0.0))
+    for c, filt in enumerate(filters):
+        x = np.real(np.fft.ifft2(np.fft.fft2(rng.standard_normal((size, size))) * filt))
+        rank = np.empty(x.size, np.int64)
+        rank[np.argsort(x, axis=None, kind="stable")] = np.arange(x.size)
+        out[:, :, c] = (rank * 256 // rank.size).reshape(size, size).astype(np.uint8)
+    return out
+
+
+@pytest.mark.parametrize(("size", "seed"), [(64, 7), (128, 3), (256, 7)])
+def test_noise_texture_equals_argsort_ranks_and_is_uniform(size, seed):
+    from dashtraj.render.scene import noise_texture
+
+    got = noise_texture.__wrapped__(size, seed)
+    np.testing.assert_array_equal(got, _noise_reference(size, seed))
+    for c in range(4):  # rank-equalised: every level holds size² / 256 texels
+        np.testing.assert_array_equal(np.bincount(got[..., c].ravel(), minlength=256),
+                                      np.full(256, size * size // 256))

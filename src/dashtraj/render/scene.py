@@ -1366,10 +1366,15 @@ def noise_texture(size: int = NOISE_PX, seed: int = 7) -> np.ndarray:
     """(size, size, 4) uint8 tileable noise, one pattern per channel, each uniform on
     0 … 255 (rank-equalised): R fine grain (≈ 4 texels), G soft blotches (≈ 200 texels),
     B medium (≈ 50 texels), A fractal (clouds, paint wear). Cached per (size, seed).
-    Band-limited white noise filtered in the Fourier domain, so it tiles."""
+    Band-limited white noise filtered in the Fourier domain, so it tiles. Rank
+    equalisation: value v of a channel of n texels gets level ⌊rank(v) · 256 / n⌋, i.e.
+    the number of the 255 level boundaries (the values of rank ⌈k · n / 256⌉) that are
+    ≤ v: one sort and a binary search instead of an argsort, and real FFTs (0.5 s
+    instead of 0.9 s at 1024²; the same bytes as the complex FFTs and argsort ranks that
+    they replaced, at 1024² and in the tests)."""
     rng = np.random.default_rng(seed)
     f = np.fft.fftfreq(size)
-    r = np.hypot(f[:, None], f[None, :])
+    r = np.hypot(f[:, None], np.fft.rfftfreq(size)[None, :])  # the real FFT's half plane
     out = np.empty((size, size, 4), np.uint8)
     filters = (
         np.exp(-((r / 0.25) ** 2)),
@@ -1377,9 +1382,11 @@ def noise_texture(size: int = NOISE_PX, seed: int = 7) -> np.ndarray:
         np.exp(-((r / 0.02) ** 2)),
         np.where(r > 0, 1.0 / np.maximum(r, 1.0 / size) ** 1.6, 0.0),
     )
+    n = size * size
+    first_rank = -(-np.arange(1, 256) * n // 256)  # ⌈k n / 256⌉, k = 1 … 255
     for c, filt in enumerate(filters):
-        x = np.real(np.fft.ifft2(np.fft.fft2(rng.standard_normal((size, size))) * filt))
-        rank = np.empty(x.size, np.int64)
-        rank[np.argsort(x, axis=None, kind="stable")] = np.arange(x.size)
-        out[:, :, c] = (rank * 256 // rank.size).reshape(size, size).astype(np.uint8)
+        x = np.fft.irfft2(np.fft.rfft2(rng.standard_normal((size, size))) * filt,
+                          s=(size, size))
+        bounds = np.sort(x, axis=None)[first_rank]
+        out[:, :, c] = np.searchsorted(bounds, x, side="right").astype(np.uint8)
     return out
