@@ -113,12 +113,83 @@ def test_two_workers_write_the_same_content(small_run, small_db, tmp_path):
     path, _ = small_db
     other = tmp_path / "w2.db"
     perceive(small_run, other, PerceiveConfig(observers=(1, 3)), workers=2)
-    with SightingsDB.open(path) as a, SightingsDB.open(other) as b:
+    _same_content(path, other)
+
+
+def _same_content(path_a, path_b) -> None:
+    with SightingsDB.open(path_a) as a, SightingsDB.open(path_b) as b:
         assert a.poses() == b.poses()
         assert a.detections() == b.detections()
         assert a.tracks() == b.tracks()
         assert a.crops() == b.crops()
         assert a.observers() == b.observers()
+
+
+def test_pipelining_and_the_shared_filter_do_not_change_the_database(small_run, small_db,
+                                                                     tmp_path, monkeypatch):
+    """`small_db` is pipelined (a render thread, 2 frames detected at once) and its ego
+    tracker is the smoothed localizer's filter; all in turn on one thread, and with two
+    separate filters, the database is the same."""
+    from dashtraj.perception.localize import TrackedLocalizer
+    from dashtraj.perception.pipeline import PerceiveConfig, perceive
+
+    path, _ = small_db
+    serial = tmp_path / "serial.db"
+    perceive(small_run, serial, PerceiveConfig(observers=(1, 3), parallel_frames=0))
+    _same_content(path, serial)
+    monkeypatch.setattr(TrackedLocalizer, "share_tracker", lambda self, tracker: False)
+    twins = tmp_path / "twins.db"
+    perceive(small_run, twins, PerceiveConfig(observers=(1, 3), parallel_frames=3))
+    _same_content(path, twins)
+
+
+def test_share_tracker_only_takes_a_fresh_tracker_of_the_same_settings():
+    from dashtraj.perception.localize import PAPER_MU_H, TrackedLocalizer
+    from dashtraj.perception.track import EgoTracker, SortTracker
+
+    assert TrackedLocalizer().share_tracker(EgoTracker())
+    assert not TrackedLocalizer(mu_h=PAPER_MU_H + 1).share_tracker(EgoTracker())
+    assert not TrackedLocalizer().share_tracker(EgoTracker(max_age_s=1.0))
+    assert not TrackedLocalizer().share_tracker(SortTracker())
+    used = EgoTracker()
+    used._t = 0.0
+    assert not TrackedLocalizer().share_tracker(used)
+
+
+def test_render_ahead_gives_the_frames_of_recording_frames(small_run, gl_available):
+    from dashtraj.datasets.frames import RenderAhead, recording_frames
+
+    want = list(recording_frames(small_run, 2.0, (160, 90), [1, 3], msaa=0))
+    with RenderAhead(small_run, [1, 3], 2.0, (160, 90), msaa=0, depth=2) as ahead:
+        got = list(ahead.frames(1)) + list(ahead.frames(3))
+    assert len(got) == len(want) > 10
+    for a, b in zip(got, want, strict=True):
+        assert (a.observer_id, a.frame, a.vehicle_ids) == (b.observer_id, b.frame, b.vehicle_ids)
+        np.testing.assert_array_equal(a.frame_data.rgb, b.frame_data.rgb)
+        np.testing.assert_array_equal(a.frame_data.instance, b.frame_data.instance)
+        assert ([lab.visible_box for lab in a.frame_data.labels]
+                == [lab.visible_box for lab in b.frame_data.labels])
+
+
+def test_render_ahead_order_errors_and_early_close(small_run, gl_available, tmp_path):
+    import threading
+    import time
+    from types import SimpleNamespace
+
+    from dashtraj.datasets.frames import RenderAhead
+
+    with RenderAhead(small_run, [1, 3], 1.0, (160, 90), depth=1) as ahead:
+        with pytest.raises(ValueError, match="observer 3 requested, the next one is 1"):
+            next(ahead.frames(3))
+        next(ahead.frames(1))  # one frame taken, the thread blocked on a full queue
+        t0 = time.perf_counter()
+    assert time.perf_counter() - t0 < 5.0
+    assert not any(t.name == "dashtraj-render" for t in threading.enumerate())
+    # an error in the thread (here: the map cannot be read) is raised by frames()
+    bad = SimpleNamespace(config=small_run.config, map_path=tmp_path / "missing.xodr")
+    with RenderAhead(bad, [1], 1.0, (160, 90)) as ahead, pytest.raises(Exception,
+                                                                        match=r"missing\.xodr"):
+        next(ahead.frames(1))
 
 
 def test_sightings_command_takes_the_camera_pipeline(small_run, gl_available, tmp_path, capsys):

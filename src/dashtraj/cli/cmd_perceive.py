@@ -59,6 +59,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="render look preset (dashtraj.render.look; default: the renderer's)")
     p.add_argument("--workers", type=positive_int, default=1, metavar="N",
                    help="observers processed in parallel processes (default 1)")
+    p.add_argument("--parallel-frames", type=int_at_least(0), default=None, metavar="N",
+                   help="frames detected at once in threads while a thread renders ahead "
+                        "(default 2 in one process, 1 per worker; 0: all in turn on one "
+                        "thread); the database does not depend on it")
+    p.add_argument("--threads", type=positive_int, default=None, metavar="N",
+                   help="onnxruntime threads of each detector model run (default 1)")
     p.add_argument("--save-frames", metavar="DIR",
                    help="also write the rendered frames as DIR/<observer>/<frame>.jpg")
     p.add_argument("--mot", metavar="DIR",
@@ -98,6 +104,7 @@ def run_perceive(args: argparse.Namespace) -> int:
                          mu_h=args.mu_h, every_s=args.every, size=size, msaa=args.msaa,
                          reid_range_m=args.reid_range, look=args.look,
                          agnostic_nms_iou=args.agnostic_nms, min_score=args.min_score,
+                         threads=args.threads, parallel_frames=args.parallel_frames,
                          observers=tuple(args.observers) if args.observers else None)
     from dashtraj.datasets.frames import observer_ids, sample_steps
 

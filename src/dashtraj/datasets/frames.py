@@ -213,6 +213,121 @@ def recording_frames(recording, every_s: float = 0.5, size: tuple[int, int] | No
             renderer.release()
 
 
+class RenderAhead:
+    """A recording's observer frames rendered in a background thread, up to ``depth``
+    frames ahead of their use, so that the caller's work on one frame (detection,
+    tracking) overlaps the rendering of the next ones.
+
+    The thread opens its own renderer (a GL context is current in one thread only) and
+    renders the ``observers`` in order, each with `recording_frames`; `frames` yields
+    one observer's frames (the observers must be taken in that order). The frames are
+    exactly those of `recording_frames` with the same arguments: the renderer draws the
+    same poses in the same order, whatever the caller does meanwhile. Pure-Python work
+    of the caller and of the thread takes turns (Python's GIL); the overlap comes from
+    work that releases the GIL while it runs, such as an onnxruntime model run.
+
+    Use as a context manager (`close` stops the thread and releases the renderer); an
+    error in the thread (e.g. ``RenderUnavailableError``) is raised by `frames`.
+
+    Args:
+        recording: a ``dashtraj.world.recording.Recording``.
+        observers: observer vehicle ids, in the order they will be taken.
+        every_s, size, msaa: as for `recording_frames`.
+        look: a ``LookConfig`` for the renderer, or None for its default.
+        depth: frames rendered ahead (at least 1).
+    """
+
+    _POLL_S = 0.1
+
+    def __init__(self, recording, observers: Iterable[int], every_s: float,
+                 size: tuple[int, int] | None = None, msaa: int = 0, look=None,
+                 depth: int = 3):
+        import queue
+        import threading
+
+        self._obs = [int(o) for o in observers]
+        self._next = 0
+        self._out: queue.Queue = queue.Queue(maxsize=max(1, int(depth)))
+        self._stop = threading.Event()
+        self._thread = threading.Thread(
+            target=self._run, args=(recording, every_s, size, msaa, look),
+            name="dashtraj-render", daemon=True)
+        self._thread.start()
+
+    def _put(self, item) -> bool:
+        import queue
+
+        while not self._stop.is_set():
+            try:
+                self._out.put(item, timeout=self._POLL_S)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def _run(self, recording, every_s, size, msaa, look) -> None:
+        try:
+            spec = recording.config.camera
+            w, h = size if size is not None else (spec.width_px, spec.height_px)
+            renderer = open_renderer(recording.map_path, w, h, spec.fov_deg, msaa=msaa)
+            try:
+                if look is not None:
+                    renderer.set_look(look)
+                for o in self._obs:
+                    for rf in recording_frames(recording, every_s, size, [o], msaa=msaa,
+                                               renderer=renderer):
+                        if not self._put(("frame", rf)):
+                            return
+                    if not self._put(("end", o)):
+                        return
+            finally:
+                renderer.release()
+        except BaseException as exc:  # handed to the consumer, which raises it
+            self._put(("error", exc))
+
+    def frames(self, observer_id: int) -> Iterator[RecordingFrame]:
+        """The frames of the next observer (``observer_id``, which must be it), in time
+        order, as `recording_frames` yields them."""
+        import queue
+
+        if self._next >= len(self._obs) or self._obs[self._next] != int(observer_id):
+            want = self._obs[self._next] if self._next < len(self._obs) else None
+            raise ValueError(f"RenderAhead: observer {observer_id} requested, the next one "
+                             f"is {want}")
+        self._next += 1
+        while True:
+            try:
+                kind, item = self._out.get(timeout=self._POLL_S)
+            except queue.Empty:
+                if self._thread.is_alive():
+                    continue
+                raise RuntimeError("RenderAhead: the render thread stopped") from None
+            if kind == "frame":
+                yield item
+            elif kind == "end":
+                return
+            else:
+                raise item
+
+    def close(self) -> None:
+        """Stop the thread (it finishes the frame it is drawing) and wait for it."""
+        import queue
+
+        self._stop.set()
+        while self._thread.is_alive():
+            try:
+                self._out.get(timeout=self._POLL_S)
+            except queue.Empty:
+                pass
+        self._thread.join()
+
+    def __enter__(self) -> RenderAhead:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
 def encode_jpeg(rgb: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
     """JPEG bytes of an (H, W, 3) uint8 image (Pillow, no EXIF; deterministic)."""
     from PIL import Image

@@ -378,6 +378,25 @@ class TrackedLocalizer:
     consistent_chi2: float = 9.0
     sequential: bool = True
     _tracker: object = None
+    track_ids: np.ndarray | None = field(default=None, repr=False)
+    """After each `localize`, (N,): the confirmed track id of every detection by its
+    ``ego`` filter, or −1 (what `EgoTracker.update` returned)."""
+
+    def share_tracker(self, tracker) -> bool:
+        """Drive ``tracker`` (a fresh `EgoTracker` that the caller would feed the same
+        frames) as this localizer's filter, instead of a twin of it, when its settings are
+        those of the filter it would make (`EgoTracker.same_settings`): each frame is then
+        tracked once, and the caller reads the ids from `track_ids` instead of calling
+        ``tracker.update``. Returns whether it did (False: nothing changes)."""
+        from dashtraj.perception.track import EgoTracker
+
+        if (self._tracker is not None or not isinstance(tracker, EgoTracker)
+                or tracker._t is not None):
+            return False
+        if not tracker.same_settings(EgoTracker(spec=tracker.spec, mu_h=self.mu_h)):
+            return False
+        self._tracker = tracker
+        return True
 
     def localize(self, boxes, class_ids, spec: CameraSpec, pose: CameraPose,
                  t: float | None = None) -> Localized:
@@ -392,7 +411,8 @@ class TrackedLocalizer:
             self._tracker = EgoTracker(spec=spec, mu_h=self.mu_h)
         n = len(boxes)
         tr = self._tracker
-        tr.update(Detections(boxes, np.ones(n), class_ids, np.full(n, -1, np.int64)), t, pose)
+        self.track_ids = tr.update(Detections(boxes, np.ones(n), class_ids,
+                                              np.full(n, -1, np.int64)), t, pose)
         m = tr.measured
         trust = (m.evidence == 0) & (tr.innovation_d2 <= self.consistent_chi2)
         trust |= ~np.isfinite(tr.innovation_d2)

@@ -10,7 +10,12 @@ the observer's last batch rewrites every detection's position with the smoothed 
 (same transaction as its last frames; the crops, cut while the frame was in memory,
 are those within the ReID range by the forward estimate). With
 ``workers > 1`` observers are processed in parallel processes (spawned; each opens
-its own renderer), and the database content is the same as with one worker.
+its own renderer), and the database content is the same as with one worker. Within a
+process the work is pipelined (`PerceiveConfig.parallel_frames`): a thread renders the
+frames ahead (`dashtraj.datasets.frames.RenderAhead`), a pool of threads runs the
+detector model on several frames at once (onnxruntime releases Python's GIL while it
+runs), and the calling thread tracks, localizes and crops them in order; the database
+content is the same as without.
 """
 
 from __future__ import annotations
@@ -66,9 +71,11 @@ class PerceiveConfig:
         jpeg_quality: crop JPEG quality. batch_frames: frames per committed batch.
         look: a `dashtraj.render.look` preset name for the frames, or None for the
             renderer's default look.
-        threads: onnxruntime threads of the detector model in each process (None: 2 in
-            one process, 1 per worker with ``workers > 1``, so that k workers use k
-            cores).
+        threads: onnxruntime threads of each run of the detector model (None: 1).
+        parallel_frames: frames detected at once, in threads, while a thread renders
+            the next frames (None: 2 in one process, 1 per worker with ``workers > 1``,
+            so that k workers keep k cores busy; 0: render, detect and the rest in turn on
+            one thread). The database is the same whatever the value.
         agnostic_nms_iou: the detector model's class-agnostic NMS IoU (default
             `AGNOSTIC_NMS_IOU`; None: its class-aware NMS only;
             `dashtraj.perception.detections._ModelDetector`).
@@ -89,6 +96,7 @@ class PerceiveConfig:
     observers: tuple[int, ...] | None = field(default=None)
     look: str | None = None
     threads: int | None = None
+    parallel_frames: int | None = None
     agnostic_nms_iou: float | None = AGNOSTIC_NMS_IOU
     min_score: float = DEFAULT_MIN_SCORE
 
@@ -157,9 +165,41 @@ class _TrackStats:
         return out
 
 
+def _detected(frames, detector, in_flight: int):
+    """(frame, detections) for each frame of ``frames`` in order. With ``in_flight`` ≥ 1,
+    up to that many frames are detected at once in a pool of threads (a model run
+    releases Python's GIL), ahead of the caller's use."""
+    if in_flight < 1:
+        for rf in frames:
+            yield rf, detector.detect(rf)
+        return
+    from collections import deque
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(in_flight, thread_name_prefix="dashtraj-detect") as pool:
+        pending: deque = deque()
+        try:
+            for rf in frames:
+                pending.append((rf, pool.submit(detector.detect, rf)))
+                if len(pending) > in_flight:
+                    f_rf, fut = pending.popleft()
+                    yield f_rf, fut.result()
+            while pending:
+                f_rf, fut = pending.popleft()
+                yield f_rf, fut.result()
+        finally:
+            for _, fut in pending:
+                fut.cancel()
+
+
 def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_map,
-                     renderer=None, frames_dir: Path | None = None) -> Iterator[Batch]:
-    """Process one observer's frames; yields a `Batch` every `batch_frames` frames."""
+                     renderer=None, frames_dir: Path | None = None,
+                     frames=None, in_flight: int = 0) -> Iterator[Batch]:
+    """Process one observer's frames; yields a `Batch` every `batch_frames` frames.
+
+    ``frames``: the observer's `RecordingFrame`s (e.g. `RenderAhead.frames`), or None to
+    render them here with ``renderer``. ``in_flight``: frames detected at once in
+    threads (`_detected`; 0: in turn, on this thread)."""
     from dashtraj.datasets.frames import crop_vehicle, encode_jpeg, recording_frames
 
     spec = image_camera(recording, config.size)
@@ -167,14 +207,19 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
                               config.agnostic_nms_iou, config.min_score)
     tracker = build_tracker(config.tracker, spec)
     localizer = build_localizer(config.localizer, config.mu_h, road_map=road_map)
+    # tracked/smoothed/mapped run an ego filter of their own: with the same settings it
+    # is this tracker, updated once per frame (the same ids as updating both)
+    shared = hasattr(localizer, "share_tracker") and localizer.share_tracker(tracker)
     tstats = _TrackStats()
     mount = recording.config.camera
     batch = Batch(observer_id)
     touched: set[int] = set()
     n = 0
-    frames: list[int] = []
-    for rf in recording_frames(recording, config.every_s, config.size, [observer_id],
-                               msaa=config.msaa, renderer=renderer):
+    done: list[int] = []  # frame numbers, in order
+    if frames is None:
+        frames = recording_frames(recording, config.every_s, config.size, [observer_id],
+                                  msaa=config.msaa, renderer=renderer)
+    for rf, det in _detected(frames, detector, in_flight):
         pose = camera_pose_of(rf, spec)
         h = math.radians(pose.yaw_deg)
         gx = pose.x - mount.x_m * math.cos(h) + mount.y_m * math.sin(h)
@@ -186,13 +231,12 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
             p = frames_dir / str(observer_id) / f"{rf.frame:06d}.jpg"
             p.parent.mkdir(parents=True, exist_ok=True)
             p.write_bytes(encode_jpeg(rf.frame_data.rgb))
-        det = detector.detect(rf)
         if getattr(localizer, "sequential", False):
             loc = localizer.localize(det.boxes, det.class_ids, spec, pose, t=rf.t)
         else:
             loc = localizer.localize(det.boxes, det.class_ids, spec, pose)
-        frames.append(rf.frame)
-        ids = tracker.update(det, rf.t, pose)
+        done.append(rf.frame)
+        ids = localizer.track_ids if shared else tracker.update(det, rf.t, pose)
         mm = map_match(road_map, loc.x, loc.y)
         rgb = rf.frame_data.rgb
         shown = det.truth_ids.copy()  # matched: its truth; unmatched: what the box shows
@@ -228,7 +272,7 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
             batch = Batch(observer_id)
     batch.tracks = tstats.rows(observer_id, touched)
     if getattr(localizer, "offline", False):
-        batch.updates = _location_updates(observer_id, frames, localizer.smoothed(), road_map)
+        batch.updates = _location_updates(observer_id, done, localizer.smoothed(), road_map)
     yield batch
 
 
@@ -258,35 +302,69 @@ def _set_look(renderer, look: str | None) -> None:
         renderer.set_look(preset(look))
 
 
-def _worker(recording_path: str, observers: list[int], config_dict: dict, out_q,
-            frames_dir: str | None) -> None:
+def _process_config(config: PerceiveConfig, workers: int) -> PerceiveConfig:
+    """``config`` with its automatic settings chosen for a process among ``workers``:
+    `PerceiveConfig.threads` 1; `PerceiveConfig.parallel_frames` 2 in one process, 1 per
+    worker process (so that k workers keep k cores busy)."""
+    return replace(config,
+                   threads=1 if config.threads is None else config.threads,
+                   parallel_frames=((2 if workers <= 1 else 1) if config.parallel_frames is None
+                                    else config.parallel_frames))
+
+
+def _all_batches(recording, observers: list[int], config: PerceiveConfig, road_map,
+                 frames_dir: Path | None) -> Iterator[tuple[int, Batch | None]]:
+    """(observer, batch) for every batch of every observer in order, then (observer,
+    None) when that observer is done. ``config`` is a process's (`_process_config`):
+    with ``parallel_frames`` ≥ 1 the frames are rendered ahead in a thread
+    (`RenderAhead`) and detected that many at once; with 0 everything runs in turn on
+    this thread. The batches are the same either way."""
+    from dashtraj.datasets.frames import RenderAhead, open_renderer
+
+    spec = image_camera(recording, config.size)
+    if config.parallel_frames:
+        look = None
+        if config.look is not None:
+            from dashtraj.render.look import preset
+
+            look = preset(config.look)
+        with RenderAhead(recording, observers, config.every_s, config.size, config.msaa,
+                         look, depth=config.parallel_frames + 2) as ahead:
+            for o in observers:
+                for b in observer_batches(recording, o, config, road_map, None, frames_dir,
+                                          ahead.frames(o), config.parallel_frames):
+                    yield o, b
+                yield o, None
+        return
+    renderer = open_renderer(recording.map_path, spec.width_px, spec.height_px, spec.fov_deg,
+                             msaa=config.msaa)
+    _set_look(renderer, config.look)
+    try:
+        for o in observers:
+            for b in observer_batches(recording, o, config, road_map, renderer, frames_dir):
+                yield o, b
+            yield o, None
+    finally:
+        renderer.release()
+
+
+def _worker(recording_path: str, observers: list[int], config_dict: dict, workers: int,
+            out_q, frames_dir: str | None) -> None:
     """Process entry point: run `observer_batches` for each observer, send the batches."""
     import warnings
 
     try:
-        from dashtraj.datasets.frames import open_renderer
         from dashtraj.roads import RoadMap
         from dashtraj.world.recording import Recording
 
-        config = PerceiveConfig.from_dict(config_dict)
-        if config.threads is None:
-            config = replace(config, threads=1)
+        config = _process_config(PerceiveConfig.from_dict(config_dict), workers)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             rec = Recording.open(recording_path)
-        spec = image_camera(rec, config.size)
         road_map = RoadMap.from_file(rec.map_path)
-        renderer = open_renderer(rec.map_path, spec.width_px, spec.height_px, spec.fov_deg,
-                                 msaa=config.msaa)
-        _set_look(renderer, config.look)
-        try:
-            for o in observers:
-                for b in observer_batches(rec, o, config, road_map, renderer,
-                                          Path(frames_dir) if frames_dir else None):
-                    out_q.put(("batch", b))
-                out_q.put(("done", o))
-        finally:
-            renderer.release()
+        for o, b in _all_batches(rec, observers, config, road_map,
+                                 Path(frames_dir) if frames_dir else None):
+            out_q.put(("batch", b) if b is not None else ("done", o))
     except BaseException as exc:  # reported to the writer, which raises
         out_q.put(("error", f"{type(exc).__name__}: {exc}"))
     out_q.put(("exit", None))
@@ -319,7 +397,7 @@ def perceive(recording, db_path: str | Path, config: PerceiveConfig = PerceiveCo
     Raises:
         PerceiveError: unknown observers, or a worker failed.
     """
-    from dashtraj.datasets.frames import observer_ids, open_renderer
+    from dashtraj.datasets.frames import observer_ids
     from dashtraj.roads import RoadMap
 
     build_detector(config.detector)  # fail early on a bad name
@@ -344,18 +422,14 @@ def perceive(recording, db_path: str | Path, config: PerceiveConfig = PerceiveCo
                      config.to_dict(), [(o, roles.get(str(o))) for o in obs])
         if workers <= 1 or len(obs) <= 1:
             road_map = RoadMap.from_file(recording.map_path)
-            renderer = open_renderer(recording.map_path, spec.width_px, spec.height_px,
-                                     spec.fov_deg, msaa=config.msaa)
-            _set_look(renderer, config.look)
-            try:
-                for o in obs:
-                    for b in observer_batches(recording, o, config, road_map, renderer, fdir):
-                        db.add_frames(b.poses, b.detections, b.crops, b.tracks, b.updates)
-                        if progress is not None:
-                            progress(len(b.poses))
+            for o, b in _all_batches(recording, obs, _process_config(config, 1), road_map,
+                                     fdir):
+                if b is None:
                     db.finish_observer(o)
-            finally:
-                renderer.release()
+                    continue
+                db.add_frames(b.poses, b.detections, b.crops, b.tracks, b.updates)
+                if progress is not None:
+                    progress(len(b.poses))
         else:
             _run_workers(recording, obs, config, workers, db, progress, fdir)
         db.finish_run()
@@ -369,7 +443,7 @@ def _run_workers(recording, obs, config, workers, db, progress, fdir) -> None:
     q = ctx.Queue(maxsize=4 * workers)
     k = min(workers, len(obs))
     procs = [ctx.Process(target=_worker, daemon=True,
-                         args=(str(recording.path), obs[i::k], config.to_dict(), q,
+                         args=(str(recording.path), obs[i::k], config.to_dict(), k, q,
                                str(fdir) if fdir else None)) for i in range(k)]
     for p in procs:
         p.start()

@@ -266,6 +266,16 @@ class EgoTracker:
         box = np.column_stack([u - half_w, v0, u + half_w, v1])
         return box, dist, front
 
+    SETTINGS = ("spec", "max_age_s", "min_hits", "iou_min", "accel_mps2", "class_penalty",
+                "gate_chi2", "cross_px", "out_of_view_s", "view_margin_px", "mu_h", "coast_s",
+                "coast_chi2")
+    """The fields that set its behaviour (the rest is state)."""
+
+    def same_settings(self, other: EgoTracker) -> bool:
+        """Whether ``other`` has the same `SETTINGS` (fed the same frames, both give the
+        same ids and positions)."""
+        return all(getattr(self, a) == getattr(other, a) for a in self.SETTINGS)
+
     def update(self, det: Detections, t: float, pose: CameraPose) -> np.ndarray:
         """Feed one frame; returns (N,) confirmed track id per detection or −1."""
         n = len(det)
