@@ -274,6 +274,9 @@ class Renderer:
     ):
         import moderngl
 
+        # the noise texture (0.5 s of numpy FFTs and sorts, which release the GIL) is made
+        # in a thread while the context, the shaders and the scene's meshes are built
+        noise = _in_thread(noise_texture, NOISE_PX)
         self.road_map = road_map
         self.width, self.height = int(width), int(height)
         self.fov_deg = float(fov_deg)
@@ -305,7 +308,7 @@ class Renderer:
         self._uniforms: dict[str, Any] = {}
         self._flags: tuple = ()
         self._sky_buf = ctx.buffer(np.array([-1, -1, 3, -1, -1, 3], "f4").tobytes())
-        self._noise = ctx.texture((NOISE_PX, NOISE_PX), 4, noise_texture(NOISE_PX).tobytes())
+        self._noise = ctx.texture((NOISE_PX, NOISE_PX), 4, noise().tobytes())
         self._noise.build_mipmaps()
         self._noise.repeat_x = self._noise.repeat_y = True
         self._noise.filter = (moderngl.LINEAR_MIPMAP_NEAREST, moderngl.LINEAR)
@@ -1359,6 +1362,32 @@ def vignette_fit(multiplier: float, falloff: float, r2_max: float) -> tuple[floa
     s = np.linspace(0.0, float(r2_max), 4001)
     fit = np.polynomial.chebyshev.Chebyshev.fit(s, 1.0 / (1.0 + m * s ** e), VIGNETTE_DEGREE)
     return tuple(float(v) for v in fit.convert(kind=np.polynomial.Polynomial).coef)
+
+
+def _in_thread(fn, *args):
+    """Start ``fn(*args)`` in a thread; returns a function that waits for its result (and
+    raises its exception)."""
+    import threading
+
+    box: list = []
+
+    def run() -> None:
+        try:
+            box.append((True, fn(*args)))
+        except BaseException as exc:  # re-raised by the caller
+            box.append((False, exc))
+
+    t = threading.Thread(target=run, name="dashtraj-render-init", daemon=True)
+    t.start()
+
+    def result():
+        t.join()
+        ok, value = box[0]
+        if not ok:
+            raise value
+        return value
+
+    return result
 
 
 @functools.lru_cache(maxsize=2)
