@@ -8,7 +8,8 @@ such as the shipped ``src/dashtraj/data/detector/detector.onnx``, timed as its o
 stage ``detect_model`` beside the oracle), localize (fused; and smoothed, the whole
 sequence forward then both directions, per frame), track (sort, ego),
 map-match, crops (JPEG of the detections within 15 m), and the database write. Then
-`perceive` with that detector of one observer (one process) and of two observers with
+`perceive` with that detector of one observer (one process; pipelined, the default, and in
+turn on one thread, ``parallel_frames=0``, with their ratio) and of two observers with
 2 workers, frames/s per observer (render included). Trackers: updates/s on the cached detections
 of all four observers, BoxMOT's ByteTrack / OC-SORT / BoT-SORT (ECC) when importable.
 
@@ -94,16 +95,17 @@ def stages(rec, observer: int, model: str | None = None) -> tuple[dict, list]:
     return {k: round(n / v, 1) if v > 0 else None for k, v in t.items()} | {"frames": n}, frames
 
 
-def whole(rec, root: Path, observers, workers: int, detector: str = "oracle") -> dict:
+def whole(rec, root: Path, observers, workers: int, detector: str = "oracle",
+          parallel_frames: int | None = None) -> dict:
     from dashtraj.perception.pipeline import PerceiveConfig, perceive
 
-    db = root / f"run{workers}.db"
+    db = root / f"run{workers}_{parallel_frames}.db"
     t0 = time.perf_counter()
-    s = perceive(rec, db, PerceiveConfig(detector=detector, observers=tuple(observers)),
-                 workers=workers)
+    s = perceive(rec, db, PerceiveConfig(detector=detector, observers=tuple(observers),
+                                         parallel_frames=parallel_frames), workers=workers)
     wall = time.perf_counter() - t0
     return {"detector": detector, "observers": len(observers), "workers": workers,
-            "frames": s.frames,
+            "parallel_frames": parallel_frames, "frames": s.frames,
             "wall_s": round(wall, 2),
             "frames_per_s_per_observer": round(s.frames / wall / min(workers, len(observers)),
                                                1)}
@@ -166,17 +168,22 @@ def main(argv=None) -> int:
         seqs = [first] + [stages(rec, o)[1] for o in obs[1:]]
         det = model or "oracle"
         res = {"stages_frames_per_s": st,
+               "perceive_1_worker_serial": whole(rec, root, obs[:1], 1, det, 0),
                "perceive_1_worker": whole(rec, root, obs[:1], 1, det),
                "perceive_2_workers": whole(rec, root, obs[:2], 2, det),
                "tracker_updates_per_s": trackers(rec, seqs)}
     tu = res["tracker_updates_per_s"]
     print("stage frames/s (one observer):",
           ", ".join(f"{k} {v}" for k, v in st.items() if k != "frames"))
-    for k in ("perceive_1_worker", "perceive_2_workers"):
+    for k in ("perceive_1_worker_serial", "perceive_1_worker", "perceive_2_workers"):
         r = res[k]
+        how = "in turn on one thread" if r["parallel_frames"] == 0 else "pipelined"
         print(f"perceive ({Path(r['detector']).name}), {r['observers']} observers / "
-              f"{r['workers']} workers: "
+              f"{r['workers']} workers, {how}: "
               f"{r['frames_per_s_per_observer']} frames/s per observer (target >= 15)")
+    a, b = res["perceive_1_worker"], res["perceive_1_worker_serial"]
+    print(f"  pipelined / in turn (one observer): "
+          f"{a['frames_per_s_per_observer'] / b['frames_per_s_per_observer']:.2f}x")
     print("tracker updates/s:", ", ".join(f"{k} {v}" for k, v in tu.items()
                                           if not k.endswith("skipped")))
     for peer in ("bytetrack", "ocsort", "botsort"):
