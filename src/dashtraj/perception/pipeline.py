@@ -321,7 +321,6 @@ def _all_batches(recording, observers: list[int], config: PerceiveConfig, road_m
     this thread. The batches are the same either way."""
     from dashtraj.datasets.frames import RenderAhead, open_renderer
 
-    spec = image_camera(recording, config.size)
     if config.parallel_frames:
         look = None
         if config.look is not None:
@@ -336,6 +335,7 @@ def _all_batches(recording, observers: list[int], config: PerceiveConfig, road_m
                     yield o, b
                 yield o, None
         return
+    spec = image_camera(recording, config.size)
     renderer = open_renderer(recording.map_path, spec.width_px, spec.height_px, spec.fov_deg,
                              msaa=config.msaa)
     _set_look(renderer, config.look)
