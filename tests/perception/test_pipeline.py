@@ -192,6 +192,36 @@ def test_render_ahead_order_errors_and_early_close(small_run, gl_available, tmp_
         next(ahead.frames(1))
 
 
+def test_render_ahead_writes_the_environment_on_the_calling_thread_only(small_run,
+                                                                        gl_available):
+    """C ``setenv`` in one thread while another runs ``getenv`` can crash the process
+    (seen: a perception worker's segfault in getenv): a fresh process's GL setup
+    (``os.environ`` writes) must happen before the render thread starts, on the caller's."""
+    import subprocess
+    import sys
+
+    code = f"""
+import os, threading, warnings
+warnings.simplefilter("ignore")
+writes = []
+real = os.putenv
+def putenv(k, v):
+    writes.append(threading.current_thread().name)
+    real(k, v)
+os.putenv = putenv
+from dashtraj.world.recording import Recording
+from dashtraj.datasets.frames import RenderAhead
+rec = Recording.open({str(small_run.path)!r})
+with RenderAhead(rec, [1], 2.0, (160, 90)) as ahead:
+    n = sum(1 for _ in ahead.frames(1))
+print(n, sorted(set(writes)))
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=300, check=True).stdout.split()
+    assert int(out[0]) > 5
+    assert "".join(out[1:]) == "['MainThread']"
+
+
 def test_sightings_command_takes_the_camera_pipeline(small_run, gl_available, tmp_path, capsys):
     out = tmp_path / "s.csv"
     assert main(["sightings", str(small_run.path), "--detector", "oracle", "--tracker", "sort",

@@ -227,7 +227,10 @@ class RenderAhead:
     work that releases the GIL while it runs, such as an onnxruntime model run.
 
     Use as a context manager (`close` stops the thread and releases the renderer); an
-    error in the thread (e.g. ``RenderUnavailableError``) is raised by `frames`.
+    error in the thread (e.g. ``RenderUnavailableError``) is raised by `frames`. The
+    process's GL setup (`dashtraj.render.gl.prepare_process`, which writes environment
+    variables) runs on the calling thread first, with llvmpipe on the rendering thread
+    alone (``LP_NUM_THREADS=0``, as `open_renderer`'s default).
 
     Args:
         recording: a ``dashtraj.world.recording.Recording``.
@@ -245,6 +248,9 @@ class RenderAhead:
         import queue
         import threading
 
+        from dashtraj.render.gl import prepare_process
+
+        prepare_process(0)  # its os.environ writes must not race the thread's getenv
         self._obs = [int(o) for o in observers]
         self._next = 0
         self._out: queue.Queue = queue.Queue(maxsize=max(1, int(depth)))

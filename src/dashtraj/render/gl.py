@@ -151,12 +151,45 @@ def _point_vendor_file_at(vendor: Path, library: Path) -> None:
     os.replace(tmp, vendor)
 
 
+def prepare_process(threads: int | None = None) -> None:
+    """The process-wide part of `create_context`, done once per process: the environment
+    variables EGL and Mesa read (``EGL_PLATFORM``, ``LIBGL_ALWAYS_SOFTWARE``,
+    ``LP_NUM_THREADS``, the private Mesa's vendor file), triton before llvmpipe, the
+    private Mesa's libraries preloaded. Later calls change nothing (a different
+    ``threads`` warns).
+
+    It writes ``os.environ`` (C ``setenv``), which may move the process's environment
+    while another thread reads it (``getenv``: Mesa, onnxruntime, the C library), a
+    crash seen as a segfault in ``getenv`` when a render thread made the first context
+    while the main thread started onnxruntime. Call it on the main thread before
+    starting threads that will render (`dashtraj.datasets.frames.RenderAhead` does)."""
+    global _THREADS_IN_EFFECT
+    if _THREADS_IN_EFFECT is not None:
+        if threads is not None and str(int(threads)) != _THREADS_IN_EFFECT:
+            warnings.warn(
+                f"llvmpipe already runs with LP_NUM_THREADS={_THREADS_IN_EFFECT or 'default'} "
+                f"in this process; threads={threads} has no effect (set it before the "
+                "first context)",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+        return
+    os.environ.setdefault("EGL_PLATFORM", "surfaceless")
+    os.environ.setdefault("LIBGL_ALWAYS_SOFTWARE", "1")
+    if threads is not None:
+        os.environ["LP_NUM_THREADS"] = str(int(threads))
+    _load_triton_first()
+    _load_private_mesa()
+    _THREADS_IN_EFFECT = os.environ.get("LP_NUM_THREADS", "")
+
+
 def create_context(threads: int | None = None):
     """Create a standalone headless OpenGL ≥ 3.3 context (moderngl, EGL backend).
 
     Args:
         threads: llvmpipe rasterizer threads (``LP_NUM_THREADS``); None keeps the
-            environment's value or Mesa's default (one per core).
+            environment's value or Mesa's default (one per core). Read once per process
+            (`prepare_process`).
 
     Returns:
         a ``moderngl.Context``.
@@ -165,23 +198,7 @@ def create_context(threads: int | None = None):
         RenderUnavailableError: moderngl is not installed or EGL/Mesa cannot open a
             context; the message says what to install.
     """
-    global _THREADS_IN_EFFECT
-    os.environ.setdefault("EGL_PLATFORM", "surfaceless")
-    os.environ.setdefault("LIBGL_ALWAYS_SOFTWARE", "1")
-    if _THREADS_IN_EFFECT is not None:
-        if threads is not None and str(int(threads)) != _THREADS_IN_EFFECT:
-            warnings.warn(
-                f"llvmpipe already runs with LP_NUM_THREADS={_THREADS_IN_EFFECT or 'default'} "
-                f"in this process; threads={threads} has no effect (set it before the "
-                "first context)",
-                RuntimeWarning,
-                stacklevel=2,
-            )
-    elif threads is not None:
-        os.environ["LP_NUM_THREADS"] = str(int(threads))
-    _load_triton_first()
-    if _THREADS_IN_EFFECT is None:
-        _load_private_mesa()
+    prepare_process(threads)
     try:
         import moderngl
     except ImportError as e:  # pragma: no cover - depends on the environment
@@ -198,8 +215,6 @@ def create_context(threads: int | None = None):
             "software rasterizer: scripts/install_render_deps.sh "
             f"(apt-get install libegl1 libgl1 libgl1-mesa-dri){hint}"
         ) from e
-    if _THREADS_IN_EFFECT is None:
-        _THREADS_IN_EFFECT = os.environ.get("LP_NUM_THREADS", "")
     return ctx
 
 
