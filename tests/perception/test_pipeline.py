@@ -156,6 +156,19 @@ def test_share_tracker_only_takes_a_fresh_tracker_of_the_same_settings():
     assert not TrackedLocalizer().share_tracker(used)
 
 
+def test_ego_settings_name_every_field_but_its_state():
+    """`share_tracker` compares `EgoTracker.SETTINGS`: a new field must join them (or the
+    state below), else two filters of different settings could be taken for one."""
+    from dataclasses import fields
+
+    from dashtraj.perception.track import EgoTracker
+
+    names = {f.name for f in fields(EgoTracker)}
+    state = {n for n in names if n.startswith("_")} | {
+        "name", "positions", "innovation_d2", "track_of", "position_cov", "measured"}
+    assert set(EgoTracker.SETTINGS) == names - state
+
+
 def test_render_ahead_gives_the_frames_of_recording_frames(small_run, gl_available):
     from dashtraj.datasets.frames import RenderAhead, recording_frames
 
