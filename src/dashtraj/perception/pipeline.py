@@ -295,13 +295,6 @@ def _location_updates(observer_id: int, frames: list[int], locs, road_map
     return out
 
 
-def _set_look(renderer, look: str | None) -> None:
-    if look is not None:
-        from dashtraj.render.look import preset
-
-        renderer.set_look(preset(look))
-
-
 def _process_config(config: PerceiveConfig, workers: int) -> PerceiveConfig:
     """``config`` with its automatic settings chosen for a process among ``workers``:
     `PerceiveConfig.threads` 1; `PerceiveConfig.parallel_frames` 2 in one process, 1 per
@@ -319,33 +312,34 @@ def _all_batches(recording, observers: list[int], config: PerceiveConfig, road_m
     with ``parallel_frames`` ≥ 1 the frames are rendered ahead in a thread
     (`RenderAhead`) and detected that many at once; with 0 everything runs in turn on
     this thread. The batches are the same either way."""
+    import contextlib
+
     from dashtraj.datasets.frames import RenderAhead, open_renderer
 
-    if config.parallel_frames:
-        look = None
-        if config.look is not None:
-            from dashtraj.render.look import preset
+    look = None
+    if config.look is not None:
+        from dashtraj.render.look import preset
 
-            look = preset(config.look)
-        with RenderAhead(recording, observers, config.every_s, config.size, config.msaa,
-                         look, depth=config.parallel_frames + 2) as ahead:
-            for o in observers:
-                for b in observer_batches(recording, o, config, road_map, None, frames_dir,
-                                          ahead.frames(o), config.parallel_frames):
-                    yield o, b
-                yield o, None
-        return
-    spec = image_camera(recording, config.size)
-    renderer = open_renderer(recording.map_path, spec.width_px, spec.height_px, spec.fov_deg,
-                             msaa=config.msaa)
-    _set_look(renderer, config.look)
-    try:
+        look = preset(config.look)
+    with contextlib.ExitStack() as stack:
+        if config.parallel_frames:
+            ahead = stack.enter_context(RenderAhead(
+                recording, observers, config.every_s, config.size, config.msaa, look,
+                depth=config.parallel_frames + 2))
+            renderer, frames_of = None, ahead.frames
+        else:
+            spec = image_camera(recording, config.size)
+            renderer = open_renderer(recording.map_path, spec.width_px, spec.height_px,
+                                     spec.fov_deg, msaa=config.msaa)
+            stack.callback(renderer.release)
+            if look is not None:
+                renderer.set_look(look)
+            frames_of = lambda o: None  # noqa: E731 - observer_batches renders them
         for o in observers:
-            for b in observer_batches(recording, o, config, road_map, renderer, frames_dir):
+            for b in observer_batches(recording, o, config, road_map, renderer, frames_dir,
+                                      frames_of(o), config.parallel_frames):
                 yield o, b
             yield o, None
-    finally:
-        renderer.release()
 
 
 def _worker(recording_path: str, observers: list[int], config_dict: dict, workers: int,
