@@ -692,10 +692,7 @@ class Renderer:
         ranges of each vehicle in both halves."""
         key = tuple(id(r[0]) for r in rows)
         if key != self._ikey:
-            tri = np.concatenate([r[2] + s0 for r, s0 in zip(rows, starts[:-1].tolist(),
-                                                                strict=True)])
-            sil = np.concatenate([r[3] + s0 for r, s0 in zip(rows, starts[:-1].tolist(),
-                                                                strict=True)])
+            tri, sil = _stacked_rows(rows, 2, starts), _stacked_rows(rows, 3, starts)
             data = np.concatenate([tri, sil]).astype(np.uint32)
             if self._ibuf is None or data.nbytes > self._ibuf_bytes:
                 cap = 1 << (max(data.nbytes, 1 << 15) - 1).bit_length()
@@ -916,8 +913,7 @@ class Renderer:
         rows = [self._mesh_rows(v) for v in vs]
         counts = np.array([len(r[1]) for r in rows], np.int64)
         starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        hull = np.concatenate([r[4] + s0 for r, s0 in zip(rows, starts[:-1].tolist(), strict=True)]
-                              ) if n else None
+        hull = _stacked_rows(rows, 4, starts) if n else None
         tri = None
         if n:
             tri, ranges, sil_ranges = self._upload_indices(rows, starts)
@@ -1245,6 +1241,14 @@ def _indexed(data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
     return np.ascontiguousarray(data[first[order]]), rank[inv.ravel()].astype(np.int32)
+
+
+def _stacked_rows(rows, field: int, starts: np.ndarray) -> np.ndarray:
+    """Row indices ``field`` of each vehicle's cached mesh rows (`Renderer._mesh_rows`),
+    offset to where its rows start in the frame's stacked vertices (``starts``) and
+    concatenated."""
+    return np.concatenate([r[field] + s0 for r, s0 in zip(rows, starts[:-1].tolist(),
+                                                          strict=True)])
 
 
 def _runs(ranges) -> list[tuple[int, int]]:
