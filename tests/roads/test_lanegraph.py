@@ -36,19 +36,20 @@ def _brute_force(g, a, b) -> float:
     the lane graph with a virtual source and sink."""
     G = g.graph.copy()
     entries = g._start_entries(a)
-    assert entries[0][:3] == (a.key, pytest.approx(g.progress(a.key, a.s)), 0.0)
-    pb = g.progress(b.key, b.s)
+    assert entries[0][:4] == (a.key, pytest.approx(g.progress(a.key, a.s)),
+                              pytest.approx(g.cost_at(a.key, a.s)), 0.0)
+    pb, qb = g.progress(b.key, b.s), g.cost_at(b.key, b.s)
     direct = math.inf
-    for key, p_entry, cost, _ in entries:
+    for key, p_entry, q_entry, cost, _ in entries:
         if key == b.key and pb >= p_entry - 1e-9:
-            direct = min(direct, cost + pb - p_entry)
-        exit_cost = cost + G.nodes[key]["length"] - p_entry
+            direct = min(direct, cost + qb - q_entry)
+        exit_cost = cost + G.nodes[key]["cost"] - q_entry
         for succ, data in g.graph[key].items():
             if data["kind"] != "follow":
                 continue
             w = G.edges["SRC", succ]["weight"] if G.has_edge("SRC", succ) else math.inf
             G.add_edge("SRC", succ, weight=min(w, exit_cost))
-    G.add_edge(b.key, "SNK", weight=pb)
+    G.add_edge(b.key, "SNK", weight=qb)
     try:
         via = nx.dijkstra_path_length(G, "SRC", "SNK") if "SRC" in G else math.inf
     except nx.NetworkXNoPath:
@@ -56,9 +57,10 @@ def _brute_force(g, a, b) -> float:
     return min(direct, via)
 
 
-def test_routes_match_brute_force_dijkstra(town):
+@pytest.mark.parametrize("turn_cost", [0.0, 8.0])
+def test_routes_match_brute_force_dijkstra(town, turn_cost):
     _, m, pairs = town
-    g = m.lane_graph()
+    g = m.lane_graph(turn_cost_m_per_rad=turn_cost)
     widths = max(ln_w for ln_w in (m.waypoint(*ln.key, 0.5 * (ln.s0 + ln.s1)).lane_width
                                    for ln in m.driving_lanes()))
     n_routes = 0
@@ -146,3 +148,50 @@ def test_unreachable_destination_raises(xodr):
     # Behind on the same lane, with no way round: unreachable too.
     with pytest.raises(NoRouteError):
         g.route(m.waypoint(1, 0, -1, 30.0), a)
+
+
+def test_turn_cost_is_the_heading_change_along_the_lane(town):
+    """A lane's turn cost, divided by k, is its total heading change: about the net
+    change of its end yaws (CARLA waypoints, an independent computation) or more, and
+    equal to it on the lanes that bend one way only (most of them). The polyline's
+    turns miss the half samples at the two ends (≤ 1.5° on Town10HD's long curves)."""
+    _, m, _ = town
+    k = 10.0
+    g = m.lane_graph(turn_cost_m_per_rad=k)
+    plain = m.lane_graph()
+    net, total = [], []
+    for ln in m.driving_lanes():
+        a, b = m.waypoint(*ln.key, ln.start_s), m.waypoint(*ln.key, ln.end_s)
+        net.append(abs((b.transform.rotation.yaw - a.transform.rotation.yaw + 180) % 360 - 180))
+        total.append(math.degrees((g.cost_at(ln.key, ln.end_s) - plain.progress(ln.key, ln.end_s))
+                                  / k))
+        assert g.cost_at(ln.key, ln.start_s) == pytest.approx(0.0, abs=1e-9)
+    net, total = np.array(net), np.array(total)
+    assert (total >= net - 1.5).all()
+    assert np.median(np.abs(total - net)) < 0.01
+    assert np.mean(np.abs(total - net) < 0.05) > 0.75
+    assert (net > 60).sum() >= 20  # the towns' turning connectors are in the check
+
+
+def test_turn_cost_prefers_the_route_with_fewer_turns():
+    """Town01's grid, southbound at (204, 160) to northbound at (0, 39): round the
+    block via x = 104 (four 90° turns, 377.7 m) or straight on to y = 0 (two turns,
+    388.0 m). By length the first; at 4 m/rad (π rad saved ≈ 12.6 m > 10.3 m) the
+    second."""
+    from dashtraj.world.towns import town_path
+
+    m = RoadMap.from_file(town_path("town01"))
+    a, b = (203.9, 160.0), (-0.3, 39.0)
+    by_length = m.lane_graph().route(a, b)
+    by_turns = m.lane_graph(turn_cost_m_per_rad=4.0).route(a, b)
+    assert by_length.length_m == pytest.approx(377.7, abs=0.5)
+    assert by_turns.length_m == pytest.approx(388.0, abs=0.5)
+    assert np.abs(by_length.polyline[:, 0] - 104.0).min() < 2.0   # goes down x = 104
+    assert np.abs(by_turns.polyline[:, 0] - 104.0)[by_turns.polyline[:, 1] > 20].min() > 50
+    assert by_turns.cost_m == pytest.approx(by_turns.length_m + 4.0 * math.pi, abs=1.0)
+    # Costs agree between route, route_cost and route_costs with a turn cost too.
+    g = m.lane_graph(turn_cost_m_per_rad=4.0)
+    assert g.route_cost(a, b) == pytest.approx(by_turns.cost_m, abs=1e-9)
+    assert g.route_costs(g._as_waypoint(a), [b])[0] == pytest.approx(by_turns.cost_m, abs=1e-9)
+    with pytest.raises(ValueError, match="turn_cost_m_per_rad"):
+        m.lane_graph(turn_cost_m_per_rad=-1.0)

@@ -5,7 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 
-from dashtraj.cli._args import MAX_OFF_ROAD_M, positive_float, positive_int, seed
+from dashtraj.cli._args import (
+    MAX_OFF_ROAD_M,
+    non_negative_float,
+    positive_float,
+    positive_int,
+    seed,
+)
 from dashtraj.outputs import add_output_args
 
 
@@ -35,6 +41,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="drop sightings farther than M metres from every driving lane, with a "
                         "warning naming their lines; refuse a file where none is nearer "
                         f"(default {MAX_OFF_ROAD_M:g})")
+    p.add_argument("--turn-cost", type=non_negative_float, default=None, metavar="M",
+                   help="hmm: metres of route cost per radian of heading change, a prior "
+                        "for routes with fewer turns (default 3; 0: by length alone)")
     add_output_args(p)
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     p.set_defaults(func=run_reconstruct)
@@ -138,10 +147,17 @@ def run_reconstruct(args: argparse.Namespace) -> int:
 
         raise ArgumentError(f"--method {args.method!r} is not a reconstruction method; "
                             f"valid: {', '.join(sorted(METHODS))}")
+    options = {}
+    if args.turn_cost is not None:
+        if args.method != "hmm":
+            from dashtraj.cli._args import ArgumentError
+
+            raise ArgumentError("--turn-cost applies to --method hmm only")
+        options["turn_cost_m_per_rad"] = args.turn_cost
     road_map = _load_map(args.map)
     read = read_sightings(args.sightings)
     sightings = drop_off_road(road_map, read, args.sightings, args.max_off_road)
-    rec = reconstruct(road_map, sightings, method=args.method)
+    rec = reconstruct(road_map, sightings, method=args.method, **options)
     with atomic_output(args.output, overwrite=args.overwrite, kind="file") as tmp:
         write_trajectory(tmp, rec.trajectory)
     summary = {

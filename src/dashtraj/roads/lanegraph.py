@@ -15,6 +15,14 @@ A node's cost g is the cost of reaching its start point. A route from a point
 on lane a (progress p_a along it) to a point on lane b (progress p_b) costs
 (L_a − p_a) + Σ edges + p_b, or p_b − p_a when b lies ahead on a itself.
 
+With ``turn_cost_m_per_rad`` k > 0, driving a stretch of lane costs its length
+plus k times the heading change along it (the sum of |Δheading| over the
+centre-line samples, radians): a route-choice prior that drivers prefer fewer
+and gentler turns (turn penalties are standard in route-choice models). Lane
+progress p is then replaced by the cost coordinate q(p) = p + k · turn(0..p) in
+every formula above; lengths and polylines are unchanged. k = 0 (the default)
+is the plain length.
+
 The A* heuristic is the straight-line distance from a lane's start point to the
 destination, less a 1 m slack for lane links that do not quite touch in real
 maps. Every edge weight is at least the straight-line distance between the
@@ -90,37 +98,54 @@ class LaneGraph:
         road_map: the map.
         lane_change_cost_m: penalty of one lane change, metres-equivalent.
         lane_type: the lanes that may be driven.
+        turn_cost_m_per_rad: metres-equivalent cost of one radian of heading
+            change along a lane (0: routes by length alone).
     """
 
     def __init__(self, road_map: RoadMap, lane_change_cost_m: float = 15.0,
-                 lane_type: LaneType = LaneType.Driving):
+                 lane_type: LaneType = LaneType.Driving, turn_cost_m_per_rad: float = 0.0):
         if lane_change_cost_m < 0:
             raise ValueError("lane_change_cost_m must be non-negative")
+        if not turn_cost_m_per_rad >= 0:
+            raise ValueError("turn_cost_m_per_rad must be non-negative")
         self.map = road_map
         self.lane_change_cost_m = float(lane_change_cost_m)
+        self.turn_cost_m_per_rad = float(turn_cost_m_per_rad)
         self.lane_type = lane_type
         m = road_map
         self.graph = nx.DiGraph()
         self._length: dict[LaneKey, float] = {}
         self._start: dict[LaneKey, tuple[float, float]] = {}
         self._arc: dict[LaneKey, tuple[np.ndarray, np.ndarray]] = {}
+        # Cost coordinate along the arc (road s order) and a lane's whole cost, with turns.
+        self._carc: dict[LaneKey, np.ndarray] = {}
+        self._clen: dict[LaneKey, float] = {}
+        k_turn = self.turn_cost_m_per_rad
         for lane in m.lane_list:
             if not lane.type & lane_type:
                 continue
             sl = slice(lane.v0, lane.v1)
             xy = np.column_stack([m._vx[sl], m._vy[sl]])
-            arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+            step = np.diff(xy, axis=0)
+            arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(step, axis=1))])
             self._arc[lane.key] = (m._vs[sl], arc)
             length = float(arc[-1])
+            if k_turn > 0:
+                carc = arc + k_turn * _turn_along(step)
+                self._carc[lane.key] = carc
+                self._clen[lane.key] = float(carc[-1])
+            else:
+                self._clen[lane.key] = length
             start = xy[0] if lane.forward else xy[-1]
             self._length[lane.key] = length
             self._start[lane.key] = (float(start[0]), float(start[1]))
-            self.graph.add_node(lane.key, length=length, start=self._start[lane.key])
+            self.graph.add_node(lane.key, length=length, cost=self._clen[lane.key],
+                                start=self._start[lane.key])
         for key in self._length:
             lane = m.lanes[key]
             for t in lane.successors:
                 if t in self._length:
-                    self.graph.add_edge(key, t, weight=self._length[key], kind="follow")
+                    self.graph.add_edge(key, t, weight=self._clen[key], kind="follow")
             for nb in self._neighbours(key):
                 gap = math.dist(self._start[key], self._start[nb])
                 self.graph.add_edge(key, nb, weight=self.lane_change_cost_m + gap,
@@ -146,28 +171,38 @@ class LaneGraph:
         a = float(np.interp(s, ss, arc))
         return a if key[2] < 0 else float(arc[-1] - a)
 
+    def cost_at(self, key: LaneKey, s: float) -> float:
+        """The cost coordinate q at road s: metres from the lane's start (driving
+        direction) plus ``turn_cost_m_per_rad`` × the heading change on the way."""
+        if self.turn_cost_m_per_rad == 0:
+            return self.progress(key, s)
+        ss, _ = self._arc[key]
+        c = float(np.interp(s, ss, self._carc[key]))
+        return c if key[2] < 0 else self._clen[key] - c
+
     def s_at_progress(self, key: LaneKey, p: float) -> float:
         ss, arc = self._arc[key]
         a = p if key[2] < 0 else arc[-1] - p
         return float(np.interp(a, arc, ss))
 
-    def _start_entries(self, wp: Waypoint) -> list[tuple[LaneKey, float, float, list]]:
-        """(lane, entry progress, cost so far, path) for the origin and lane changes from it."""
+    def _start_entries(self, wp: Waypoint) -> list[tuple[LaneKey, float, float, float, list]]:
+        """(lane, entry progress, entry cost coordinate, cost so far, path) for the origin
+        and lane changes from it."""
         if wp.key not in self._length:
             raise NoRouteError(f"{self.map.name}: origin {wp} is not on a routable lane")
-        out = [(wp.key, self.progress(wp.key, wp.s), 0.0, [wp.key])]
+        out = [(wp.key, self.progress(wp.key, wp.s), self.cost_at(wp.key, wp.s), 0.0, [wp.key])]
         seen = {wp.key}
         i = 0
         while i < len(out):
-            key, _, cost, path = out[i]
+            key, _, _, cost, path = out[i]
             i += 1
             for nb in self._neighbours(key):
                 if nb in seen:
                     continue
                 seen.add(nb)
-                pa = self.progress(nb, wp.s)
                 gap = math.dist(self._point(key, wp.s), self._point(nb, wp.s))
-                out.append((nb, pa, cost + self.lane_change_cost_m + gap, [*path, nb]))
+                out.append((nb, self.progress(nb, wp.s), self.cost_at(nb, wp.s),
+                            cost + self.lane_change_cost_m + gap, [*path, nb]))
         return out
 
     def _point(self, key: LaneKey, s: float) -> tuple[float, float]:
@@ -175,16 +210,18 @@ class LaneGraph:
         return float(x), float(y)
 
     # ------------------------------------------------------------------ search
-    def _search(self, origin: Waypoint, goals: list[tuple[LaneKey, float]],
+    def _search(self, origin: Waypoint, goals: list[tuple[LaneKey, float, float]],
                 target_xy: tuple[float, float] | None, max_cost_m: float = math.inf):
         """A* (one goal, heuristic towards target_xy) or Dijkstra (target_xy None).
+
+        `goals` are (lane, progress, cost coordinate) triples.
 
         Returns (best cost per goal, back-pointer data for path recovery).
         """
         best = [math.inf] * len(goals)
         best_how: list = [None] * len(goals)
         goal_at: dict[LaneKey, list[int]] = {}
-        for gi, (k, _) in enumerate(goals):
+        for gi, (k, _, _) in enumerate(goals):
             goal_at.setdefault(k, []).append(gi)
         tx, ty = target_xy if target_xy is not None else (0.0, 0.0)
 
@@ -197,13 +234,13 @@ class LaneGraph:
         g: dict[LaneKey, float] = {}
         parent: dict[LaneKey, tuple] = {}
         heap: list = []
-        for key, p_entry, cost, path in self._start_entries(origin):
+        for key, p_entry, q_entry, cost, path in self._start_entries(origin):
             for gi in goal_at.get(key, ()):
-                pg = goals[gi][1]
-                if pg >= p_entry - 1e-9 and cost + pg - p_entry < best[gi]:
-                    best[gi] = cost + pg - p_entry
+                _, pg, qg = goals[gi]
+                if pg >= p_entry - 1e-9 and cost + qg - q_entry < best[gi]:
+                    best[gi] = cost + qg - q_entry
                     best_how[gi] = ("direct", path, p_entry)
-            exit_cost = cost + self._length[key] - p_entry
+            exit_cost = cost + self._clen[key] - q_entry
             for nxt, _, is_lc in self._adj[key]:
                 if is_lc:
                     continue
@@ -220,7 +257,7 @@ class LaneGraph:
                 break
             closed.add(key)
             for gi in goal_at.get(key, ()):
-                c = gk + goals[gi][1]
+                c = gk + goals[gi][2]
                 if c < best[gi]:
                     best[gi] = c
                     best_how[gi] = ("node", key)
@@ -254,8 +291,8 @@ class LaneGraph:
         b = self._as_waypoint(destination)
         if b.key not in self._length:
             raise NoRouteError(f"{self.map.name}: destination {b} is not on a routable lane")
-        pb = self.progress(b.key, b.s)
-        best, how, parent = self._search(a, [(b.key, pb)], self._start_xy_of(b))
+        goal = (b.key, self.progress(b.key, b.s), self.cost_at(b.key, b.s))
+        best, how, parent = self._search(a, [goal], self._start_xy_of(b))
         if not math.isfinite(best[0]):
             raise NoRouteError(
                 f"{self.map.name}: no route from road {a.road_id} lane {a.lane_id} s={a.s:.1f} "
@@ -273,7 +310,8 @@ class LaneGraph:
         b = self._as_waypoint(destination)
         if b.key not in self._length:
             return math.inf
-        best, _, _ = self._search(a, [(b.key, self.progress(b.key, b.s))],
+        best, _, _ = self._search(a, [(b.key, self.progress(b.key, b.s),
+                                       self.cost_at(b.key, b.s))],
                                   self._start_xy_of(b), max_cost_m)
         return best[0] if best[0] <= max_cost_m else math.inf
 
@@ -287,7 +325,7 @@ class LaneGraph:
         for i, d in enumerate(destinations):
             b = self._as_waypoint(d)
             if b.key in self._length:
-                goals.append((b.key, self.progress(b.key, b.s)))
+                goals.append((b.key, self.progress(b.key, b.s), self.cost_at(b.key, b.s)))
                 idx.append(i)
         out = np.full(len(destinations), math.inf)
         if goals:
@@ -377,3 +415,25 @@ class LaneGraph:
         poly = np.concatenate(parts)
         keep = np.concatenate([[True], np.linalg.norm(np.diff(poly, axis=0), axis=1) > 1e-6])
         return poly[keep]
+
+
+def _turn_along(step: np.ndarray) -> np.ndarray:
+    """Cumulative heading change (radians) at each vertex of a polyline, from its steps.
+
+    Vertex i gets the sum of |Δheading| between consecutive steps up to it; the
+    change at a vertex is counted at that vertex. Zero-length steps are skipped.
+    """
+    n = len(step) + 1
+    out = np.zeros(n)
+    if n < 3:
+        return out
+    heading = np.arctan2(step[:, 1], step[:, 0])
+    ok = np.hypot(step[:, 0], step[:, 1]) > 1e-9
+    idx = np.flatnonzero(ok)
+    if len(idx) < 2:
+        return out
+    turn = np.abs((np.diff(heading[idx]) + math.pi) % (2 * math.pi) - math.pi)
+    # the change between steps idx[j] and idx[j+1] happens at vertex idx[j+1]
+    add = np.zeros(n)
+    add[idx[1:]] = turn
+    return np.cumsum(add)

@@ -1133,13 +1133,14 @@ class RoadMap:
             "extent": {"x_min": x0, "y_min": y0, "x_max": x1, "y_max": y1},
         }
 
-    def lane_graph(self, lane_change_cost_m: float = 15.0):
-        """The directed lane graph (cached per lane-change cost); see `LaneGraph`."""
+    def lane_graph(self, lane_change_cost_m: float = 15.0, turn_cost_m_per_rad: float = 0.0):
+        """The directed lane graph (cached per lane-change and turn cost); see `LaneGraph`."""
         from dashtraj.roads.lanegraph import LaneGraph
 
-        key = float(lane_change_cost_m)
+        key = (float(lane_change_cost_m), float(turn_cost_m_per_rad))
         if key not in self._graphs:
-            self._graphs[key] = LaneGraph(self, lane_change_cost_m=key)
+            self._graphs[key] = LaneGraph(self, lane_change_cost_m=key[0],
+                                          turn_cost_m_per_rad=key[1])
         return self._graphs[key]
 
     def route(self, origin, destination, lane_change_cost_m: float = 15.0):
