@@ -73,17 +73,15 @@ def test_unknown_method_exit_code(tmp_path, town01_path, trip, capsys):
 
 def test_turn_cost_option(tmp_path, town01_path, trip, capsys):
     m, t = trip
-    sightings = tmp_path / "s.csv"
+    sightings, out = tmp_path / "s.csv", tmp_path / "t.csv"
     write_sightings(sightings, t.sightings)
-    out = tmp_path / "t.csv"
-    assert main(["reconstruct", "--map", str(town01_path), "--sightings", str(sightings),
-                 "-o", str(out), "--turn-cost", "0"]) == 0
+    args = ["reconstruct", "--map", str(town01_path), "--sightings", str(sightings)]
+    assert main([*args, "-o", str(out), "--turn-cost", "0"]) == 0
     by_length = reconstruct(m, list(t.sightings), turn_cost_m_per_rad=0.0)
     assert read_trajectory(out) == by_length.trajectory
     for bad, says in ((["--turn-cost", "-1"], "--turn-cost"),
                       (["--turn-cost", "2", "--method", "shortest-path"], "--method hmm only")):
-        rc = main(["reconstruct", "--map", str(town01_path), "--sightings", str(sightings),
-                   "-o", str(tmp_path / "u.csv"), *bad])
+        rc = main([*args, "-o", str(tmp_path / "u.csv"), *bad])
         assert rc == 2
         err = capsys.readouterr().err
         assert says in err and "Traceback" not in err
