@@ -4,7 +4,7 @@ Nodes are lanes (road_id, section_id, lane_id) of the routable type (Driving by
 default). Edges, each with a `weight` in metres:
 
 - ``follow``: lane A → every successor lane S, weight = A's centre-line length
-  (the cost of driving A from its start to its end). Every lane-to-lane link of
+  (the cost of driving A from its start to its end; plus its turn cost, below). Every lane-to-lane link of
   the map is kept, unlike CARLA's GlobalRoutePlanner, whose node keys (positions
   rounded to 1 m) make parallel edges overwrite each other.
 - ``lane_change``: A → an adjacent lane B of the same section and direction,
@@ -67,7 +67,8 @@ class Route:
     """A route on the lane graph.
 
     `polyline` is (N, 2), CARLA world, metres, in driving order; `length_m` its
-    length; `cost_m` the graph cost (length plus lane-change penalties).
+    length; `cost_m` the graph cost (length plus lane-change penalties, plus the
+    turn costs when the graph has a `turn_cost_m_per_rad`).
     """
 
     legs: tuple[RouteLeg, ...]
