@@ -4,6 +4,7 @@ unreachable destinations; every map successor kept as an edge."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import networkx as nx
@@ -195,3 +196,21 @@ def test_turn_cost_prefers_the_route_with_fewer_turns():
     assert g.route_costs(g._as_waypoint(a), [b])[0] == pytest.approx(by_turns.cost_m, abs=1e-9)
     with pytest.raises(ValueError, match="turn_cost_m_per_rad"):
         m.lane_graph(turn_cost_m_per_rad=-1.0)
+
+
+def test_map_route_turn_cost_option(capsys):
+    """`dashtraj map route --turn-cost` routes with the prior; 0 (the default) by length."""
+    from dashtraj.cli import main
+
+    got = {}
+    for extra in ([], ["--turn-cost", "4"]):
+        assert main(["map", "route", "town01", "--from=203.9,160", "--to=-0.3,39", "--json",
+                     *extra]) == 0
+        got[len(extra)] = json.loads(capsys.readouterr().out)
+    assert got[0]["length_m"] == pytest.approx(377.7, abs=0.5)
+    assert got[0]["cost_m"] == pytest.approx(got[0]["length_m"], abs=1e-6)
+    assert got[2]["length_m"] == pytest.approx(388.0, abs=0.5)
+    assert got[2]["cost_m"] > got[2]["length_m"] + 10.0
+    assert main(["map", "route", "town01", "--from=203.9,160", "--to=-0.3,39",
+                 "--turn-cost=-2"]) == 2
+    assert "--turn-cost" in capsys.readouterr().err

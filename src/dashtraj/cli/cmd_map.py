@@ -30,6 +30,9 @@ def register(sub) -> None:
                        help="destination, CARLA world metres")
     route.add_argument("--lane-change-cost", type=non_negative_float, default=15.0, metavar="M",
                        help="penalty of one lane change in metres (default 15)")
+    route.add_argument("--turn-cost", type=non_negative_float, default=0.0, metavar="M",
+                       help="metres of cost per radian of heading change: a preference for "
+                            "fewer turns (default 0: the shortest route by length)")
     route.add_argument("--json", action="store_true", help="print JSON (with the polyline)")
     route.add_argument("-o", "--output", help="also write the route polyline as CSV (x,y)")
     route.add_argument("--max-off-road", type=positive_float, default=MAX_OFF_ROAD_M,
@@ -92,7 +95,8 @@ def run_route(args) -> int:
     m = load(args.map)
     check_near_road(m, args.origin, "--from", args.max_off_road)
     check_near_road(m, args.destination, "--to", args.max_off_road)
-    r = m.route(args.origin, args.destination, lane_change_cost_m=args.lane_change_cost)
+    r = m.route(args.origin, args.destination, lane_change_cost_m=args.lane_change_cost,
+                turn_cost_m_per_rad=args.turn_cost)
     if args.output:
         from dashtraj.trajectory import Trajectory
         from dashtraj.trajectory.io import write_trajectory

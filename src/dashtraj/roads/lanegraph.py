@@ -4,9 +4,10 @@ Nodes are lanes (road_id, section_id, lane_id) of the routable type (Driving by
 default). Edges, each with a `weight` in metres:
 
 - ``follow``: lane A → every successor lane S, weight = A's centre-line length
-  (the cost of driving A from its start to its end; plus its turn cost, below). Every lane-to-lane link of
-  the map is kept, unlike CARLA's GlobalRoutePlanner, whose node keys (positions
-  rounded to 1 m) make parallel edges overwrite each other.
+  (the cost of driving A from its start to its end; plus its turn cost, below).
+  Every lane-to-lane link of the map is kept, unlike CARLA's GlobalRoutePlanner,
+  whose node keys (positions rounded to 1 m) make parallel edges overwrite each
+  other.
 - ``lane_change``: A → an adjacent lane B of the same section and direction,
   weight = ``lane_change_cost_m`` + the distance between the two lanes' start
   points. A lane change has a real cost, not zero as in CARLA's router.

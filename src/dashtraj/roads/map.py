@@ -1143,9 +1143,10 @@ class RoadMap:
                                           turn_cost_m_per_rad=key[1])
         return self._graphs[key]
 
-    def route(self, origin, destination, lane_change_cost_m: float = 15.0):
+    def route(self, origin, destination, lane_change_cost_m: float = 15.0,
+              turn_cost_m_per_rad: float = 0.0):
         """Shortest route between two locations; see `LaneGraph.route`."""
-        return self.lane_graph(lane_change_cost_m).route(origin, destination)
+        return self.lane_graph(lane_change_cost_m, turn_cost_m_per_rad).route(origin, destination)
 
     def __repr__(self) -> str:
         return f"RoadMap({self.name!r}, roads={len(self.roads)}, lanes={len(self.lanes)})"
