@@ -194,8 +194,9 @@ def test_turn_cost_prefers_the_route_with_fewer_turns():
     g = m.lane_graph(turn_cost_m_per_rad=4.0)
     assert g.route_cost(a, b) == pytest.approx(by_turns.cost_m, abs=1e-9)
     assert g.route_costs(g._as_waypoint(a), [b])[0] == pytest.approx(by_turns.cost_m, abs=1e-9)
-    with pytest.raises(ValueError, match="turn_cost_m_per_rad"):
-        m.lane_graph(turn_cost_m_per_rad=-1.0)
+    for bad in (-1.0, math.inf, math.nan):
+        with pytest.raises(ValueError, match="turn_cost_m_per_rad"):
+            m.lane_graph(turn_cost_m_per_rad=bad)
 
 
 def test_map_route_turn_cost_option(capsys):

@@ -108,8 +108,8 @@ class LaneGraph:
                  lane_type: LaneType = LaneType.Driving, turn_cost_m_per_rad: float = 0.0):
         if lane_change_cost_m < 0:
             raise ValueError("lane_change_cost_m must be non-negative")
-        if not turn_cost_m_per_rad >= 0:
-            raise ValueError("turn_cost_m_per_rad must be non-negative")
+        if not (math.isfinite(turn_cost_m_per_rad) and turn_cost_m_per_rad >= 0):
+            raise ValueError("turn_cost_m_per_rad must be a finite number >= 0")
         self.map = road_map
         self.lane_change_cost_m = float(lane_change_cost_m)
         self.turn_cost_m_per_rad = float(turn_cost_m_per_rad)
