@@ -175,7 +175,7 @@ def test_turn_cost_is_the_heading_change_along_the_lane(town):
 
 
 def test_turn_cost_prefers_the_route_with_fewer_turns():
-    """Town01's grid, southbound at (204, 160) to northbound at (0, 39): round the
+    """The built-in town01's grid, southbound at (204, 160) to northbound at (0, 39): round the
     block via x = 104 (four 90° turns, 377.7 m) or straight on to y = 0 (two turns,
     388.0 m). By length the first; at 4 m/rad (π rad saved ≈ 12.6 m > 10.3 m) the
     second."""

@@ -199,7 +199,7 @@ def test_a_gross_outlier_is_dropped_not_a_chain_break(town10):
 
 
 def test_hmm_turn_prior_picks_the_route_with_fewer_turns():
-    """Town01's grid, two sightings 40 s apart: southbound at (204, 150), later
+    """The built-in town01's grid, two sightings 40 s apart: southbound at (204, 150), later
     northbound at (0, 39). Round the block via x = 104 is 10 m shorter than straight
     on to y = 0 but turns 180° more (π rad): routing by length (turn cost 0) takes
     it, a turn cost above 10.3 / π ≈ 3.3 m/rad does not. The case of the ten
