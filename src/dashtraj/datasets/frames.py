@@ -132,6 +132,18 @@ def open_renderer(map_path, width: int, height: int, fov_deg: float, msaa: int =
     return Renderer(road_map, width, height, fov_deg, msaa=msaa, threads=threads, ctx=ctx)
 
 
+def recording_renderer(recording, size: tuple[int, int] | None = None, msaa: int = 4,
+                       look=None):
+    """A renderer of ``recording``'s map for its camera (``size`` (W, H) pixels, or None
+    for the camera's own), FOV the camera's; with ``look`` (a ``LookConfig``) set."""
+    spec = recording.config.camera
+    w, h = size if size is not None else (spec.width_px, spec.height_px)
+    renderer = open_renderer(recording.map_path, w, h, spec.fov_deg, msaa=msaa)
+    if look is not None:
+        renderer.set_look(look)
+    return renderer
+
+
 def recording_frames(recording, every_s: float = 0.5, size: tuple[int, int] | None = None,
                      observers: Iterable[int] | None = None, msaa: int = 4,
                      renderer=None, look_for=None) -> Iterator[RecordingFrame]:
@@ -182,7 +194,7 @@ def recording_frames(recording, every_s: float = 0.5, size: tuple[int, int] | No
     bounds = np.flatnonzero(np.r_[True, k_all[1:] != k_all[:-1], True])
     own = renderer is None
     if own:
-        renderer = open_renderer(recording.map_path, w, h, spec.fov_deg, msaa=msaa)
+        renderer = recording_renderer(recording, size, msaa)
     elif (renderer.width, renderer.height) != (w, h) or abs(renderer.fov_deg - spec.fov_deg) > 1e-9:
         raise DatasetError(f"renderer is {renderer.width}x{renderer.height} FOV "
                            f"{renderer.fov_deg:g}, frames need {w}x{h} FOV {spec.fov_deg:g}")
@@ -273,12 +285,8 @@ class RenderAhead:
 
     def _run(self, recording, every_s, size, msaa, look) -> None:
         try:
-            spec = recording.config.camera
-            w, h = size if size is not None else (spec.width_px, spec.height_px)
-            renderer = open_renderer(recording.map_path, w, h, spec.fov_deg, msaa=msaa)
+            renderer = recording_renderer(recording, size, msaa, look)
             try:
-                if look is not None:
-                    renderer.set_look(look)
                 for o in self._obs:
                     for rf in recording_frames(recording, every_s, size, [o], msaa=msaa,
                                                renderer=renderer):

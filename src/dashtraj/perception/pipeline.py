@@ -314,7 +314,7 @@ def _all_batches(recording, observers: list[int], config: PerceiveConfig, road_m
     this thread. The batches are the same either way."""
     import contextlib
 
-    from dashtraj.datasets.frames import RenderAhead, open_renderer
+    from dashtraj.datasets.frames import RenderAhead, recording_renderer
 
     look = None
     if config.look is not None:
@@ -328,12 +328,8 @@ def _all_batches(recording, observers: list[int], config: PerceiveConfig, road_m
                 depth=config.parallel_frames + 2))
             renderer, frames_of = None, ahead.frames
         else:
-            spec = image_camera(recording, config.size)
-            renderer = open_renderer(recording.map_path, spec.width_px, spec.height_px,
-                                     spec.fov_deg, msaa=config.msaa)
+            renderer = recording_renderer(recording, config.size, config.msaa, look)
             stack.callback(renderer.release)
-            if look is not None:
-                renderer.set_look(look)
             frames_of = lambda o: None  # noqa: E731 - observer_batches renders them
         for o in observers:
             for b in observer_batches(recording, o, config, road_map, renderer, frames_dir,
