@@ -182,6 +182,12 @@ class LaneGraph:
         c = float(np.interp(s, ss, self._carc[key]))
         return c if key[2] < 0 else self._clen[key] - c
 
+    def _goal(self, key: LaneKey, s: float) -> tuple[LaneKey, float, float]:
+        """(lane, progress, cost coordinate) at road s: one interpolation when the graph
+        has no turn cost (the two are equal then)."""
+        p = self.progress(key, s)
+        return key, p, (p if self.turn_cost_m_per_rad == 0 else self.cost_at(key, s))
+
     def s_at_progress(self, key: LaneKey, p: float) -> float:
         ss, arc = self._arc[key]
         a = p if key[2] < 0 else arc[-1] - p
@@ -192,7 +198,7 @@ class LaneGraph:
         and lane changes from it."""
         if wp.key not in self._length:
             raise NoRouteError(f"{self.map.name}: origin {wp} is not on a routable lane")
-        out = [(wp.key, self.progress(wp.key, wp.s), self.cost_at(wp.key, wp.s), 0.0, [wp.key])]
+        out = [(*self._goal(wp.key, wp.s), 0.0, [wp.key])]
         seen = {wp.key}
         i = 0
         while i < len(out):
@@ -203,8 +209,8 @@ class LaneGraph:
                     continue
                 seen.add(nb)
                 gap = math.dist(self._point(key, wp.s), self._point(nb, wp.s))
-                out.append((nb, self.progress(nb, wp.s), self.cost_at(nb, wp.s),
-                            cost + self.lane_change_cost_m + gap, [*path, nb]))
+                out.append((*self._goal(nb, wp.s), cost + self.lane_change_cost_m + gap,
+                            [*path, nb]))
         return out
 
     def _point(self, key: LaneKey, s: float) -> tuple[float, float]:
@@ -293,8 +299,7 @@ class LaneGraph:
         b = self._as_waypoint(destination)
         if b.key not in self._length:
             raise NoRouteError(f"{self.map.name}: destination {b} is not on a routable lane")
-        goal = (b.key, self.progress(b.key, b.s), self.cost_at(b.key, b.s))
-        best, how, parent = self._search(a, [goal], self._start_xy_of(b))
+        best, how, parent = self._search(a, [self._goal(b.key, b.s)], self._start_xy_of(b))
         if not math.isfinite(best[0]):
             raise NoRouteError(
                 f"{self.map.name}: no route from road {a.road_id} lane {a.lane_id} s={a.s:.1f} "
@@ -312,9 +317,8 @@ class LaneGraph:
         b = self._as_waypoint(destination)
         if b.key not in self._length:
             return math.inf
-        best, _, _ = self._search(a, [(b.key, self.progress(b.key, b.s),
-                                       self.cost_at(b.key, b.s))],
-                                  self._start_xy_of(b), max_cost_m)
+        best, _, _ = self._search(a, [self._goal(b.key, b.s)], self._start_xy_of(b),
+                                  max_cost_m)
         return best[0] if best[0] <= max_cost_m else math.inf
 
     def route_costs(self, origin, destinations, max_cost_m: float = math.inf) -> np.ndarray:
@@ -327,7 +331,7 @@ class LaneGraph:
         for i, d in enumerate(destinations):
             b = self._as_waypoint(d)
             if b.key in self._length:
-                goals.append((b.key, self.progress(b.key, b.s), self.cost_at(b.key, b.s)))
+                goals.append(self._goal(b.key, b.s))
                 idx.append(i)
         out = np.full(len(destinations), math.inf)
         if goals:
