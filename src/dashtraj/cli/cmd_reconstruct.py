@@ -7,6 +7,7 @@ import json
 
 from dashtraj.cli._args import (
     MAX_OFF_ROAD_M,
+    ArgumentError,
     non_negative_float,
     positive_float,
     positive_int,
@@ -143,15 +144,11 @@ def run_reconstruct(args: argparse.Namespace) -> int:
 
     check_output(args.output, overwrite=args.overwrite, kind="file")
     if args.method not in METHODS:
-        from dashtraj.cli._args import ArgumentError
-
         raise ArgumentError(f"--method {args.method!r} is not a reconstruction method; "
                             f"valid: {', '.join(sorted(METHODS))}")
     options = {}
     if args.turn_cost is not None:
         if args.method != "hmm":
-            from dashtraj.cli._args import ArgumentError
-
             raise ArgumentError("--turn-cost applies to --method hmm only")
         options["turn_cost_m_per_rad"] = args.turn_cost
     road_map = _load_map(args.map)
