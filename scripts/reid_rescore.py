@@ -9,7 +9,8 @@ folder first (the embeddings of MODEL are added to the copy, never to EXP).
 
 Usage:
     python scripts/reid_rescore.py EXP --reid-model M.onnx [--reid-threshold F.json]
-        [--gate | --no-gate] [--same-camera-m M] [--pin-anchor | --no-pin-anchor] [--json]
+        [--gate | --no-gate] [--same-camera-m M] [--pin-anchor | --no-pin-anchor]
+        [--split | --no-split] [--json]
 
 Prints one row per run (ReID precision/recall, hmm and shortest-path SSPD over the whole
 trip and the seen stretch) and the means, with the same aggregation as `experiments`.
@@ -37,6 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     from dashtraj.reid.embed import ReidEmbedder
     from dashtraj.reidentify.vision import (
         PIN_ANCHOR,
+        SPLIT_TRACKS,
         VISION_GATE,
         load_threshold,
         target_from_db,
@@ -58,6 +60,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pin-anchor", action=argparse.BooleanOptionalAction, default=PIN_ANCHOR,
                     help="the gate keeps the query's own track whatever the others say "
                          "(default: the library's, dashtraj.reidentify.vision.PIN_ANCHOR)")
+    ap.add_argument("--split", action=argparse.BooleanOptionalAction, default=SPLIT_TRACKS,
+                    help="cut tracks where their crops' look changes (default: the library's, "
+                         "dashtraj.reidentify.vision.SPLIT_TRACKS)")
     ap.add_argument("--json", action="store_true", help="print the figures as JSON")
     args = ap.parse_args(argv)
 
@@ -85,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
                                 recipe=th.calibration.recipe,
                                 gate=(gate_cfg or True) if gate_on else False,
                                 max_distance_m=config.max_distance_m, sample_s=SAMPLE_S,
-                                pin_anchor=args.pin_anchor)
+                                pin_anchor=args.pin_anchor, split=args.split)
             results, _, _ = reconstruct_and_score(road_map, rec.target_route, tt.sightings,
                                                   config.methods)
             summary = {**tt.summary, "methods": results}

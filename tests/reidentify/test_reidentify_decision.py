@@ -144,3 +144,41 @@ def test_calibration_on_separable_training_identities():
     assert a == b and a.positives == 10 * (K_CAMS - 1)
     with pytest.raises(ReidDecisionError, match="random generator"):
         calibrate_threshold(e, ids, cams, max_queries=10)
+
+
+def test_appearance_splits_at_identity_switches():
+    """Crop distances to the query of real tracks of the town10 seed 0 run from pixels
+    (observer 3; threshold 0.396): track 42 swapped to another car for its last 7 crops
+    in range, track 30 of observer 2 held another car for 4 crops before the target,
+    track 8 is the target throughout (one crop at 0.43)."""
+    from dashtraj.reidentify.decision import appearance_splits
+
+    thr = 0.396
+    t42 = [0.17, 0.19, 0.14, 0.2, 0.27, 0.32, 0.2, 0.21, 0.23, 0.21, 0.19, 0.18, 0.17, 0.17,
+           0.18, 0.16, 0.19, 0.22, 0.29, 0.24, 0.18, 0.18, 0.12, 0.24, 0.16, 0.23, 0.18, 0.16,
+           0.22, 0.24, 0.18, 0.67, 0.62, 0.67, 0.66, 0.68, 0.67, 0.66]
+    t30 = [0.62, 0.58, 0.61, 0.62, 0.2, 0.15, 0.13, 0.12, 0.15]
+    t8 = [0.21, 0.22, 0.18, 0.21, 0.2, 0.16, 0.16, 0.2, 0.12, 0.18, 0.24, 0.25, 0.22, 0.26,
+          0.19, 0.21, 0.23, 0.24, 0.25, 0.26, 0.23, 0.19, 0.28, 0.33, 0.27, 0.33, 0.24, 0.27,
+          0.26, 0.28, 0.25, 0.26, 0.31, 0.43, 0.31, 0.25, 0.25, 0.22, 0.23, 0.22, 0.16, 0.12]
+    assert appearance_splits(np.array(t42), thr) == [31]
+    assert appearance_splits(np.array(t30), thr) == [4]
+    assert appearance_splits(np.array(t8), thr) == []
+    # two switches: target, another car, the target again
+    assert appearance_splits(np.array(t30[:4] + t30[4:] + t30[:4]), thr) == [4, 9]
+    # two crops of another look are too few to cut (a bad angle), three are enough
+    assert appearance_splits(np.array([0.2] * 6 + [0.7] * 2), thr) == []
+    assert appearance_splits(np.array([0.2] * 6 + [0.7] * 3), thr) == [6]
+    assert appearance_splits(np.array([0.2] * 6 + [0.7] * 2), thr, min_crops=2) == [6]
+    # both sides on one side of the threshold: one vehicle whose look varies
+    assert appearance_splits(np.array([0.1] * 5 + [0.35] * 5), thr) == []
+    assert appearance_splits(np.array([0.5] * 5 + [0.9] * 5), thr) == []
+    # just above the threshold: a harder angle of the target more often than another car
+    near = np.array([0.43, 0.42, 0.44, 0.2, 0.21, 0.19, 0.2])
+    assert appearance_splits(near, thr) == [3]
+    assert appearance_splits(near, thr, margin=0.1) == []
+    assert appearance_splits(np.array([]), thr) == [] and appearance_splits(np.ones(3), thr) == []
+    with pytest.raises(ReidDecisionError, match="appearance_splits"):
+        appearance_splits(np.array(t30), float("nan"))
+    with pytest.raises(ReidDecisionError, match="appearance_splits"):
+        appearance_splits(np.array(t30), thr, min_crops=0)

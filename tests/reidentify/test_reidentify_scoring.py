@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from dashtraj.reidentify.scoring import ReidScore, ReidScoreError, pool, reid_score, truth_of_tracks
@@ -105,3 +106,73 @@ def test_the_route_gets_each_tracks_last_detection_in_range(tmp_path, town01):
     end = [s for s in tt.sightings if s.track_id == 5][-1]
     assert (end.x, end.y) == (112.0, 2.0)  # frame 12's position
     assert (tt.summary["reid_true_matches"], tt.summary["reid_misses"]) == (2, 0)
+
+
+def _switch_db(path, m):
+    """Observer 1 follows the target (vehicle 0) along Town01's road 12. Its tracker
+    swaps identities at t = 2.4 s: track 5 holds the target's boxes until then and an
+    oncoming car's (vehicle 7, on the other lane) after; track 6 picks the target up.
+    The crops' embeddings are stored for the shipped ReID model: the target's along one
+    axis, the other car's along another (cosine distance 1)."""
+    from dashtraj.reid.database import file_sha256
+    from dashtraj.reid.embed import shipped_model_path
+    from dashtraj.store import CropRow
+
+    model = shipped_model_path()
+    frames = range(20)
+    with SightingsDB.create(path) as db:
+        db.write_run("runs/x", "town01", None, {"width_px": 640, "height_px": 360}, {},
+                     [(1, None)])
+        poses, dets, crops, keys, vecs = [], [], [], [], []
+        for f in frames:
+            t = f * 0.2
+            o = m.waypoint(12, 0, -1, 10.0 + 10.0 * t).transform
+            poses.append(PoseRow(1, f, t, o.location.x, o.location.y, 0.0, o.rotation.yaw,
+                                 o.location.x, o.location.y, 1.6, o.rotation.yaw, 0.0))
+            target = m.waypoint(12, 0, -1, 20.0 + 10.0 * t).transform.location
+            other = m.waypoint(12, 0, 1, 80.0 - 10.0 * t).transform.location
+            rows = [(5, (300, 150, 360, 200), target, 0, 0)] if f < 12 else \
+                [(5, (500, 150, 540, 190), other, 7, 1), (6, (300, 150, 360, 200), target, 0, 0)]
+            for idx, (track, box, p, vid, axis) in enumerate(rows):
+                dets.append(DetectionRow(1, f, idx, t, track, *box, 0.9, 1, "car", "back",
+                                         10.0, 0.0, p.x, p.y, 0.0, None, None, None, None, None,
+                                         vid, vid))
+                crops.append(CropRow(1, f, idx, b"\xff", 1, 1))
+                keys.append((1, f, idx))
+                vecs.append(np.eye(512, dtype=np.float32)[axis])
+        db.add_frames(poses, dets, crops, [TrackRow(1, 5, "car", 0.0, 3.8, 20, 0),
+                                           TrackRow(1, 6, "car", 2.4, 3.8, 8, 0)])
+        db.add_embeddings(model.name, file_sha256(model), keys, np.array(vecs))
+        db.finish_observer(1)
+        db.finish_run()
+    return model
+
+
+def test_a_track_that_switches_vehicle_is_cut_where_its_look_changes(tmp_path, town01):
+    """Uncut, track 5 is the target by its median (12 of its 20 crops), carries the
+    oncoming car's positions into the route, and its boxes beside track 6's say two
+    vehicles, so the gate drops track 6, the target's. Cut at the switch, the car's part
+    fails the threshold and both of the target's tracks are kept."""
+    from dashtraj.reid.embed import ReidEmbedder
+    from dashtraj.reidentify.decision import EXPANDED_RECIPE
+    from dashtraj.reidentify.vision import target_from_db
+
+    path = tmp_path / "switch.db"
+    embedder = ReidEmbedder(_switch_db(path, town01), threads=1)
+    kw = dict(embedder=embedder, threshold=0.4, recipe=EXPANDED_RECIPE, sample_s=0.5)
+    whole = target_from_db(path, town01, 0, split=False, **kw)
+    assert (whole.summary["reid_true_matches"], whole.summary["reid_misses"]) == (1, 1)
+    assert {s.track_id for s in whole.sightings} == {5}
+    far = [s for s in whole.sightings if s.t > 2.3]  # the oncoming car's positions
+    assert far and all(abs(s.y - whole.sightings[0].y) > 2.0 for s in far)
+
+    cut = target_from_db(path, town01, 0, split=True, **kw)
+    s = cut.summary
+    assert (s["reid_true_matches"], s["reid_false_matches"], s["reid_misses"]) == (2, 0, 0)
+    assert (s["reid_split_tracks"], s["reid_split_parts"]) == (1, 1)
+    assert s["reid_candidates"] == 2  # (1, 5) and (1, 6); the car's part (1, 5, 1) fails
+    assert [(x.track_id, round(x.t, 1)) for x in cut.sightings] == \
+        [(5, 0.0), (5, 0.6), (5, 1.0), (5, 1.6), (5, 2.0), (5, 2.2),
+         (6, 2.4), (6, 3.0), (6, 3.4), (6, 3.8)]
+    y0 = cut.sightings[0].y
+    assert all(abs(x.y - y0) < 0.5 for x in cut.sightings)  # the target's lane throughout

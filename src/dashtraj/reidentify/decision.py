@@ -259,6 +259,72 @@ def decide_tracks(distances: np.ndarray, keys: Sequence[Hashable], threshold: fl
     return out
 
 
+
+def appearance_splits(distances: np.ndarray, threshold: float, min_crops: int = 3,
+                      min_step: float = 0.2, margin: float = 0.0) -> list[int]:
+    """Where one track's crops change vehicle, by their distances to the query.
+
+    A tracker can swap two vehicles' identities where their boxes cross, or carry a
+    track onto a neighbour after it lost its own: the track then holds the target's
+    crops on one side of a moment and another vehicle's on the other, and one aggregate
+    distance for the whole track either takes the other vehicle in or leaves the
+    target's crops out. This finds those moments by binary segmentation of the crops'
+    distances (in time order): the cut that maximises the CUSUM statistic
+    |mean(left) - mean(right)| * sqrt(j (n - j) / n) is kept when one side's median is
+    at most `threshold`, the other's above `threshold` + `margin`, they differ by at
+    least `min_step`, and each side holds `min_crops` crops on its own side of
+    `threshold`; each side is then cut again the same way.
+
+    Args:
+        distances: (n,) cosine distances to the query of one track's crops, in time
+            order.
+        threshold: the calibrated decision threshold.
+        min_crops: the fewest crops on each side of a cut, and on that side of the
+            threshold (>= 1): a crop or two of a vehicle seen at a bad angle is noise,
+            not another vehicle.
+        min_step: the least difference between the two sides' medians.
+        margin: how far beyond `threshold` the other side's median must lie: a few
+            crops just above it are the target at a harder angle more often than
+            another vehicle.
+
+    Returns:
+        The sorted indices i where a new part starts (crops [.., i) and [i, ..)).
+
+    Example:
+        >>> appearance_splits(np.array([0.2, 0.18, 0.21, 0.19, 0.65, 0.7, 0.62]), 0.4)
+        [4]
+    """
+    d = np.asarray(distances, dtype=np.float64).reshape(-1)
+    if (min_crops < 1 or not math.isfinite(threshold) or not min_step >= 0
+            or not margin >= 0):
+        raise ReidDecisionError(f"appearance_splits: min_crops >= 1, finite threshold, "
+                                f"min_step >= 0 and margin >= 0, got {min_crops!r}, "
+                                f"{threshold!r}, {min_step!r}, {margin!r}")
+    cuts: list[int] = []
+
+    def split(a: int, b: int) -> None:
+        n = b - a
+        if n < 2 * min_crops:
+            return
+        x = d[a:b]
+        c = np.cumsum(x)
+        j = np.arange(min_crops, n - min_crops + 1)
+        left, right = c[j - 1] / j, (c[-1] - c[j - 1]) / (n - j)
+        stat = np.abs(left - right) * np.sqrt(j * (n - j) / n)
+        k = int(j[int(np.argmax(stat))])
+        ml, mr = float(np.median(x[:k])), float(np.median(x[k:]))
+        near, far = (x[:k], x[k:]) if ml <= mr else (x[k:], x[:k])
+        if (min(ml, mr) <= threshold and max(ml, mr) > threshold + margin
+                and abs(ml - mr) >= min_step
+                and (near <= threshold).sum() >= min_crops
+                and (far > threshold).sum() >= min_crops):
+            split(a, a + k)
+            cuts.append(a + k)
+            split(a + k, b)
+
+    split(0, len(d))
+    return sorted(cuts)
+
 @dataclass(frozen=True, slots=True)
 class Calibration:
     """A decision threshold and what it measured on the calibration pairs.

@@ -26,7 +26,7 @@ look-alike figures.)
 
 from __future__ import annotations
 
-from collections.abc import Collection, Hashable, Mapping, Sequence
+from collections.abc import Callable, Collection, Hashable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -149,7 +149,8 @@ class BoxRelations:
 
 
 def box_relations(detections, spans: Mapping[Hashable, tuple[float, float]] | None = None,
-                  min_frames: int = 2, max_overlap: float = 0.1) -> BoxRelations:
+                  min_frames: int = 2, max_overlap: float = 0.1,
+                  key: Callable[[object], Hashable] | None = None) -> BoxRelations:
     """Pairs of one camera's tracks that its pixels show as two vehicles, or as one.
 
     In a frame where two tracks of one observer both have a box, the boxes are
@@ -180,6 +181,8 @@ def box_relations(detections, spans: Mapping[Hashable, tuple[float, float]] | No
         min_frames: frames needed, >= 1.
         max_overlap: the largest intersection over the smaller box's area that
             still counts as separate, in [0, 1).
+        key: a detection's track key; None: (observer_id, track_id). A pipeline that
+            cuts tracks into parts (`vision.split_tracks`) passes its own.
 
     Returns:
         `BoxRelations` of frozensets {(observer_id, track_id_a), (observer_id,
@@ -189,10 +192,12 @@ def box_relations(detections, spans: Mapping[Hashable, tuple[float, float]] | No
         raise ValueError(f"box_relations: min_frames >= 1 and 0 <= max_overlap < 1, got "
                          f"{min_frames!r}, {max_overlap!r}")
 
+    key_of = key if key is not None else (lambda d: (d.observer_id, d.track_id))
+
     def inside(d) -> bool:
         if spans is None:
             return True
-        span = spans.get((d.observer_id, d.track_id))
+        span = spans.get(key_of(d))
         return span is not None and span[0] <= d.t <= span[1]
 
     by_frame: dict[tuple[int, int], list] = {}
@@ -201,8 +206,9 @@ def box_relations(detections, spans: Mapping[Hashable, tuple[float, float]] | No
             by_frame.setdefault((d.observer_id, d.frame), []).append(d)
     separate: dict[frozenset, int] = {}
     overlapping: dict[frozenset, int] = {}
-    for (obs, _), ds in by_frame.items():
-        if len({d.track_id for d in ds}) < 2:
+    for ds in by_frame.values():
+        ks = [key_of(d) for d in ds]
+        if len(set(ks)) < 2:
             continue
         b = np.array([[d.x0, d.y0, d.x1, d.y1] for d in ds], dtype=np.float64)
         area = np.clip(b[:, 2] - b[:, 0], 0, None) * np.clip(b[:, 3] - b[:, 1], 0, None)
@@ -210,8 +216,8 @@ def box_relations(detections, spans: Mapping[Hashable, tuple[float, float]] | No
         seen_sep, seen_over = set(), set()
         for i in range(len(ds)):
             for j in range(i + 1, len(ds)):
-                if ds[i].track_id != ds[j].track_id:
-                    pair = frozenset({(obs, ds[i].track_id), (obs, ds[j].track_id)})
+                if ks[i] != ks[j]:
+                    pair = frozenset({ks[i], ks[j]})
                     (seen_sep if sep[i, j] else seen_over).add(pair)
         for seen, count in ((seen_sep, separate), (seen_over, overlapping)):
             for pair in seen:  # once per frame, however many boxes a track has in it

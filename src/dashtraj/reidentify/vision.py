@@ -46,6 +46,7 @@ of the model are computed and stored first, as ``dashtraj reid embed DB`` does).
 
 from __future__ import annotations
 
+import bisect
 import hashlib
 import json
 from collections import Counter
@@ -60,6 +61,7 @@ from dashtraj.reidentify.decision import (
     Calibration,
     Recipe,
     adequate_crops,
+    appearance_splits,
     cosine_distances,
 )
 from dashtraj.reidentify.scoring import reid_score
@@ -89,6 +91,17 @@ THRESHOLD_SUFFIX = ".threshold.json"
 """The calibrated threshold of ``M.onnx`` lives in ``M.threshold.json`` beside it."""
 PIN_ANCHOR = True
 """Default of `target_from_db`'s ``pin_anchor`` (the gate keeps the query's own track)."""
+
+SPLIT_TRACKS = True
+"""Default of `target_from_db`'s ``split``: tracks are cut where their look changes."""
+SPLIT_MIN_CROPS = 3
+SPLIT_MIN_STEP = 0.2
+SPLIT_MARGIN = 0.1
+"""`split_tracks`' rule (`decision.appearance_splits`): at least 3 crops on each side,
+medians at least 0.2 apart, the far side's more than 0.1 beyond the threshold. Chosen on
+the development runs (seeds 5-9, `scripts/reid_rescore.py --split`): without the margin
+a run of three crops of the target at 0.43 (the threshold is 0.40) was cut from its
+track and missed; with it, every development set kept or gained true tracks."""
 
 RECOMPUTE = "make reid-threshold  (or: dashtraj reid-threshold DB... --model M.onnx)"
 
@@ -256,6 +269,36 @@ def expansion_crops(query: np.ndarray, embeddings: np.ndarray, rows: list[int],
     return [i for i, di in zip(rows, d.tolist(), strict=True) if di <= threshold]
 
 
+def split_tracks(keys: list, times: list[float], distances: np.ndarray, threshold: float,
+                 min_crops: int = SPLIT_MIN_CROPS, min_step: float = SPLIT_MIN_STEP,
+                 margin: float = SPLIT_MARGIN) -> dict[Hashable, list[float]]:
+    """Where each track changes vehicle: `decision.appearance_splits` on its crops'
+    distances to the query, in time order.
+
+    Args:
+        keys: each crop's track key.
+        times: each crop's time, s.
+        distances: (N,) each crop's cosine distance to the query.
+        threshold: the calibrated decision threshold.
+        min_crops, min_step, margin: as `appearance_splits`.
+
+    Returns:
+        Track key → the times (s) where its parts 1, 2, ... begin, halfway between the
+        last crop of one part and the first of the next; tracks not cut are absent.
+    """
+    by_key: dict[Hashable, list[tuple[float, float]]] = {}
+    for k, t, d in zip(keys, times, np.asarray(distances, np.float64).tolist(), strict=True):
+        by_key.setdefault(k, []).append((t, d))
+    out: dict[Hashable, list[float]] = {}
+    for k, rows in by_key.items():
+        rows.sort()
+        at = appearance_splits(np.array([d for _, d in rows]), threshold, min_crops, min_step,
+                               margin)
+        if at:
+            out[k] = [(rows[i - 1][0] + rows[i][0]) / 2 for i in at]
+    return out
+
+
 def _sample(rows: list, sample_s: float) -> list:
     """Per key (rows sorted by key, t, idx): the first row of every `sample_s` seconds."""
     kept, key, t0, last = [], object(), 0.0, -1
@@ -282,7 +325,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
                    gate: bool | GateConfig = True, max_distance_m: float = 15.0,
                    sample_s: float = 0.5,
                    positions_of: Callable[[int, np.ndarray], np.ndarray] | None = None,
-                   stages=None, pin_anchor: bool = PIN_ANCHOR) -> TargetTracks:
+                   stages=None, pin_anchor: bool = PIN_ANCHOR,
+                   split: bool = SPLIT_TRACKS) -> TargetTracks:
     """The target's sightings from one perception run's database.
 
     Args:
@@ -307,6 +351,9 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
             `dashtraj.experiments.Stages`) told as embedding and deciding start.
         pin_anchor: the gate keeps the query's own track whatever the others say
             (`select_target_tracks`); the default weighs it like any candidate.
+        split: cut each track where its crops change from one vehicle's look to
+            another's (`split_tracks`) before deciding; the parts are decided, gated
+            and scored as tracks of their own.
 
     Returns:
         `TargetTracks`.
@@ -333,8 +380,12 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         if not by_truth:
             track_truth = {(t.observer_id, t.track_id): t.truth_vehicle_id for t in db.tracks()}
 
-        def key_of(d) -> tuple[int, int]:
-            return (d.observer_id, d.truth_vehicle_id if by_truth else d.track_id)
+        cuts: dict[tuple[int, int], list[float]] = {}  # a track's part boundaries, s
+
+        def key_of(d) -> tuple[int, ...]:
+            base = (d.observer_id, d.truth_vehicle_id if by_truth else d.track_id)
+            part = bisect.bisect_right(cuts[base], d.t) if base in cuts else 0
+            return base if part == 0 else (*base, part)
 
         cam = db.run_info()["camera"]
         size = (int(cam["width_px"]), int(cam["height_px"]))
@@ -345,6 +396,7 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         query = query_detection(db, target_vehicle_id, max_distance_m,
                                 usable if switches.reid == "appearance" else None)
         dists = keys = query_crops = None
+        extra_split: dict = {}
         if switches.reid == "appearance" and query is not None:
             if stages is not None:
                 stages.start("embed", f"embed: {db.count('crops')} crops with "
@@ -376,6 +428,14 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
                     q = m / max(float(np.linalg.norm(m)), 1e-12)
             keys = [k for k, _ in gal]
             dists = cosine_distances(q, emb[[i for _, i in gal]]) if gal else np.zeros(0)
+            if split and not by_truth and gal:
+                good = [d for d, g in zip(have, ok, strict=True) if g]
+                # a track that changes vehicle is cut where its crops' look changes
+                # (`split_tracks`); its later parts get keys (observer, track, part)
+                cuts.update(split_tracks(keys, [d.t for d in good], dists, float(threshold)))
+                keys = [key_of(d) for d in good]
+                extra_split = {"reid_split_tracks": len(cuts),
+                               "reid_split_parts": sum(len(v) for v in cuts.values())}
     every_row = sorted(((key_of(d), d) for d in near), key=lambda r: (r[0], r[1].t, r[1].idx))
     rows = _sample(every_row, sample_s)
     # each track's last detection in range, where the samples stop before it: the route
@@ -417,7 +477,7 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         else:
             track_end[k] = s
     anchor = key_of(query) if query is not None else None
-    extra: dict = {"reid_tracks": len(tracks),
+    extra: dict = {"reid_tracks": len(tracks), **extra_split,
                    "query": None if query is None else
                    {"observer_id": query.observer_id, "frame": query.frame, "t": query.t}}
     if switches.reid == "identity":
@@ -429,7 +489,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         # two tracks of one camera with separate boxes in the same frames, within
         # their sightings' spans, are two vehicles (the gate keeps at most one); with
         # overlapping boxes, one vehicle seen twice
-        rel = (box_relations(every, {k: (v[0].t, v[-1].t) for k, v in tracks.items()})
+        rel = (box_relations(every, {k: (v[0].t, v[-1].t) for k, v in tracks.items()},
+                             key=key_of)
                if not by_truth and gate else BoxRelations(frozenset(), frozenset()))
         sel = select_target_tracks(road_map, dists, keys, tracks, float(threshold),
                                    aggregate=aggregate, anchor=anchor,
