@@ -438,6 +438,11 @@ def vision_sightings(config: ExperimentConfig, rec, out: Path, road_map,
     line = (f"re-identify: {s['reid_candidates']} of {s['reid_tracks']} tracks within "
             f"{config.max_distance_m:g} m pass the threshold, the gate keeps "
             f"{s['reid_candidates'] - s['reid_gated_out']}")
+    if s.get("reid_split_tracks"):
+        n = s["reid_split_tracks"]
+        line += (f"; {n} track{'s' if n > 1 else ''} cut where {'their' if n > 1 else 'its'} "
+                 f"crops' look changes ({s['reid_split_parts']} more part"
+                 f"{'s' if s['reid_split_parts'] > 1 else ''})")
     qc = s.get("reid_query_crops")
     if qc and qc["used"]:
         line += f" (query: the mean of {qc['used']} of its track's {qc['of']} crops)"
