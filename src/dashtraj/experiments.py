@@ -611,6 +611,11 @@ def aggregate_reid(summaries: list[dict]) -> dict:
 
     out = pool(ReidScore(s.get("reid_true_matches", 0), s.get("reid_false_matches", 0),
                          s.get("reid_misses", 0)) for s in summaries).to_dict()
+    if any("reid_sightings_true" in s for s in summaries):  # per sighting, from a DB
+        out.update(pool(ReidScore(s.get("reid_sightings_true", 0),
+                                  s.get("reid_sightings_false", 0),
+                                  s.get("reid_sightings_missed", 0))
+                        for s in summaries).sightings_dict())
     causes = [s["reid_misses_by_cause"] for s in summaries if "reid_misses_by_cause" in s]
     if causes:  # appearance ReID: why the target's missed tracks were missed
         out["reid_misses_by_cause"] = {k: sum(c.get(k, 0) for c in causes) for k in causes[0]}
@@ -624,5 +629,7 @@ def figures(name: str, summary: dict) -> dict:
             "methods": {m: {k: r[k] for k in _ISSUE_KEYS} for m, r in summary["methods"].items()},
             "reid_precision": summary.get("reid_precision"),
             "reid_recall": summary.get("reid_recall"),
+            **({k: summary[k] for k in ("reid_sighting_precision", "reid_sighting_recall")
+                if k in summary}),
             **({"reid_misses_by_cause": summary["reid_misses_by_cause"]}
                if "reid_misses_by_cause" in summary else {})}

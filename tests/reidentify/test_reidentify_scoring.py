@@ -24,6 +24,20 @@ def test_counts_and_rates():
         reid_score([(9, 9)], truth, 0)
 
 
+def test_sightings_count_what_each_one_shows():
+    from dashtraj.reidentify.scoring import sighting_score
+
+    shown = [((1, 4), 0)] * 6 + [((1, 4), None)] * 2 + [((2, 7), 5)] * 3 \
+        + [((3, 1), 0)] * 4 + [((3, 2), 0), ((3, 2), 9)]
+    s = sighting_score(shown, [(1, 4), (2, 7)], 0)
+    assert (s.true_matches, s.false_matches, s.misses) == (6, 5, 5)
+    assert s.sightings_dict() == {"reid_sighting_precision": 6 / 11,
+                                  "reid_sighting_recall": 6 / 11, "reid_sightings_true": 6,
+                                  "reid_sightings_false": 5, "reid_sightings_missed": 5}
+    none = sighting_score(shown, [], 0)
+    assert none.precision is None and none.recall == 0.0
+
+
 def test_pool_sums_counts_before_dividing():
     a, b = ReidScore(9, 0, 1), ReidScore(0, 1, 0)
     p = pool([a, b])
@@ -163,6 +177,9 @@ def test_a_track_that_switches_vehicle_is_cut_where_its_look_changes(tmp_path, t
     whole = target_from_db(path, town01, 0, split=False, **kw)
     assert (whole.summary["reid_true_matches"], whole.summary["reid_misses"]) == (1, 1)
     assert {s.track_id for s in whole.sightings} == {5}
+    per_sighting = ("reid_sightings_true", "reid_sightings_false", "reid_sightings_missed")
+    assert tuple(whole.summary[k] for k in per_sighting) == (5, 3, 3)
+    assert whole.summary["reid_sighting_precision"] == pytest.approx(5 / 8)
     far = [s for s in whole.sightings if s.t > 2.3]  # the oncoming car's positions
     assert far and all(abs(s.y - whole.sightings[0].y) > 2.0 for s in far)
 
@@ -170,6 +187,8 @@ def test_a_track_that_switches_vehicle_is_cut_where_its_look_changes(tmp_path, t
     s = cut.summary
     assert (s["reid_true_matches"], s["reid_false_matches"], s["reid_misses"]) == (2, 0, 0)
     assert (s["reid_split_tracks"], s["reid_split_parts"]) == (1, 1)
+    assert tuple(s[k] for k in per_sighting) == (8, 0, 0)
+    assert (s["reid_sighting_precision"], s["reid_sighting_recall"]) == (1.0, 1.0)
     assert s["reid_candidates"] == 2  # (1, 5) and (1, 6); the car's part (1, 5, 1) fails
     assert [(x.track_id, round(x.t, 1)) for x in cut.sightings] == \
         [(5, 0.0), (5, 0.6), (5, 1.0), (5, 1.6), (5, 2.0), (5, 2.2),

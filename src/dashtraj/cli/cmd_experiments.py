@@ -194,6 +194,12 @@ def run(args) -> int:
     print(f"  ReID over {reid['reid_true_matches'] + reid['reid_false_matches']} accepted "
           f"tracks: precision {'-' if p_ is None else f'{p_:.3f}'}, recall "
           f"{'-' if r_ is None else f'{r_:.3f}'} ({how})")
+    if reid.get("reid_sighting_precision") is not None:
+        print(f"  per sighting: {reid['reid_sightings_true']} of the "
+              f"{reid['reid_sightings_true'] + reid['reid_sightings_false']} accepted show the "
+              f"target (precision {reid['reid_sighting_precision']:.3f}), of its "
+              f"{reid['reid_sightings_true'] + reid['reid_sightings_missed']} "
+              f"(recall {reid['reid_sighting_recall']:.3f})")
     if "reid_misses_by_cause" in reid:
         c = reid["reid_misses_by_cause"]
         print(f"  the target's {reid['reid_misses']} missed tracks: {c['threshold']} above the "

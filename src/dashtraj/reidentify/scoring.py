@@ -12,6 +12,12 @@ precision = TP / (TP + FP) and recall = TP / (TP + FN), each None when its
 denominator is 0 (nothing accepted; the target never tracked). Over several
 experiments the counts are summed first (`pool`): "over all accepted tracks", as
 the issue's targets are stated, so a run with many tracks weighs more.
+
+`sighting_score` counts the same per sighting instead of per track: of the sightings
+the accepted tracks hand to the reconstruction, how many show the target, and of all
+the sightings that show it, how many were handed over. A track of one stray box and a
+track of sixty count alike per track; per sighting they weigh what they bring to the
+route.
 """
 
 from __future__ import annotations
@@ -49,6 +55,14 @@ class ReidScore:
                 "reid_true_matches": self.true_matches,
                 "reid_false_matches": self.false_matches, "reid_misses": self.misses}
 
+    def sightings_dict(self) -> dict:
+        """The counts and rates as sightings (`sighting_score`)."""
+        return {"reid_sighting_precision": self.precision,
+                "reid_sighting_recall": self.recall,
+                "reid_sightings_true": self.true_matches,
+                "reid_sightings_false": self.false_matches,
+                "reid_sightings_missed": self.misses}
+
 
 def reid_score(accepted: Iterable[Hashable], truth: Mapping[Hashable, int | None],
                target_vehicle_id: int) -> ReidScore:
@@ -79,6 +93,36 @@ def reid_score(accepted: Iterable[Hashable], truth: Mapping[Hashable, int | None
     tp = sum(1 for k in acc if truth[k] == target_vehicle_id)
     fp = len(acc) - tp
     fn = sum(1 for k, v in truth.items() if v == target_vehicle_id and k not in acc)
+    return ReidScore(tp, fp, fn)
+
+
+def sighting_score(shown: Iterable[tuple[Hashable, int | None]],
+                   accepted: Iterable[Hashable], target_vehicle_id: int) -> ReidScore:
+    """Score accepted tracks per sighting (module docstring).
+
+    Args:
+        shown: (track key, the vehicle id the sighting shows, None for none) of every
+            sighting of every track.
+        accepted: keys of the tracks decided "target".
+        target_vehicle_id: the target's vehicle id in the recording.
+
+    Returns:
+        `ReidScore` of sightings: true = accepted and showing the target, false =
+        accepted and not, misses = showing the target and not accepted.
+
+    Example:
+        >>> s = sighting_score([("a", 0), ("a", 0), ("a", None), ("b", 0)], ["a"], 0)
+        >>> (s.true_matches, s.false_matches, s.misses)
+        (2, 1, 1)
+    """
+    acc = set(accepted)
+    tp = fp = fn = 0
+    for k, v in shown:
+        if k in acc:
+            tp += v == target_vehicle_id
+            fp += v != target_vehicle_id
+        else:
+            fn += v == target_vehicle_id
     return ReidScore(tp, fp, fn)
 
 

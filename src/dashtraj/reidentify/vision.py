@@ -35,7 +35,8 @@ or, if the box holds most of the target, a twentieth of it (``depicted_vehicle_i
 class on it, or a box of part of it, is a crop of the target); a detection showing no
 vehicle (a false detection) votes for "no vehicle". (The store's track truth counts
 matched detections only, so a clutter track that the target crossed once would count
-as the target's.)
+as the target's.) The same is also counted per used sighting (``reid_sighting_precision``,
+``reid_sighting_recall``; `scoring.sighting_score`), by what each one shows.
 Databases written before 2026-11-27 (schema 2) have no depicted ids: their unmatched
 detections vote "no vehicle", which counted duplicate and part boxes of the target as
 false matches.
@@ -64,7 +65,7 @@ from dashtraj.reidentify.decision import (
     appearance_splits,
     cosine_distances,
 )
-from dashtraj.reidentify.scoring import reid_score
+from dashtraj.reidentify.scoring import reid_score, sighting_score
 from dashtraj.reidentify.select import (
     BoxRelations,
     box_relations,
@@ -233,7 +234,11 @@ class TargetTracks:
             reid_misses_by_cause (the target's tracks not accepted: above the
             ``threshold``, dropped by the ``gate``, or ``no_usable_crop``; appearance
             ReID only),
-            reid_tracks (tracks in the ReID range), query (observer, frame, t),
+            reid_sighting_precision, reid_sighting_recall and their counts
+            (`scoring.sighting_score`: per used sighting, by what it shows),
+            reid_split_tracks and reid_split_parts (tracks cut, parts added; with
+            ``split``), reid_tracks (tracks in the ReID range, parts counted),
+            query (observer, frame, t),
             reid_query_crops (with query expansion: how many of the query track's
             adequate crops were averaged, ``used`` of ``of``) and threshold entries.
         true_match: accepted track key → True when its truth is the target.
@@ -445,12 +450,13 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
     last_row = dict(every_row)  # in time order: each key's last row stays
     ends = [(k, d) for k, d in last_row.items() if d.t > last_kept[k]]
     truth = {k: (k[1] if by_truth else track_truth.get(k)) for k, _ in rows}
+    # what each used sighting shows (schema-2 files have no depicted id)
+    shown = [(k, k[1] if by_truth else d.depicted_vehicle_id
+              if d.depicted_vehicle_id is not None else d.truth_vehicle_id) for k, d in rows]
     if not by_truth:  # what the used sightings show: most of them, "no vehicle" counted
         votes: dict[Hashable, Counter] = {}
-        for k, d in rows:
-            shown = (d.depicted_vehicle_id if d.depicted_vehicle_id is not None
-                     else d.truth_vehicle_id)  # schema-2 files have no depicted id
-            votes.setdefault(k, Counter())[shown] += 1
+        for k, v in shown:
+            votes.setdefault(k, Counter())[v] += 1
         truth = {k: _majority(c) for k, c in votes.items()}
     placed = rows + ends
     if positions_of is not None and switches.positions == "truth" and placed:
@@ -518,6 +524,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
                         for s in (*tracks[k], *([track_end[k]] if k in track_end else ()))),
                        key=lambda s: (s.t, s.observer_id))
     score = reid_score(accepted, truth, target_vehicle_id)
-    return TargetTracks(sightings, {**score.to_dict(), "reid_candidates": len(candidates),
+    per_sighting = sighting_score(shown, accepted, target_vehicle_id)
+    return TargetTracks(sightings, {**score.to_dict(), **per_sighting.sightings_dict(),
+                                    "reid_candidates": len(candidates),
                                     "reid_gated_out": len(candidates) - len(accepted), **extra},
                         {k: truth.get(k) == target_vehicle_id for k in accepted})
