@@ -195,11 +195,11 @@ def run(args) -> int:
           f"tracks: precision {'-' if p_ is None else f'{p_:.3f}'}, recall "
           f"{'-' if r_ is None else f'{r_:.3f}'} ({how})")
     if reid.get("reid_sighting_precision") is not None:
-        print(f"  per sighting: {reid['reid_sightings_true']} of the "
-              f"{reid['reid_sightings_true'] + reid['reid_sightings_false']} accepted show the "
-              f"target (precision {reid['reid_sighting_precision']:.3f}), of its "
-              f"{reid['reid_sightings_true'] + reid['reid_sightings_missed']} "
-              f"(recall {reid['reid_sighting_recall']:.3f})")
+        tp = reid["reid_sightings_true"]
+        print(f"  per sighting: precision {reid['reid_sighting_precision']:.3f} ({tp} of the "
+              f"{tp + reid['reid_sightings_false']} accepted show the target), recall "
+              f"{reid['reid_sighting_recall']:.3f} ({tp} of the "
+              f"{tp + reid['reid_sightings_missed']} that show it)")
     if "reid_misses_by_cause" in reid:
         c = reid["reid_misses_by_cause"]
         print(f"  the target's {reid['reid_misses']} missed tracks: {c['threshold']} above the "

@@ -259,7 +259,6 @@ def decide_tracks(distances: np.ndarray, keys: Sequence[Hashable], threshold: fl
     return out
 
 
-
 def appearance_splits(distances: np.ndarray, threshold: float, min_crops: int = 3,
                       min_step: float = 0.2, margin: float = 0.0) -> list[int]:
     """Where one track's crops change vehicle, by their distances to the query.

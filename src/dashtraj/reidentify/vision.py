@@ -451,8 +451,9 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
     ends = [(k, d) for k, d in last_row.items() if d.t > last_kept[k]]
     truth = {k: (k[1] if by_truth else track_truth.get(k)) for k, _ in rows}
     # what each used sighting shows (schema-2 files have no depicted id)
-    shown = [(k, k[1] if by_truth else d.depicted_vehicle_id
-              if d.depicted_vehicle_id is not None else d.truth_vehicle_id) for k, d in rows]
+    shown = [(k, k[1] if by_truth else (d.depicted_vehicle_id
+                                         if d.depicted_vehicle_id is not None
+                                         else d.truth_vehicle_id)) for k, d in rows]
     if not by_truth:  # what the used sightings show: most of them, "no vehicle" counted
         votes: dict[Hashable, Counter] = {}
         for k, v in shown:
