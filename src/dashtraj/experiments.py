@@ -114,6 +114,8 @@ class ExperimentConfig:
         agnostic_nms_iou: ``vision`` with a detector model: its class-agnostic NMS IoU
             (None: the model's class-aware NMS only); `PerceiveConfig.agnostic_nms_iou`.
         min_score: ``vision`` with a detector model: the smallest kept box score.
+        localizer: ``detections``/``vision``: perceive's localizer
+            (`dashtraj.perception.localize.LOCALIZERS`).
     """
 
     town: str = "town10"
@@ -137,6 +139,7 @@ class ExperimentConfig:
     workers: int = 2
     agnostic_nms_iou: float | None = AGNOSTIC_NMS_IOU
     min_score: float = DEFAULT_MIN_SCORE
+    localizer: str = "smoothed"
 
     def __post_init__(self) -> None:
         if self.reid not in REID_MODES:
@@ -405,7 +408,8 @@ def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
                                               size=config.image_size, every_s=config.every_s,
                                               look=look, reid_range_m=config.max_distance_m,
                                               agnostic_nms_iou=config.agnostic_nms_iou,
-                                              min_score=config.min_score),
+                                              min_score=config.min_score,
+                                              localizer=config.localizer),
                  workers=config.workers, progress=progress)
     stages.note(f"perceive: {s.frames} frames, {s.detections} detections, {s.tracks} tracks, "
                 f"{s.crops} crops within {config.max_distance_m:g} m")
@@ -506,7 +510,8 @@ def target_sightings(config: ExperimentConfig, rec, out: Path, road_map,
         stages.start("perceive (oracle)", f"perceive: {config.observers} observers, "
                                           "detector oracle")
         perceive(rec, db_path, PerceiveConfig(detector="oracle", size=config.image_size,
-                                              reid_range_m=config.max_distance_m),
+                                              reid_range_m=config.max_distance_m,
+                                              localizer=config.localizer),
                  workers=config.workers)
         with SightingsDB.open(db_path) as db:
             truth = truth_of_tracks(db, config.max_distance_m)

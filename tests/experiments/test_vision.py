@@ -112,3 +112,22 @@ def test_oracle_vision_and_ablation_share_one_reconstruction(tmp_path, gl_availa
     assert b["rows"]["reid"]["sspd_whole_m"] == pytest.approx(
         rows["reid"]["methods"]["hmm"]["sspd_whole_m"])
     assert (tmp_path / "a" / "ablation.json").is_file()
+
+
+@pytest.mark.slow
+def test_the_localizer_is_chosen_by_name(tmp_path, gl_available):
+    """`experiments --localizer NAME` reaches perceive: the run's database records it, and
+    the `mapped` localizer's positions differ from the default `smoothed` ones."""
+    from dashtraj.store import SightingsDB
+
+    xy = {}
+    for name in ("smoothed", "mapped"):
+        cfg = ex.ExperimentConfig(**{**SMALL, "sightings": "detections", "every_s": 0.5,
+                                     "localizer": name})
+        res = ex.run_experiment(cfg, tmp_path / name)
+        assert res.summary["sightings"] > 0
+        assert ex.ExperimentConfig.from_dict(res.summary["config"]).localizer == name
+        with SightingsDB.open(tmp_path / name / "sightings.db") as db:
+            assert db.run_info()["config"]["localizer"] == name
+            xy[name] = [(d.x, d.y) for d in db.detections()]
+    assert len(xy["smoothed"]) == len(xy["mapped"]) and xy["smoothed"] != xy["mapped"]

@@ -57,6 +57,9 @@ def add_vision_args(p: argparse.ArgumentParser, default_sightings: str | None = 
     p.add_argument("--workers", type=int_at_least(1), default=2, metavar="N",
                    help="detections/vision: perception processes, observers in parallel "
                         "(default 2: the two cores of the reference machine)")
+    p.add_argument("--localizer", default="smoothed", metavar="NAME",
+                   help="detections/vision: perceive's localizer (paper, ground, fused, "
+                        "tracked, smoothed or mapped; default smoothed)")
     add_detector_filter_args(p)
 
 
@@ -79,6 +82,10 @@ def vision_settings(args) -> dict:
     if args.look is not None and args.look not in PRESETS:
         raise ArgumentError(f"--look {args.look!r}: unknown preset; valid: "
                             f"{', '.join(sorted(PRESETS))}")
+    from dashtraj.perception.localize import LOCALIZERS
+
+    if args.localizer not in LOCALIZERS:
+        raise ArgumentError(f"--localizer {args.localizer!r}: valid: {', '.join(LOCALIZERS)}")
     size = None
     if args.size is not None:
         w, h = (int(v) for v in args.size.lower().split("x"))
@@ -90,7 +97,8 @@ def vision_settings(args) -> dict:
     return {"sightings": args.sightings, "detector": args.detector,
             "reid_model": args.reid_model, "reid_threshold": args.reid_threshold,
             "look": args.look, "image_size": size, "every_s": every, "workers": args.workers,
-            "agnostic_nms_iou": args.agnostic_nms, "min_score": args.min_score}
+            "agnostic_nms_iou": args.agnostic_nms, "min_score": args.min_score,
+            "localizer": args.localizer}
 
 
 def check_reid_model(config) -> None:
