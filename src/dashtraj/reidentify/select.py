@@ -186,7 +186,8 @@ def box_relations(detections, spans: Mapping[Hashable, tuple[float, float]] | No
 
     Returns:
         `BoxRelations` of frozensets {(observer_id, track_id_a), (observer_id,
-        track_id_b)}: the keys of `tracks_of` and of the vision pipeline.
+        track_id_b)}: the keys of `tracks_of` and of the vision pipeline (with `key`,
+        pairs of its keys).
     """
     if min_frames < 1 or not 0 <= max_overlap < 1:
         raise ValueError(f"box_relations: min_frames >= 1 and 0 <= max_overlap < 1, got "
