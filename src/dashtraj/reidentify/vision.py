@@ -417,8 +417,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
             have = [d for d in near if (d.observer_id, d.frame, d.idx) in row]
             ok = adequate_crops(np.array([[d.x0, d.y0, d.x1, d.y1] for d in have]).reshape(-1, 4),
                                 *size, recipe)
-            gal = [(key_of(d), row[(d.observer_id, d.frame, d.idx)])
-                   for d, good in zip(have, ok, strict=True) if good]
+            good = [d for d, g in zip(have, ok, strict=True) if g]  # the gallery's rows
+            gal = [(key_of(d), row[(d.observer_id, d.frame, d.idx)]) for d in good]
             q = emb[row[(query.observer_id, query.frame, query.idx)]]
             if recipe.query == "track":
                 own = [i for k, i in gal if k == key_of(query)]
@@ -434,7 +434,6 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
             keys = [k for k, _ in gal]
             dists = cosine_distances(q, emb[[i for _, i in gal]]) if gal else np.zeros(0)
             if split and not by_truth and gal:
-                good = [d for d, g in zip(have, ok, strict=True) if g]
                 # a track that changes vehicle is cut where its crops' look changes
                 # (`split_tracks`); its later parts get keys (observer, track, part)
                 cuts.update(split_tracks(keys, [d.t for d in good], dists, float(threshold)))
