@@ -129,11 +129,12 @@ class LaneGraph:
             sl = slice(lane.v0, lane.v1)
             xy = np.column_stack([m._vx[sl], m._vy[sl]])
             step = np.diff(xy, axis=0)
-            arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(step, axis=1))])
+            seg = np.linalg.norm(step, axis=1)
+            arc = np.concatenate([[0.0], np.cumsum(seg)])
             self._arc[lane.key] = (m._vs[sl], arc)
             length = float(arc[-1])
             if k_turn > 0:
-                carc = arc + k_turn * _turn_along(step)
+                carc = arc + k_turn * _turn_along(step, seg)
                 self._carc[lane.key] = carc
                 self._clen[lane.key] = float(carc[-1])
             else:
@@ -423,8 +424,9 @@ class LaneGraph:
         return poly[keep]
 
 
-def _turn_along(step: np.ndarray) -> np.ndarray:
-    """Cumulative heading change (radians) at each vertex of a polyline, from its steps.
+def _turn_along(step: np.ndarray, seg: np.ndarray) -> np.ndarray:
+    """Cumulative heading change (radians) at each vertex of a polyline, from its steps
+    (N, 2) and their lengths (N,).
 
     Vertex i gets the sum of |Δheading| between consecutive steps up to it; the
     change at a vertex is counted at that vertex. Zero-length steps are skipped.
@@ -434,7 +436,7 @@ def _turn_along(step: np.ndarray) -> np.ndarray:
     if n < 3:
         return out
     heading = np.arctan2(step[:, 1], step[:, 0])
-    ok = np.hypot(step[:, 0], step[:, 1]) > 1e-9
+    ok = seg > 1e-9
     idx = np.flatnonzero(ok)
     if len(idx) < 2:
         return out
