@@ -65,7 +65,7 @@ from pathlib import Path
 
 from dashtraj.errors import DashtrajError
 from dashtraj.perception.detect import DEFAULT_MIN_SCORE
-from dashtraj.perception.detections import AGNOSTIC_NMS_IOU
+from dashtraj.perception.detections import AGNOSTIC_NMS_IOU, CONFIRM_SCORE
 
 PAPER_SSPD_M = 5.13
 """The paper's mean SSPD over its ten driving experiments, metres."""
@@ -114,6 +114,8 @@ class ExperimentConfig:
         agnostic_nms_iou: ``vision`` with a detector model: its class-agnostic NMS IoU
             (None: the model's class-aware NMS only); `PerceiveConfig.agnostic_nms_iou`.
         min_score: ``vision`` with a detector model: the smallest kept box score.
+        confirm_score: ``detections``/``vision``: the ``ego`` tracker reports a track once
+            one of its boxes scored at least this much (`PerceiveConfig.confirm_score`).
         localizer: ``detections``/``vision``: perceive's localizer
             (`dashtraj.perception.localize.LOCALIZERS`).
     """
@@ -139,6 +141,7 @@ class ExperimentConfig:
     workers: int = 2
     agnostic_nms_iou: float | None = AGNOSTIC_NMS_IOU
     min_score: float = DEFAULT_MIN_SCORE
+    confirm_score: float = CONFIRM_SCORE
     localizer: str = "smoothed"
 
     def __post_init__(self) -> None:
@@ -163,6 +166,7 @@ class ExperimentConfig:
     @classmethod
     def from_dict(cls, d: dict) -> ExperimentConfig:
         size = d.get("image_size")
+        d = {"confirm_score": 0.0, **d}  # written before the rule: every track reported
         return cls(**{**d, "methods": tuple(d.get("methods", METHODS)),
                       "image_size": None if size is None else tuple(size)})
 
@@ -409,6 +413,7 @@ def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
                                               look=look, reid_range_m=config.max_distance_m,
                                               agnostic_nms_iou=config.agnostic_nms_iou,
                                               min_score=config.min_score,
+                                              confirm_score=config.confirm_score,
                                               localizer=config.localizer),
                  workers=config.workers, progress=progress)
     stages.note(f"perceive: {s.frames} frames, {s.detections} detections, {s.tracks} tracks, "

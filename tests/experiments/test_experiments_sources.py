@@ -59,12 +59,15 @@ def test_config_round_trip_and_bad_source():
         ExperimentConfig(sightings="pixels")
     vis = ExperimentConfig(sightings="vision", reid="appearance", detector="oracle",
                            reid_threshold="t.json", look="flat", every_s=0.2,
-                           agnostic_nms_iou=None, min_score=0.45)
+                           agnostic_nms_iou=None, min_score=0.45, confirm_score=0.6)
     assert ExperimentConfig.from_dict(json.loads(json.dumps(vis.to_dict()))) == vis
     # a summary written before the box filters were settings: the defaults of the time
-    old = {k: v for k, v in vis.to_dict().items() if k not in ("agnostic_nms_iou", "min_score")}
+    # (before the tracker's confirmation rule every track with min_hits hits was reported)
+    old = {k: v for k, v in vis.to_dict().items()
+           if k not in ("agnostic_nms_iou", "min_score", "confirm_score")}
     back = ExperimentConfig.from_dict(old)
-    assert (back.agnostic_nms_iou, back.min_score) == (0.45, 0.25)
+    assert (back.agnostic_nms_iou, back.min_score, back.confirm_score) == (0.45, 0.25, 0.0)
+    assert ExperimentConfig().confirm_score == 0.5
 
 
 def test_box_filters_reach_the_perception(monkeypatch, tmp_path):
@@ -85,12 +88,13 @@ def test_box_filters_reach_the_perception(monkeypatch, tmp_path):
 
     ap = argparse.ArgumentParser()
     add_vision_args(ap, default_sightings="vision")
-    for argv, want in (([], (0.45, 0.25)), (["--min-score", "0.45", "--agnostic-nms", "none"],
-                                            (None, 0.45))):
+    for argv, want in (([], (0.45, 0.25, 0.5)),
+                       (["--min-score", "0.45", "--agnostic-nms", "none", "--confirm-score", "0"],
+                        (None, 0.45, 0.0))):
         cfg = ExperimentConfig(reid="appearance", **vision_settings(ap.parse_args(argv)))
-        assert (cfg.agnostic_nms_iou, cfg.min_score) == want
+        assert (cfg.agnostic_nms_iou, cfg.min_score, cfg.confirm_score) == want
         perceive_run(cfg, rec, tmp_path / "x.db", "shipped")
-        assert (seen[-1].agnostic_nms_iou, seen[-1].min_score) == want
+        assert (seen[-1].agnostic_nms_iou, seen[-1].min_score, seen[-1].confirm_score) == want
 
 
 @pytest.mark.slow

@@ -13,7 +13,7 @@ def test_tracker_eval_json_has_the_metrics_per_tracker(small_run, gl_available, 
     r = json.loads(capsys.readouterr().out)
     assert r["sequences"] == 3 and r["frames"] == 3 * 126
     assert r["detector"] == "oracle" and r["agnostic_nms"] is None  # no NMS on exact boxes
-    assert r["min_score"] is None
+    assert r["min_score"] is None and r["confirm_score"] == 0.5  # the oracle's boxes score 1
     for n in ("sort", "ego"):
         assert {"idf1", "hota", "mota", "updates_per_s"} <= set(r[n])
         assert 0.0 <= r[n]["mota"] <= 1.0 and 0.0 <= r[n]["hota"] <= 1.0

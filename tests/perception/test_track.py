@@ -162,6 +162,34 @@ def test_ego_coasting_track_is_picked_up_by_position_and_class():
         assert (ids[-1] == first) == same, ids
 
 
+def test_ego_reports_a_track_only_once_a_confident_box_joined_it():
+    """A car 18 m ahead, moving with the observer: its boxes score 0.3 for 1 s, then 0.8.
+    With ``confirm_score`` 0.5 the weak boxes are followed but not reported, and the track
+    is reported, with the same id, from the first confident box on; a run of weak boxes
+    alone (another car, 12 m ahead and 3 m to the right) is never reported. Without the
+    rule both are reported from their third box."""
+    from dashtraj.perception.localize import CameraPose
+
+    for confirm in (0.5, 0.0):
+        trk = EgoTracker(spec=SPEC, confirm_score=confirm)
+        a, b = [], []
+        for k in range(30):
+            t = k / 10
+            pose = CameraPose(8.0 * t, 0.0, 1.6, 0.0)
+            boxes = np.vstack([_box_ahead(18.0), _box_ahead(12.0, 3.0)])
+            out = trk.update(Detections(boxes, np.array([0.3 if k < 10 else 0.8, 0.3]),
+                                        np.array([1, 1]), np.array([-1, -1])), t, pose)
+            a.append(int(out[0]))
+            b.append(int(out[1]))
+        if confirm:
+            assert a[:10] == [-1] * 10 and len(set(a[10:])) == 1 and a[10] > 0, a
+            assert b == [-1] * 30, b
+            assert trk.track_of[0] == a[-1]  # the weak boxes were on the same track
+        else:
+            assert a[:2] == [-1, -1] and len(set(a[2:])) == 1 and a[2] > 0, a
+            assert b[:2] == [-1, -1] and len(set(b[2:])) == 1 and b[2] > 0, b
+
+
 def test_unknown_tracker_lists_valid_names():
     with pytest.raises(TrackerError, match="valid: sort, ego"):
         build_tracker("bytetrack")

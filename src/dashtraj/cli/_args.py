@@ -262,9 +262,10 @@ def nms_iou(text: str) -> float | None:
 
 
 def add_detector_filter_args(parser: argparse.ArgumentParser) -> None:
-    """``--agnostic-nms IOU|none`` and ``--min-score S``: the detector model's box filters."""
+    """``--agnostic-nms IOU|none`` and ``--min-score S``: the detector model's box filters;
+    ``--confirm-score S``: the score a track needs once (the ``ego`` tracker)."""
     from dashtraj.perception.detect import DEFAULT_MIN_SCORE
-    from dashtraj.perception.detections import AGNOSTIC_NMS_IOU
+    from dashtraj.perception.detections import AGNOSTIC_NMS_IOU, CONFIRM_SCORE
 
     parser.add_argument(
         "--agnostic-nms", type=nms_iou, default=AGNOSTIC_NMS_IOU, metavar="IOU|none",
@@ -275,14 +276,21 @@ def add_detector_filter_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--min-score", type=fraction, default=DEFAULT_MIN_SCORE, metavar="S",
         help=f"with a detector model, the smallest kept box score (default {DEFAULT_MIN_SCORE:g})")
+    parser.add_argument(
+        "--confirm-score", type=fraction, default=CONFIRM_SCORE, metavar="S",
+        help="the ego tracker reports a track once one of its boxes scored at least S; "
+             "weaker boxes only extend tracks (ByteTrack's rule; default "
+             f"{CONFIRM_SCORE:g}; 0: every track; the oracle's boxes score 1)")
 
 
 def detector_filters_used(args: argparse.Namespace) -> dict:
     """The box filters that applied, for a command's JSON: ``agnostic_nms`` (the IoU; None for
-    ``none``) and ``min_score``, both None with the oracle (its boxes are exact)."""
+    ``none``) and ``min_score``, both None with the oracle (its boxes are exact), and
+    ``confirm_score``."""
     model = args.detector != "oracle"
     return {"agnostic_nms": args.agnostic_nms if model else None,
-            "min_score": args.min_score if model else None}
+            "min_score": args.min_score if model else None,
+            "confirm_score": args.confirm_score}
 
 
 def add_frame_source_args(parser: argparse.ArgumentParser, every_s: float) -> None:

@@ -98,7 +98,7 @@ def vision_settings(args) -> dict:
             "reid_model": args.reid_model, "reid_threshold": args.reid_threshold,
             "look": args.look, "image_size": size, "every_s": every, "workers": args.workers,
             "agnostic_nms_iou": args.agnostic_nms, "min_score": args.min_score,
-            "localizer": args.localizer}
+            "confirm_score": args.confirm_score, "localizer": args.localizer}
 
 
 def check_reid_model(config) -> None:

@@ -104,6 +104,7 @@ def run_perceive(args: argparse.Namespace) -> int:
                          mu_h=args.mu_h, every_s=args.every, size=size, msaa=args.msaa,
                          reid_range_m=args.reid_range, look=args.look,
                          agnostic_nms_iou=args.agnostic_nms, min_score=args.min_score,
+                         confirm_score=args.confirm_score,
                          threads=args.threads, parallel_frames=args.parallel_frames,
                          observers=tuple(args.observers) if args.observers else None)
     from dashtraj.datasets.frames import observer_ids, sample_steps

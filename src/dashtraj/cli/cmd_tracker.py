@@ -55,7 +55,7 @@ def run_eval(args: argparse.Namespace) -> int:
     recs = [open_recording(r) for r in args.recordings]
     peers, why = boxmot_peers(wanted) if wanted else ({}, None)
     res = tracker_eval(recs, args.trackers, peers, args.detector, args.every, size,
-                       args.agnostic_nms, args.min_score)
+                       args.agnostic_nms, args.min_score, args.confirm_score)
     res["detector"] = args.detector
     res.update(detector_filters_used(args))
     res["peers_skipped"] = None if peers or not wanted else why

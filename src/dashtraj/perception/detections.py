@@ -265,6 +265,10 @@ AGNOSTIC_NMS_IOU = 0.45
 experiments and the evaluations on rendered frames: one box per vehicle instead of one per
 orientation class. Commands take ``--agnostic-nms IOU|none``."""
 
+CONFIRM_SCORE = 0.5
+"""Default `dashtraj.perception.track.EgoTracker.confirm_score`: a track is reported once one
+of its boxes scored at least this much (ByteTrack's high-score threshold)."""
+
 DETECTORS: tuple[str, ...] = ("oracle",)
 """Detector names; any other value must be a path to an .onnx model."""
 

@@ -31,7 +31,7 @@ from dashtraj.perception.detections import (
 from dashtraj.perception.localize import build_localizer
 from dashtraj.perception.mot_metrics import Sequence, counts, summarize
 from dashtraj.perception.pipeline import camera_pose_of, image_camera
-from dashtraj.perception.track import backfill, build_tracker
+from dashtraj.perception.track import CONFIRM_SCORE, backfill, build_tracker
 
 BANDS_M = {"lt20": (0.0, 20.0), "20_60": (20.0, 60.0)}
 
@@ -100,12 +100,14 @@ def _score_frame(seq: Sequence, iseq: Sequence, gt, sc, on_ignored: np.ndarray,
 def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str = "oracle",
                  every_s: float = 0.1, size=None,
                  agnostic_iou: float | None = AGNOSTIC_NMS_IOU,
-                 min_score: float = DEFAULT_MIN_SCORE) -> dict:
+                 min_score: float = DEFAULT_MIN_SCORE,
+                 confirm_score: float = CONFIRM_SCORE) -> dict:
     """HOTA / IDF1 / MOTA per tracker over every observer of every recording.
 
     Args:
         recordings: `Recording` objects. trackers: our tracker names.
         peers: {name: factory(spec) → tracker with ``update(det, t, pose, rgb)``}, or None.
+        confirm_score: ``ego``'s `EgoTracker.confirm_score`.
 
     Returns:
         {tracker: {"hota", "deta", "assa", "idf1", "mota", "idsw", ..., "updates",
@@ -156,7 +158,7 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
                     flush()
                 current = ef.observer_id
                 n_seq += 1
-                state = {n: build_tracker(n, spec) for n in trackers}
+                state = {n: build_tracker(n, spec, confirm_score) for n in trackers}
                 state.update({n: f(spec) for n, f in peers.items()})
                 seqs = {n: Sequence() for n in names}
                 iseqs = {n: Sequence() for n in names}

@@ -399,7 +399,9 @@ class TrackedLocalizer:
         return True
 
     def localize(self, boxes, class_ids, spec: CameraSpec, pose: CameraPose,
-                 t: float | None = None) -> Localized:
+                 t: float | None = None, scores=None) -> Localized:
+        """``scores``: the detections' scores (the filter's `EgoTracker.confirm_score`
+        decides which tracks `track_ids` reports; None: all 1)."""
         from dashtraj.perception.detections import Detections
         from dashtraj.perception.track import EgoTracker
 
@@ -411,7 +413,8 @@ class TrackedLocalizer:
             self._tracker = EgoTracker(spec=spec, mu_h=self.mu_h)
         n = len(boxes)
         tr = self._tracker
-        self.track_ids = tr.update(Detections(boxes, np.ones(n), class_ids,
+        scores = np.ones(n) if scores is None else np.asarray(scores, np.float64)
+        self.track_ids = tr.update(Detections(boxes, scores, class_ids,
                                               np.full(n, -1, np.int64)), t, pose)
         m = tr.measured
         trust = (m.evidence == 0) & (tr.innovation_d2 <= self.consistent_chi2)
@@ -463,8 +466,8 @@ class SmoothedLocalizer(TrackedLocalizer):
     _frames: list = field(default_factory=list, repr=False)
 
     def localize(self, boxes, class_ids, spec: CameraSpec, pose: CameraPose,
-                 t: float | None = None) -> Localized:
-        out = TrackedLocalizer.localize(self, boxes, class_ids, spec, pose, t)
+                 t: float | None = None, scores=None) -> Localized:
+        out = TrackedLocalizer.localize(self, boxes, class_ids, spec, pose, t, scores)
         tr = self._tracker
         self._frames.append((np.asarray(boxes, np.float64).reshape(-1, 4),
                              np.asarray(class_ids, np.int64), pose, float(t), tr.measured,

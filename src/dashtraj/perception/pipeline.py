@@ -40,7 +40,7 @@ from dashtraj.perception.detections import (
 )
 from dashtraj.perception.localize import CameraPose, build_localizer
 from dashtraj.perception.mapmatch import map_match
-from dashtraj.perception.track import build_tracker
+from dashtraj.perception.track import CONFIRM_SCORE, build_tracker
 from dashtraj.store import (
     CropRow,
     DetectionRow,
@@ -80,6 +80,8 @@ class PerceiveConfig:
             `AGNOSTIC_NMS_IOU`; None: its class-aware NMS only;
             `dashtraj.perception.detections._ModelDetector`).
         min_score: the detector model's smallest kept score.
+        confirm_score: the ``ego`` tracker reports a track once one of its boxes scored
+            at least this much (`EgoTracker.confirm_score`; the oracle's boxes score 1).
     """
 
     detector: str = "oracle"
@@ -99,6 +101,7 @@ class PerceiveConfig:
     parallel_frames: int | None = None
     agnostic_nms_iou: float | None = AGNOSTIC_NMS_IOU
     min_score: float = DEFAULT_MIN_SCORE
+    confirm_score: float = CONFIRM_SCORE
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -110,6 +113,7 @@ class PerceiveConfig:
             d["size"] = tuple(d["size"])
         if d.get("observers") is not None:
             d["observers"] = tuple(d["observers"])
+        d.setdefault("confirm_score", 0.0)  # written before the rule: every track reported
         return cls(**d)
 
 
@@ -205,7 +209,7 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
     spec = image_camera(recording, config.size)
     detector = build_detector(config.detector, 2 if config.threads is None else config.threads,
                               config.agnostic_nms_iou, config.min_score)
-    tracker = build_tracker(config.tracker, spec)
+    tracker = build_tracker(config.tracker, spec, config.confirm_score)
     localizer = build_localizer(config.localizer, config.mu_h, road_map=road_map)
     # tracked/smoothed/mapped run an ego filter of their own: with the same settings it
     # is this tracker, updated once per frame (the same ids as updating both)
@@ -232,7 +236,8 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
             p.parent.mkdir(parents=True, exist_ok=True)
             p.write_bytes(encode_jpeg(rf.frame_data.rgb))
         if getattr(localizer, "sequential", False):
-            loc = localizer.localize(det.boxes, det.class_ids, spec, pose, t=rf.t)
+            loc = localizer.localize(det.boxes, det.class_ids, spec, pose, t=rf.t,
+                                     scores=det.scores)
         else:
             loc = localizer.localize(det.boxes, det.class_ids, spec, pose)
         done.append(rf.frame)
