@@ -9,8 +9,9 @@ folder first (the embeddings of MODEL are added to the copy, never to EXP).
 
 Usage:
     python scripts/reid_rescore.py EXP --reid-model M.onnx [--reid-threshold F.json]
-        [--gate | --no-gate] [--same-camera-m M] [--pin-anchor | --no-pin-anchor]
-        [--split | --no-split] [--json]
+        [--gate | --no-gate] [--same-camera-m M] [--slack-m M] [--radius-m M]
+        [--pin-anchor | --no-pin-anchor]
+        [--split | --no-split] [--min-score S] [--json]
 
 Prints one row per run (ReID precision/recall, hmm and shortest-path SSPD over the whole
 trip and the seen stretch) and the means, with the same aggregation as `experiments`.
@@ -38,6 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     from dashtraj.reid.embed import ReidEmbedder
     from dashtraj.reidentify.vision import (
         PIN_ANCHOR,
+        SIGHTING_MIN_SCORE,
         SPLIT_TRACKS,
         VISION_GATE,
         load_threshold,
@@ -57,12 +59,19 @@ def main(argv: list[str] | None = None) -> int:
                     help="the gate's GateConfig.same_camera_m (default: the library's; 0: the "
                          "rule before 2026-11-27, any two time-overlapping tracks of one "
                          "camera are two vehicles)")
+    ap.add_argument("--slack-m", type=float, default=None,
+                    help="the gate's GateConfig.slack_m (default: the library's VISION_GATE)")
+    ap.add_argument("--radius-m", type=float, default=None,
+                    help="the gate's GateConfig.radius_m (default: the library's VISION_GATE)")
     ap.add_argument("--pin-anchor", action=argparse.BooleanOptionalAction, default=PIN_ANCHOR,
                     help="the gate keeps the query's own track whatever the others say "
                          "(default: the library's, dashtraj.reidentify.vision.PIN_ANCHOR)")
     ap.add_argument("--split", action=argparse.BooleanOptionalAction, default=SPLIT_TRACKS,
                     help="cut tracks where their crops' look changes (default: the library's, "
                          "dashtraj.reidentify.vision.SPLIT_TRACKS)")
+    ap.add_argument("--min-score", type=float, default=SIGHTING_MIN_SCORE,
+                    help="use only detections scored at least this (default: the library's, "
+                         "dashtraj.reidentify.vision.SIGHTING_MIN_SCORE; 0: all)")
     ap.add_argument("--json", action="store_true", help="print the figures as JSON")
     args = ap.parse_args(argv)
 
@@ -72,8 +81,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{args.exp}: no runs with summary.json and sightings.db", file=sys.stderr)
         return 2
     th = load_threshold(args.reid_model, args.reid_threshold)
-    gate_cfg = (None if args.same_camera_m is None
-                else replace(VISION_GATE, same_camera_m=args.same_camera_m))
+    changes = {k: v for k, v in (("same_camera_m", args.same_camera_m),
+                                 ("slack_m", args.slack_m), ("radius_m", args.radius_m))
+               if v is not None}
+    gate_cfg = replace(VISION_GATE, **changes) if changes else None
     embedder = ReidEmbedder(args.reid_model, threads=1)
     summaries, rows = [], []
     with tempfile.TemporaryDirectory(prefix="reid_rescore_") as tmp:
@@ -90,7 +101,8 @@ def main(argv: list[str] | None = None) -> int:
                                 recipe=th.calibration.recipe,
                                 gate=(gate_cfg or True) if gate_on else False,
                                 max_distance_m=config.max_distance_m, sample_s=SAMPLE_S,
-                                pin_anchor=args.pin_anchor, split=args.split)
+                                pin_anchor=args.pin_anchor, split=args.split,
+                                min_score=args.min_score)
             results, _, _ = reconstruct_and_score(road_map, rec.target_route, tt.sightings,
                                                   config.methods)
             summary = {**tt.summary, "methods": results}

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -195,3 +197,74 @@ def test_a_track_that_switches_vehicle_is_cut_where_its_look_changes(tmp_path, t
          (6, 2.4), (6, 3.0), (6, 3.4), (6, 3.8)]
     y0 = cut.sightings[0].y
     assert all(abs(x.y - y0) < 0.5 for x in cut.sightings)  # the target's lane throughout
+
+
+def _weak_box_db(path, m):
+    """Observer 1 follows the target (vehicle 0) along Town01's road 12 on track 5. From
+    t = 2.4 s the detector scores the target's box low for a while and boxes a part of it
+    above (score 0.3, localized 8 m too far): the tracker keeps track 5 on the weak part
+    box and starts track 6 on the target's confident box. Every crop shows the target (the
+    shipped model's embeddings stored along one axis)."""
+    from dashtraj.reid.database import file_sha256
+    from dashtraj.reid.embed import shipped_model_path
+    from dashtraj.store import CropRow
+
+    model = shipped_model_path()
+    with SightingsDB.create(path) as db:
+        db.write_run("runs/x", "town01", None, {"width_px": 640, "height_px": 360}, {},
+                     [(1, None)])
+        poses, dets, crops, keys = [], [], [], []
+        for f in range(20):
+            t = f * 0.2
+            o = m.waypoint(12, 0, -1, 10.0 + 10.0 * t).transform
+            poses.append(PoseRow(1, f, t, o.location.x, o.location.y, 0.0, o.rotation.yaw,
+                                 o.location.x, o.location.y, 1.6, o.rotation.yaw, 0.0))
+            target = m.waypoint(12, 0, -1, 20.0 + 10.0 * t).transform.location
+            part = m.waypoint(12, 0, -1, 28.0 + 10.0 * t).transform.location
+            rows = [(5, (300, 150, 360, 200), 0.9, target, 0)] if f < 12 else \
+                [(5, (310, 120, 350, 145), 0.3, part, None), (6, (300, 150, 360, 200), 0.9,
+                                                             target, 0)]
+            for idx, (track, box, score, p, vid) in enumerate(rows):
+                dets.append(DetectionRow(1, f, idx, t, track, *box, score, 1, "car", "back",
+                                         10.0, 0.0, p.x, p.y, 0.0, None, None, None, None, None,
+                                         vid, 0))
+                crops.append(CropRow(1, f, idx, b"\xff", 1, 1))
+                keys.append((1, f, idx))
+        db.add_frames(poses, dets, crops, [TrackRow(1, 5, "car", 0.0, 3.8, 20, 0),
+                                           TrackRow(1, 6, "car", 2.4, 3.8, 8, 0)])
+        db.add_embeddings(model.name, file_sha256(model), keys,
+                          np.tile(np.eye(512, dtype=np.float32)[0], (len(keys), 1)))
+        db.finish_observer(1)
+        db.finish_run()
+    return model
+
+
+def test_weak_boxes_are_no_sightings(tmp_path, town01):
+    """With every detection used, track 5's weak part boxes beside track 6's box say two
+    vehicles (separate boxes in the same frames, positions 8 m apart), so the gate keeps
+    one of the target's two tracks and the route gets the part box's wrong positions.
+    Without the weak boxes (`SIGHTING_MIN_SCORE`), both tracks are the target's and every
+    sighting is on it."""
+    from dashtraj.reid.embed import ReidEmbedder
+    from dashtraj.reidentify.decision import EXPANDED_RECIPE
+    from dashtraj.reidentify.vision import SIGHTING_MIN_SCORE, target_from_db
+
+    assert 0.3 < SIGHTING_MIN_SCORE <= 0.9
+    path = tmp_path / "weak.db"
+    embedder = ReidEmbedder(_weak_box_db(path, town01), threads=1)
+    kw = dict(embedder=embedder, threshold=0.4, recipe=EXPANDED_RECIPE, sample_s=0.5)
+    every = target_from_db(path, town01, 0, min_score=0.0, **kw).summary
+    assert (every["reid_true_matches"], every["reid_false_matches"],
+            every["reid_misses"]) == (1, 0, 1)
+    assert every["reid_misses_by_cause"]["gate"] == 1
+
+    tt = target_from_db(path, town01, 0, **kw)
+    s = tt.summary
+    assert (s["reid_true_matches"], s["reid_false_matches"], s["reid_misses"]) == (2, 0, 0)
+    assert s["reid_min_score"] == SIGHTING_MIN_SCORE
+    assert [(x.track_id, round(x.t, 1)) for x in tt.sightings] == \
+        [(5, 0.0), (5, 0.6), (5, 1.0), (5, 1.6), (5, 2.0), (5, 2.2),
+         (6, 2.4), (6, 3.0), (6, 3.4), (6, 3.8)]
+    for x in tt.sightings:  # every sighting is the target's box, none the part box's
+        p = town01.waypoint(12, 0, -1, 20.0 + 10.0 * x.t).transform.location
+        assert math.hypot(x.x - p.x, x.y - p.y) < 1e-6

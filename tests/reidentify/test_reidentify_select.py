@@ -149,16 +149,17 @@ def test_select_never_keeps_two_tracks_seen_apart(town01):
 
 
 def test_the_vision_gate_allows_less_slack_than_the_oracles(town01):
-    """`target_from_db`'s gate takes 10 m of slack (perceive's positions are off by about
+    """`target_from_db`'s gate takes 5 m of slack (perceive's positions are off by about
     a metre), the default 20 m (the oracle's paper noise): a second observer's sighting
-    22 m farther along the lane 0.5 s later (15 m/s allows 7.5 m) is the same car for the
+    15 m farther along the lane 0.5 s later (15 m/s allows 7.5 m) is the same car for the
     default gate only."""
     from dashtraj.reidentify.vision import VISION_GATE
     from dashtraj.trajectory.gating import GateConfig, reachable
 
     a = sight(town01, 10.0, 12, 100.0, obs=1)
-    for ds, default, vision in ((15.0, True, True), (22.0, True, False), (28.0, False, False)):
+    for ds, default, vision in ((12.0, True, True), (15.0, True, False), (22.0, True, False),
+                                (28.0, False, False)):
         b = sight(town01, 10.5, 12, 100.0 + ds, obs=2)
         assert reachable(town01, a, b, GateConfig()) is default
         assert reachable(town01, a, b, VISION_GATE) is vision
-    assert VISION_GATE.slack_m == 10.0 and GateConfig().slack_m == 20.0
+    assert VISION_GATE.slack_m == 5.0 and GateConfig().slack_m == 20.0
