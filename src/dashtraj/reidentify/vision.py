@@ -416,7 +416,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         size = (int(cam["width_px"]), int(cam["height_px"]))
 
         def usable(d) -> bool:
-            return d.score >= min_score and bool(adequate_crops(np.array([[d.x0, d.y0, d.x1, d.y1]]), *size, recipe)[0])
+            box = np.array([[d.x0, d.y0, d.x1, d.y1]])
+            return d.score >= min_score and bool(adequate_crops(box, *size, recipe)[0])
 
         query = query_detection(db, target_vehicle_id, max_distance_m,
                                 usable if switches.reid == "appearance" else None)
