@@ -151,6 +151,11 @@ class ExperimentConfig:
         if self.sightings not in SIGHTINGS:
             raise ExperimentError(f"unknown sightings source {self.sightings!r}; valid: "
                                   f"{', '.join(SIGHTINGS)}")
+        from dashtraj.perception.localize import LOCALIZERS
+
+        if self.localizer not in LOCALIZERS:
+            raise ExperimentError(f"unknown localizer {self.localizer!r}; valid: "
+                                  f"{', '.join(LOCALIZERS)}")
         if ((self.reid == "appearance" and self.sightings != "vision")
                 or (self.sightings == "vision" and self.reid == "look-alike")):
             raise ExperimentError(f"reid mode {self.reid!r} does not go with sightings "

@@ -57,6 +57,9 @@ def test_config_round_trip_and_bad_source():
     assert ExperimentConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
     with pytest.raises(ExperimentError, match="unknown sightings source 'pixels'; valid: oracle"):
         ExperimentConfig(sightings="pixels")
+    with pytest.raises(ExperimentError, match="unknown localizer 'kalman'; valid: paper, "):
+        ExperimentConfig(sightings="vision", reid="appearance", localizer="kalman")
+    assert ExperimentConfig(localizer="mapped").localizer == "mapped"
     vis = ExperimentConfig(sightings="vision", reid="appearance", detector="oracle",
                            reid_threshold="t.json", look="flat", every_s=0.2,
                            agnostic_nms_iou=None, min_score=0.45, confirm_score=0.6)
