@@ -148,6 +148,7 @@ def test_share_tracker_only_takes_a_fresh_tracker_of_the_same_settings():
     from dashtraj.perception.track import EgoTracker, SortTracker
 
     assert TrackedLocalizer().share_tracker(EgoTracker())
+    assert TrackedLocalizer().share_tracker(EgoTracker(confirm_score=0.0))  # reporting only
     assert not TrackedLocalizer(mu_h=PAPER_MU_H + 1).share_tracker(EgoTracker())
     assert not TrackedLocalizer().share_tracker(EgoTracker(max_age_s=1.0))
     assert not TrackedLocalizer().share_tracker(SortTracker())

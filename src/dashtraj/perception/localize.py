@@ -393,7 +393,10 @@ class TrackedLocalizer:
         if (self._tracker is not None or not isinstance(tracker, EgoTracker)
                 or tracker._t is not None):
             return False
-        if not tracker.same_settings(EgoTracker(spec=tracker.spec, mu_h=self.mu_h)):
+        # the confirmation score only decides which tracks are reported, never the
+        # filter's states, so a tracker of any confirm_score serves as the filter
+        twin = EgoTracker(spec=tracker.spec, mu_h=self.mu_h, confirm_score=tracker.confirm_score)
+        if not tracker.same_settings(twin):
             return False
         self._tracker = tracker
         return True
