@@ -124,44 +124,57 @@ def test_the_route_gets_each_tracks_last_detection_in_range(tmp_path, town01):
     assert (tt.summary["reid_true_matches"], tt.summary["reid_misses"]) == (2, 0)
 
 
+def _road12_db(path, m, rows_of, tracks):
+    """A sightings DB of observer 1 driving Town01's road 12 (lane -1) at 10 m/s from
+    s = 10 m, a frame every 0.2 s for 20 frames. ``rows_of(f, t)`` gives a frame's
+    detections as (track, box, score, location, truth id, depicted id, axis); each has a
+    crop whose embedding for the shipped ReID model is the unit vector along ``axis``.
+    ``tracks``: the `TrackRow`s. Returns the model's path."""
+    from dashtraj.reid.database import file_sha256
+    from dashtraj.reid.embed import shipped_model_path
+    from dashtraj.store import CropRow
+
+    model = shipped_model_path()
+    with SightingsDB.create(path) as db:
+        db.write_run("runs/x", "town01", None, {"width_px": 640, "height_px": 360}, {},
+                     [(1, None)])
+        poses, dets, crops, keys, vecs = [], [], [], [], []
+        for f in range(20):
+            t = f * 0.2
+            o = m.waypoint(12, 0, -1, 10.0 + 10.0 * t).transform
+            poses.append(PoseRow(1, f, t, o.location.x, o.location.y, 0.0, o.rotation.yaw,
+                                 o.location.x, o.location.y, 1.6, o.rotation.yaw, 0.0))
+            for idx, (track, box, score, p, vid, dep, axis) in enumerate(rows_of(f, t)):
+                dets.append(DetectionRow(1, f, idx, t, track, *box, score, 1, "car", "back",
+                                         10.0, 0.0, p.x, p.y, 0.0, None, None, None, None, None,
+                                         vid, dep))
+                crops.append(CropRow(1, f, idx, b"\xff", 1, 1))
+                keys.append((1, f, idx))
+                vecs.append(np.eye(512, dtype=np.float32)[axis])
+        db.add_frames(poses, dets, crops, tracks)
+        db.add_embeddings(model.name, file_sha256(model), keys, np.array(vecs))
+        db.finish_observer(1)
+        db.finish_run()
+    return model
+
+
 def _switch_db(path, m):
     """Observer 1 follows the target (vehicle 0) along Town01's road 12. Its tracker
     swaps identities at t = 2.4 s: track 5 holds the target's boxes until then and an
     oncoming car's (vehicle 7, on the other lane) after; track 6 picks the target up.
     The crops' embeddings are stored for the shipped ReID model: the target's along one
     axis, the other car's along another (cosine distance 1)."""
-    from dashtraj.reid.database import file_sha256
-    from dashtraj.reid.embed import shipped_model_path
-    from dashtraj.store import CropRow
 
-    model = shipped_model_path()
-    frames = range(20)
-    with SightingsDB.create(path) as db:
-        db.write_run("runs/x", "town01", None, {"width_px": 640, "height_px": 360}, {},
-                     [(1, None)])
-        poses, dets, crops, keys, vecs = [], [], [], [], []
-        for f in frames:
-            t = f * 0.2
-            o = m.waypoint(12, 0, -1, 10.0 + 10.0 * t).transform
-            poses.append(PoseRow(1, f, t, o.location.x, o.location.y, 0.0, o.rotation.yaw,
-                                 o.location.x, o.location.y, 1.6, o.rotation.yaw, 0.0))
-            target = m.waypoint(12, 0, -1, 20.0 + 10.0 * t).transform.location
-            other = m.waypoint(12, 0, 1, 80.0 - 10.0 * t).transform.location
-            rows = [(5, (300, 150, 360, 200), target, 0, 0)] if f < 12 else \
-                [(5, (500, 150, 540, 190), other, 7, 1), (6, (300, 150, 360, 200), target, 0, 0)]
-            for idx, (track, box, p, vid, axis) in enumerate(rows):
-                dets.append(DetectionRow(1, f, idx, t, track, *box, 0.9, 1, "car", "back",
-                                         10.0, 0.0, p.x, p.y, 0.0, None, None, None, None, None,
-                                         vid, vid))
-                crops.append(CropRow(1, f, idx, b"\xff", 1, 1))
-                keys.append((1, f, idx))
-                vecs.append(np.eye(512, dtype=np.float32)[axis])
-        db.add_frames(poses, dets, crops, [TrackRow(1, 5, "car", 0.0, 3.8, 20, 0),
-                                           TrackRow(1, 6, "car", 2.4, 3.8, 8, 0)])
-        db.add_embeddings(model.name, file_sha256(model), keys, np.array(vecs))
-        db.finish_observer(1)
-        db.finish_run()
-    return model
+    def rows_of(f, t):
+        target = m.waypoint(12, 0, -1, 20.0 + 10.0 * t).transform.location
+        other = m.waypoint(12, 0, 1, 80.0 - 10.0 * t).transform.location
+        if f < 12:
+            return [(5, (300, 150, 360, 200), 0.9, target, 0, 0, 0)]
+        return [(5, (500, 150, 540, 190), 0.9, other, 7, 7, 1),
+                (6, (300, 150, 360, 200), 0.9, target, 0, 0, 0)]
+
+    return _road12_db(path, m, rows_of, [TrackRow(1, 5, "car", 0.0, 3.8, 20, 0),
+                                         TrackRow(1, 6, "car", 2.4, 3.8, 8, 0)])
 
 
 def test_a_track_that_switches_vehicle_is_cut_where_its_look_changes(tmp_path, town01):
@@ -205,38 +218,17 @@ def _weak_box_db(path, m):
     above (score 0.3, localized 8 m too far): the tracker keeps track 5 on the weak part
     box and starts track 6 on the target's confident box. Every crop shows the target (the
     shipped model's embeddings stored along one axis)."""
-    from dashtraj.reid.database import file_sha256
-    from dashtraj.reid.embed import shipped_model_path
-    from dashtraj.store import CropRow
 
-    model = shipped_model_path()
-    with SightingsDB.create(path) as db:
-        db.write_run("runs/x", "town01", None, {"width_px": 640, "height_px": 360}, {},
-                     [(1, None)])
-        poses, dets, crops, keys = [], [], [], []
-        for f in range(20):
-            t = f * 0.2
-            o = m.waypoint(12, 0, -1, 10.0 + 10.0 * t).transform
-            poses.append(PoseRow(1, f, t, o.location.x, o.location.y, 0.0, o.rotation.yaw,
-                                 o.location.x, o.location.y, 1.6, o.rotation.yaw, 0.0))
-            target = m.waypoint(12, 0, -1, 20.0 + 10.0 * t).transform.location
-            part = m.waypoint(12, 0, -1, 28.0 + 10.0 * t).transform.location
-            rows = [(5, (300, 150, 360, 200), 0.9, target, 0)] if f < 12 else \
-                [(5, (310, 120, 350, 145), 0.3, part, None), (6, (300, 150, 360, 200), 0.9,
-                                                             target, 0)]
-            for idx, (track, box, score, p, vid) in enumerate(rows):
-                dets.append(DetectionRow(1, f, idx, t, track, *box, score, 1, "car", "back",
-                                         10.0, 0.0, p.x, p.y, 0.0, None, None, None, None, None,
-                                         vid, 0))
-                crops.append(CropRow(1, f, idx, b"\xff", 1, 1))
-                keys.append((1, f, idx))
-        db.add_frames(poses, dets, crops, [TrackRow(1, 5, "car", 0.0, 3.8, 20, 0),
-                                           TrackRow(1, 6, "car", 2.4, 3.8, 8, 0)])
-        db.add_embeddings(model.name, file_sha256(model), keys,
-                          np.tile(np.eye(512, dtype=np.float32)[0], (len(keys), 1)))
-        db.finish_observer(1)
-        db.finish_run()
-    return model
+    def rows_of(f, t):
+        target = m.waypoint(12, 0, -1, 20.0 + 10.0 * t).transform.location
+        part = m.waypoint(12, 0, -1, 28.0 + 10.0 * t).transform.location
+        if f < 12:
+            return [(5, (300, 150, 360, 200), 0.9, target, 0, 0, 0)]
+        return [(5, (310, 120, 350, 145), 0.3, part, None, 0, 0),
+                (6, (300, 150, 360, 200), 0.9, target, 0, 0, 0)]
+
+    return _road12_db(path, m, rows_of, [TrackRow(1, 5, "car", 0.0, 3.8, 20, 0),
+                                         TrackRow(1, 6, "car", 2.4, 3.8, 8, 0)])
 
 
 def test_weak_boxes_are_no_sightings(tmp_path, town01):
