@@ -63,6 +63,31 @@ def test_an_unpinned_anchor_cannot_pull_true_tracks_out(town01):
     assert reid_score(pinned.accepted, truth, 0).recall < 1.0
 
 
+def test_a_look_alike_seen_only_before_the_query_is_not_the_target(town01):
+    """The query is the target's first sighting (``calc_traj``'s ``veh_t1``): a track of
+    the same look that ended before it is another vehicle, however reachable its
+    place was; one still seen at the query's time stays a candidate for the gate."""
+    tracks = {
+        (2, 3): drive(town01, 0.0, 2.0, 12, 0.0, obs=2, track=3),      # a twin, earlier
+        (1, 1): drive(town01, 5.0, 7.0, 12, 60.0, obs=1, track=1),     # the query's track
+        (3, 4): drive(town01, 10.0, 12.0, 12, 110.0, obs=3, track=4),  # the target
+    }
+    keys = [k for k in tracks for _ in range(3)]
+    d = np.array([0.1, 0.12, 0.14] * len(tracks))
+    # the twin drove the target's road 40 m short of where the query saw it, 3 s before:
+    # reachable
+    free = select_target_tracks(town01, d, keys, tracks, 0.5, anchor=(1, 1))
+    assert free.accepted == ((2, 3), (1, 1), (3, 4))
+    first = select_target_tracks(town01, d, keys, tracks, 0.5, anchor=(1, 1), start_t=5.0)
+    assert first.accepted == ((1, 1), (3, 4)) and first.gated_out == ((2, 3),)
+    # a track that ends at or after the query's time is judged by the gate alone
+    late = select_target_tracks(town01, d, keys, tracks, 0.5, anchor=(1, 1), start_t=2.0)
+    assert late.accepted == free.accepted
+    # no gate, no rule: the paper's way accepts every match
+    assert select_target_tracks(town01, d, keys, tracks, 0.5, gate=None,
+                                start_t=5.0).accepted == tuple(tracks)
+
+
 def _row(obs, frame, track, box, t=None):
     return DetectionRow(observer_id=obs, frame=frame, idx=0, t=frame * 0.2 if t is None else t,
                         track_id=track, x0=box[0], y0=box[1], x1=box[2], y1=box[3],

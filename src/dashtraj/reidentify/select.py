@@ -64,7 +64,8 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
                          gate: GateConfig | None = DEFAULT_GATE,
                          keep_anchor: bool = False, pin_anchor: bool = True,
                          apart: Collection[frozenset] = (),
-                         together: Collection[frozenset] = ()) -> Selection:
+                         together: Collection[frozenset] = (),
+                         start_t: float | None = None) -> Selection:
     """Decide and gate the target's tracks.
 
     Args:
@@ -73,7 +74,7 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
         keys: N track keys, e.g. (observer_id, track_id).
         sightings: each candidate track's sightings (positions and times for the
             gate); a candidate without any cannot be placed on the map, and the
-            gate drops it.
+            gate drops it (as it drops one seen only before `start_t`).
         threshold: the calibrated threshold (`calibrate_threshold`).
         aggregate: a name in `AGGREGATORS`.
         anchor: key of the query's own track (kept through the gate when it is a
@@ -92,6 +93,11 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
         together: pairs of one camera's track keys seen as one vehicle
             (`box_relations`); the gate does not call them two vehicles for being
             localized apart at one moment (`GateConfig.same_camera_m`).
+        start_t: the time of the target's first sighting (the query crop's, as
+            ``calc_traj`` takes ``veh_t1``), seconds, or None. With a gate, a candidate
+            whose sightings all come before it is not the target: the route is rebuilt
+            from the first sighting on, and a vehicle seen only before the target's
+            first sighting is another one (a look-alike met earlier).
 
     Returns:
         `Selection`.
@@ -104,7 +110,9 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
     cand_keys = tuple(d.key for d in cand)
     if gate is None:
         return Selection(tuple(decisions), cand_keys, cand_keys, ())
-    placed = [d for d in cand if len(sightings.get(d.key, ())) > 0]
+    placed = [d for d in cand if len(sightings.get(d.key, ())) > 0
+              and (start_t is None or max(s.t for s in sightings[d.key]) >= start_t
+                   or d.key == anchor)]
     scale = threshold if threshold > 0 else 1.0
     weights = [len(sightings[d.key])
                * (1.0 + float(np.clip((threshold - d.distance) / scale / 2, 0.0, 0.499)))

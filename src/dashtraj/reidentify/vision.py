@@ -417,8 +417,11 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         size = (int(cam["width_px"]), int(cam["height_px"]))
 
         def usable(d) -> bool:
+            # a crop the decision uses, of a track: the query's track is the gate's
+            # anchor (a box the tracker had not confirmed yet belongs to no track)
             box = np.array([[d.x0, d.y0, d.x1, d.y1]])
-            return d.score >= min_score and bool(adequate_crops(box, *size, recipe)[0])
+            return (d.score >= min_score and (by_truth or d.track_id is not None)
+                    and bool(adequate_crops(box, *size, recipe)[0]))
 
         query = query_detection(db, target_vehicle_id, max_distance_m,
                                 usable if switches.reid == "appearance" else None)
@@ -525,7 +528,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
                                    gate=(gate if isinstance(gate, GateConfig)
                                          else VISION_GATE if gate else None),
                                    keep_anchor=True, pin_anchor=pin_anchor,
-                                   apart=rel.apart, together=rel.together)
+                                   apart=rel.apart, together=rel.together,
+                                   start_t=query.t if gate else None)
         accepted = [k for k in sel.accepted if k in tracks]
         candidates = list(sel.candidates)
         extra["reid_threshold"] = float(threshold)
