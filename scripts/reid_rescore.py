@@ -9,7 +9,7 @@ folder first (the embeddings of MODEL are added to the copy, never to EXP).
 
 Usage:
     python scripts/reid_rescore.py EXP --reid-model M.onnx [--reid-threshold F.json]
-        [--gate | --no-gate] [--same-camera-m M] [--slack-m M] [--radius-m M]
+        [--gate | --no-gate] [--same-camera-m M] [--slack-m M] [--radius-m M] [--max-speed-mps V]
         [--pin-anchor | --no-pin-anchor]
         [--split | --no-split] [--min-score S] [--json]
 
@@ -63,6 +63,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="the gate's GateConfig.slack_m (default: the library's VISION_GATE)")
     ap.add_argument("--radius-m", type=float, default=None,
                     help="the gate's GateConfig.radius_m (default: the library's VISION_GATE)")
+    ap.add_argument("--max-speed-mps", type=float, default=None,
+                    help="the gate's GateConfig.max_speed_mps (default: the library's "
+                         "VISION_GATE)")
     ap.add_argument("--pin-anchor", action=argparse.BooleanOptionalAction, default=PIN_ANCHOR,
                     help="the gate keeps the query's own track whatever the others say "
                          "(default: the library's, dashtraj.reidentify.vision.PIN_ANCHOR)")
@@ -82,7 +85,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     th = load_threshold(args.reid_model, args.reid_threshold)
     changes = {k: v for k, v in (("same_camera_m", args.same_camera_m),
-                                 ("slack_m", args.slack_m), ("radius_m", args.radius_m))
+                                 ("slack_m", args.slack_m), ("radius_m", args.radius_m),
+                                 ("max_speed_mps", args.max_speed_mps))
                if v is not None}
     gate_cfg = replace(VISION_GATE, **changes) if changes else None
     embedder = ReidEmbedder(args.reid_model, threads=1)
