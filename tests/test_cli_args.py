@@ -32,3 +32,27 @@ def test_nms_iou():
     for bad in ("0", "-0.1", "1.5", "nan", "x", ""):
         with pytest.raises(argparse.ArgumentTypeError):
             nms_iou(bad)
+
+
+def test_every_localizer_help_names_the_library_localizers():
+    """The --localizer help strings are written out (building them from
+    `LOCALIZERS` would import the road map on every command's start): each must
+    name every one of the library's localizers, and its default must be one."""
+    import re
+
+    from dashtraj.cli import build_parser
+    from dashtraj.perception.localize import LOCALIZERS
+
+    seen = 0
+    stack = [build_parser()]
+    while stack:
+        parser = stack.pop()
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                stack.extend(action.choices.values())
+            elif "--localizer" in action.option_strings:
+                seen += 1
+                named = set(re.findall(r"\b[a-z]+\b", action.help.split("(default")[0]))
+                assert set(LOCALIZERS) <= named, action.help
+                assert action.default in LOCALIZERS
+    assert seen >= 3  # perceive, sightings, experiments (and demo)
