@@ -236,7 +236,8 @@ def box_relations(detections, spans: Mapping[Hashable, tuple[float, float]] | No
         frozenset(p for p, n in overlapping.items() if n >= min_frames and p not in separate))
 
 
-def query_detection(db, vehicle_id: int, max_distance_m: float = 15.0, usable=None):
+def query_detection(db, vehicle_id: int, max_distance_m: float = 15.0, usable=None,
+                    detections=None):
     """The query of re-identification: the vehicle's first detection with a crop, within
     `max_distance_m` (estimated) of a camera, as ``calc_traj`` takes ``veh_t1.image``.
 
@@ -250,13 +251,15 @@ def query_detection(db, vehicle_id: int, max_distance_m: float = 15.0, usable=No
         usable: None, or ``usable(detection) -> bool``: the first detection it accepts
             (e.g. a crop the decision recipe uses: large enough, not cut by the
             frame), falling back to the first of all when it accepts none.
+        detections: the detections to choose from (e.g. those scored high enough), or
+            None: every detection of `db`.
 
     Returns:
         The `DetectionRow` (its (observer_id, track_id) is the gate's anchor), or None
         when no such detection has a crop.
     """
     with_crop = {(c.observer_id, c.frame, c.idx) for c in db.crops()}
-    mine = sorted((d for d in db.detections()
+    mine = sorted((d for d in (db.detections() if detections is None else detections)
                    if d.truth_vehicle_id == vehicle_id and d.distance_m <= max_distance_m
                    and (d.observer_id, d.frame, d.idx) in with_crop),
                   key=lambda d: (d.t, d.observer_id, d.idx))

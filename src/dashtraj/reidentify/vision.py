@@ -420,11 +420,12 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
             # a crop the decision uses, of a track: the query's track is the gate's
             # anchor (a box the tracker had not confirmed yet belongs to no track)
             box = np.array([[d.x0, d.y0, d.x1, d.y1]])
-            return (d.score >= min_score and (by_truth or d.track_id is not None)
+            return ((by_truth or d.track_id is not None)
                     and bool(adequate_crops(box, *size, recipe)[0]))
 
         query = query_detection(db, target_vehicle_id, max_distance_m,
-                                usable if switches.reid == "appearance" else None)
+                                usable if switches.reid == "appearance" else None,
+                                detections=every)
         dists = keys = query_crops = None
         extra_split: dict = {}
         if switches.reid == "appearance" and query is not None:
