@@ -23,8 +23,11 @@ reid-threshold`` writes it beside the model); then the spatio-temporal gate
 (`select.select_target_tracks`), told which tracks one camera saw as two vehicles
 (separate boxes in the same frames within both tracks' sighting spans) and which as one
 (overlapping boxes; `select.box_relations`). With a crop filter, the query is the target's first
-crop within 15 m that the filter keeps (the paper's first crop when none is); the
-query's own track is a candidate whatever its distance (the user pointed at it).
+crop within 15 m that the filter keeps and that belongs to a track (a box the tracker
+had not confirmed yet has none, and the query's track is the gate's anchor; the paper's
+first crop when none is); the query's own track is a candidate whatever its distance
+(the user pointed at it), and a candidate seen only before the query is not the target
+(the query is its first sighting; ``start_t`` of `select.select_target_tracks`).
 
 Scoring: a track is the target's when most of its used sightings (one every
 `sample_s` within range) are detections that show the target: matched to its true box
