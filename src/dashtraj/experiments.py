@@ -478,7 +478,8 @@ def target_sightings(config: ExperimentConfig, rec, out: Path, road_map,
     of its twins (an appearance model that cannot tell vehicles of one model and
     colour apart, and tells every other vehicle apart), then, with `gate`, the
     spatio-temporal gate anchored on the track of the target's first sighting (the
-    query crop, as ``calc_traj`` takes ``veh_t1.image``).
+    query crop, as ``calc_traj`` takes ``veh_t1.image``); a twin's track seen only
+    before that sighting is not the target.
 
     Returns:
         (sightings of the accepted tracks, summary entries: reid_precision,
