@@ -263,29 +263,32 @@ def test_weak_boxes_are_no_sightings(tmp_path, town01):
 
 
 def test_the_query_is_a_tracked_crop(tmp_path, town01):
-    """The target's first two boxes belong to no track (the tracker had not confirmed
-    it yet): the query is its first crop of a track, whose track is the gate's anchor.
-    A look-alike seen only before the query (track 7, same look, gone at 0.6 s) is not
-    the target."""
+    """The target's first six boxes belong to no track (the tracker had not confirmed it
+    yet): the query is its first crop of a track, and that track is the gate's anchor.
+    A look-alike seen only before the query (track 7, the same look, 5 m ahead of the
+    target until 0.4 s: the target could have driven on from there) is not the target."""
     from dashtraj.reid.embed import ReidEmbedder
     from dashtraj.reidentify.decision import EXPANDED_RECIPE
     from dashtraj.reidentify.vision import target_from_db
 
     def rows_of(f, t):
         target = town01.waypoint(12, 0, -1, 20.0 + 10.0 * t).transform.location
-        twin = town01.waypoint(12, 0, -1, 30.0 + 10.0 * t).transform.location
-        rows = [(None if f < 2 else 5, (300, 150, 360, 200), 0.9, target, 0, 0, 0)]
-        if f < 4:
+        twin = town01.waypoint(12, 0, -1, 25.0 + 10.0 * t).transform.location
+        rows = [(None if f < 6 else 5, (300, 150, 360, 200), 0.9, target, 0, 0, 0)]
+        if f < 3:
             rows.append((7, (400, 150, 460, 200), 0.9, twin, 9, 9, 0))
         return rows
 
     path = tmp_path / "untracked.db"
-    model = _road12_db(path, town01, rows_of, [TrackRow(1, 5, "car", 0.4, 3.8, 18, 0),
-                                               TrackRow(1, 7, "car", 0.0, 0.6, 4, 9)])
-    tt = target_from_db(path, town01, 0, embedder=ReidEmbedder(model, threads=1),
-                        threshold=0.4, recipe=EXPANDED_RECIPE, sample_s=0.5)
+    model = _road12_db(path, town01, rows_of, [TrackRow(1, 5, "car", 1.2, 3.8, 14, 0),
+                                               TrackRow(1, 7, "car", 0.0, 0.4, 3, 9)])
+    kw = dict(embedder=ReidEmbedder(model, threads=1), threshold=0.4, recipe=EXPANDED_RECIPE,
+              sample_s=0.5)
+    paper = target_from_db(path, town01, 0, gate=False, **kw).summary
+    assert (paper["reid_true_matches"], paper["reid_false_matches"]) == (1, 1)  # same look
+    tt = target_from_db(path, town01, 0, **kw)
     s = tt.summary
-    assert s["query"] == {"observer_id": 1, "frame": 2, "t": 0.4}
+    assert (s["query"]["observer_id"], s["query"]["frame"]) == (1, 6)
     assert (s["reid_true_matches"], s["reid_false_matches"], s["reid_misses"]) == (1, 0, 0)
     assert s["reid_candidates"] == 2 and s["reid_gated_out"] == 1
     assert {x.track_id for x in tt.sightings} == {5}

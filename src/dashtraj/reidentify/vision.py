@@ -533,7 +533,9 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
                                          else VISION_GATE if gate else None),
                                    keep_anchor=True, pin_anchor=pin_anchor,
                                    apart=rel.apart, together=rel.together,
-                                   start_t=query.t if gate else None)
+                                   # sightings are samples: a track seen until the
+                                   # query's time can have its last up to sample_s before
+                                   start_t=query.t - sample_s if gate else None)
         accepted = [k for k in sel.accepted if k in tracks]
         candidates = list(sel.candidates)
         extra["reid_threshold"] = float(threshold)
