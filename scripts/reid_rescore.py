@@ -10,6 +10,7 @@ folder first (the embeddings of MODEL are added to the copy, never to EXP).
 Usage:
     python scripts/reid_rescore.py EXP --reid-model M.onnx [--reid-threshold F.json]
         [--gate | --no-gate] [--same-camera-m M] [--slack-m M] [--radius-m M] [--max-speed-mps V]
+        [--co-observed-m M]
         [--pin-anchor | --no-pin-anchor]
         [--split | --no-split] [--min-score S] [--json]
 
@@ -66,6 +67,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-speed-mps", type=float, default=None,
                     help="the gate's GateConfig.max_speed_mps (default: the library's "
                          "VISION_GATE)")
+    ap.add_argument("--co-observed-m", type=float, default=None,
+                    help="the gate's GateConfig.co_observed_m (default: the library's "
+                         "VISION_GATE; 0: the rule before 2026-11-29, no cross-camera groups)")
     ap.add_argument("--pin-anchor", action=argparse.BooleanOptionalAction, default=PIN_ANCHOR,
                     help="the gate keeps the query's own track whatever the others say "
                          "(default: the library's, dashtraj.reidentify.vision.PIN_ANCHOR)")
@@ -86,7 +90,8 @@ def main(argv: list[str] | None = None) -> int:
     th = load_threshold(args.reid_model, args.reid_threshold)
     changes = {k: v for k, v in (("same_camera_m", args.same_camera_m),
                                  ("slack_m", args.slack_m), ("radius_m", args.radius_m),
-                                 ("max_speed_mps", args.max_speed_mps))
+                                 ("max_speed_mps", args.max_speed_mps),
+                                 ("co_observed_m", args.co_observed_m))
                if v is not None}
     gate_cfg = replace(VISION_GATE, **changes) if changes else None
     embedder = ReidEmbedder(args.reid_model, threads=1)

@@ -245,3 +245,33 @@ def test_pairs_known_apart_are_never_both_kept(town01):
     # without an anchor the heavier track stays, whichever index comes first in the pair
     r = gate_tracks(town01, [oncoming, target], weights=[2.0, 10.0], apart=[(0, 1)])
     assert r.accepted == (1,)
+
+
+def test_one_vehicle_seen_by_two_cameras_stands_or_falls_whole(town01):
+    """A twin 30 m behind the target on road 12, seen at once by observer 3 (1 s) and
+    observer 4 (9 s, until the target's second track has begun, 30 m ahead of it).
+    Observer 3's short track alone fits the target's route; observer 4's cannot (two
+    places at one moment). The two tracks place their car on the same spot at the same
+    moments (`co_observed`): one vehicle, so the gate drops both; without the rule
+    observer 3's track of the twin is accepted as the target."""
+    from dataclasses import replace
+
+    from dashtraj.trajectory.gating import co_observed
+
+    target = drive(town01, 0.0, 2.0, 12, 20.0, speed=5.0, obs=1)          # s 20 → 30
+    later = drive(town01, 14.0, 30.0, 12, 90.0, speed=5.0, obs=2)         # s 90 → 170
+    twin3 = drive(town01, 6.0, 7.0, 12, 20.0, speed=5.0, obs=3, track=7)  # s 20 → 25
+    twin4 = drive(town01, 6.0, 15.0, 12, 20.0, speed=5.0, obs=4, track=8)  # s 20 → 65
+    assert co_observed(twin3, twin4, 2.5) and not co_observed(twin3, target, 2.5)
+    assert not co_observed(twin3, twin3, 2.5)  # one observer: not this rule
+    shifted = [replace(s, x=s.x + 4.0) for s in twin4]
+    assert not co_observed(twin3, shifted, 2.5)  # a car length (or a lane) away: two cars
+    tracks = [target, later, twin3, twin4]
+    w = [len(t) for t in tracks]
+    whole = gate_tracks(town01, tracks, weights=w, anchor=0)
+    assert whole.accepted == (0, 1) and whole.rejected == (2, 3)
+    apart = gate_tracks(town01, tracks, weights=w, anchor=0,
+                        config=GateConfig(co_observed_m=0.0))
+    assert apart.accepted == (0, 2, 1) and apart.rejected == (3,)
+    with pytest.raises(GatingError, match="co_observed_m"):
+        GateConfig(co_observed_m=-1.0)

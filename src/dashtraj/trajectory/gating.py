@@ -69,6 +69,14 @@ The rule (`gate_tracks`):
    With an `anchor` (the track that holds the query crop, the target by definition)
    the best set *containing* the anchor is kept.
 
+3. **One vehicle in several cameras** (``clique``). Two tracks of different observers
+   that place their vehicle on (nearly) one spot at the same moments
+   (`co_observed`, `GateConfig.co_observed_m`) show one car: it cannot be the target
+   in one camera and a look-alike in the other, so they are kept or dropped together
+   (one node of the clique problem, consistent with a track when every member is,
+   weighing what they all weigh). A look-alike seen briefly by one camera, where the
+   target could have been, and for longer by another, where it could not, goes whole.
+
 Weights are the caller's: 1 per track (the most tracks), the track's sighting
 count, or its ReID margin (threshold − distance). Ties go to the chain found first
 in time order (deterministic).
@@ -123,6 +131,11 @@ class GateConfig:
             before 2026-11-27). Two boxes of one vehicle are
             localized from nearly the same pixels; the nearest other vehicle is a
             lane (3.5 m) or a car length away.
+        co_observed_m: two tracks of *different* observers whose positions at the
+            same moments lie at most this far apart (the median over two or more
+            moments) show one vehicle seen by two cameras: the gate (``clique``)
+            keeps both or neither, metres (0: never). The same car cannot be the
+            target in one camera and a look-alike in the other.
     """
 
     max_speed_mps: float = 15.0
@@ -131,13 +144,14 @@ class GateConfig:
     heading_min_m: float = 8.0
     heading_window_s: float = 3.0
     same_camera_m: float = 3.0
+    co_observed_m: float = 2.5
 
     def __post_init__(self) -> None:
         for name in ("max_speed_mps", "slack_m", "radius_m", "heading_window_s"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
                 raise GatingError(f"GateConfig.{name} must be a finite number >= 0, got {v!r}")
-        for name in ("heading_min_m", "same_camera_m"):
+        for name in ("heading_min_m", "same_camera_m", "co_observed_m"):
             h = getattr(self, name)
             if not (isinstance(h, int | float) and h >= 0 and not math.isnan(h)):
                 raise GatingError(f"GateConfig.{name} must be a number >= 0, got {h!r}")
@@ -265,6 +279,50 @@ def _heading(track: list[Sighting], at: Sighting, min_m: float,
     return (dx / n, dy / n) if n >= min_m and n > 0 else None
 
 
+def _position_at(track: list[Sighting], t: float,
+                 max_gap_s: float = 1.0) -> tuple[float, float] | None:
+    """A track's (time-ordered) position at time t: its own sighting then, or interpolated
+    between two of its sightings at most `max_gap_s` apart (tracks are sampled on their
+    own clocks); None outside them."""
+    ts = [o.t for o in track]
+    j = bisect.bisect_left(ts, t)
+    if j < len(ts) and ts[j] - t <= 1e-3:
+        return track[j].x, track[j].y
+    if j > 0 and t - ts[j - 1] <= 1e-3:
+        return track[j - 1].x, track[j - 1].y
+    if 0 < j < len(ts) and ts[j] - ts[j - 1] <= max_gap_s:
+        p, q = track[j - 1], track[j]
+        f = (t - p.t) / (q.t - p.t)
+        return p.x + f * (q.x - p.x), p.y + f * (q.y - p.y)
+    return None
+
+
+def co_observed(a_track: Sequence[Sighting], b_track: Sequence[Sighting], max_m: float,
+                min_moments: int = 2) -> bool:
+    """Whether two tracks of different observers show one vehicle: at `min_moments` or
+    more of their sightings the other track's position at that moment (`_position_at`)
+    is known, and the median distance between the two is at most `max_m` metres.
+
+    Two cameras that see one car at once place it within their localization errors of
+    each other (under a metre or two within 15 m); two different cars are a lane or a
+    car length apart.
+    """
+    if max_m <= 0 or not a_track or not b_track \
+            or a_track[0].observer_id == b_track[0].observer_id:
+        return False
+    a = sorted(a_track, key=lambda s: s.t)
+    b = sorted(b_track, key=lambda s: s.t)
+    if a[-1].t < b[0].t or b[-1].t < a[0].t:
+        return False
+    d = []
+    for this, other in ((a, b), (b, a)):
+        for s in this:
+            p = _position_at(other, s.t)
+            if p is not None:
+                d.append(math.hypot(s.x - p[0], s.y - p[1]))
+    return len(d) >= min_moments and float(np.median(d)) <= max_m
+
+
 def _apart_at_once(a_track: list[Sighting], b_track: list[Sighting], max_m: float,
                    max_gap_s: float = 1.0) -> bool:
     """Whether two time-overlapping tracks of one camera (each in time order) are two
@@ -275,20 +333,9 @@ def _apart_at_once(a_track: list[Sighting], b_track: list[Sighting], max_m: floa
     if max_m == 0:
         return True
     for this, other in ((a_track, b_track), (b_track, a_track)):
-        ot = [o.t for o in other]
         for s in this:
-            j = bisect.bisect_left(ot, s.t)
-            if j < len(ot) and ot[j] - s.t <= 1e-3:
-                x, y = other[j].x, other[j].y
-            elif j > 0 and s.t - ot[j - 1] <= 1e-3:
-                x, y = other[j - 1].x, other[j - 1].y
-            elif 0 < j < len(ot) and ot[j] - ot[j - 1] <= max_gap_s:
-                p, q = other[j - 1], other[j]
-                f = (s.t - p.t) / (q.t - p.t)
-                x, y = p.x + f * (q.x - p.x), p.y + f * (q.y - p.y)
-            else:
-                continue
-            if math.hypot(s.x - x, s.y - y) > max_m:
+            p = _position_at(other, s.t, max_gap_s)
+            if p is not None and math.hypot(s.x - p[0], s.y - p[1]) > max_m:
                 return True
     return False
 
@@ -388,7 +435,12 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
                                                     ts[order[q]], one_vehicle=pair in one)
     wo = w[order]
     if method == "clique":
-        chain = _best_clique(ok, wo, None if anchor is None else order.index(anchor))
+        a_pos = None if anchor is None else order.index(anchor)
+        groups = _co_observed_groups(ts, order, ok, config.co_observed_m)
+        chain = _best_clique(*_collapse(ok, wo, groups, a_pos), a_pos)
+        for g in groups:  # a group's members stand or fall with its first (or the anchor)
+            if set(g) & set(chain):
+                chain = sorted(set(chain) | set(g))
         accepted = tuple(order[j] for j in chain)
         rejected = tuple(sorted(set(range(n)) - set(accepted)))
         return GateResult(accepted, rejected, float(wo[chain].sum()), tuple(order))
@@ -424,6 +476,54 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
     accepted = tuple(order[j] for j in chain)
     rejected = tuple(sorted(set(range(n)) - set(accepted)))
     return GateResult(accepted, rejected, float(wo[chain].sum()), tuple(order))
+
+
+def _co_observed_groups(ts: list[list[Sighting]], order: list[int], ok: np.ndarray,
+                        max_m: float) -> list[list[int]]:
+    """Positions (time order) of the tracks that show one vehicle to several cameras
+    (`co_observed`, and consistent by the gate), grouped; groups of two or more."""
+    n = len(order)
+    parent = list(range(n))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    if max_m > 0:
+        for q in range(n):
+            for p in range(q):
+                if ok[p, q] and co_observed(ts[order[p]], ts[order[q]], max_m):
+                    parent[root(q)] = root(p)
+    groups: dict[int, list[int]] = {}
+    for j in range(n):
+        groups.setdefault(root(j), []).append(j)
+    return [g for g in groups.values() if len(g) > 1]
+
+
+def _collapse(ok: np.ndarray, w: np.ndarray, groups: list[list[int]],
+              anchor: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """`ok` and weights with each group reduced to one track (the anchor if it is a member,
+    else the first): consistent with another track when every member is, weighing what
+    they all weigh; the other members drop out of the problem (weight 0, no pairs)."""
+    if not groups:
+        return ok, w
+    sym = ok | ok.T
+    ok2, w2 = ok.copy(), w.copy()
+    for g in groups:
+        r = anchor if anchor in g else g[0]
+        both = sym[g].all(axis=0)
+        for k in range(len(w)):
+            if k not in g:
+                ok2[min(r, k), max(r, k)] = both[k]
+        for m in g:
+            if m != r:
+                ok2[m, :] = False
+                ok2[:, m] = False
+                w2[m] = 0.0
+        w2[r] = float(w[g].sum())
+    return ok2, w2
 
 
 def _best_clique(ok: np.ndarray, w: np.ndarray, anchor: int | None) -> list[int]:
