@@ -481,7 +481,8 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
 def _co_observed_groups(ts: list[list[Sighting]], order: list[int], ok: np.ndarray,
                         max_m: float) -> list[list[int]]:
     """Positions (time order) of the tracks that show one vehicle to several cameras
-    (`co_observed`, and consistent by the gate), grouped; groups of two or more."""
+    (`co_observed`, and consistent by the gate), grouped; groups of two or more whose
+    members are all consistent with one another."""
     n = len(order)
     parent = list(range(n))
 
@@ -499,7 +500,11 @@ def _co_observed_groups(ts: list[list[Sighting]], order: list[int], ok: np.ndarr
     groups: dict[int, list[int]] = {}
     for j in range(n):
         groups.setdefault(root(j), []).append(j)
-    return [g for g in groups.values() if len(g) > 1]
+    sym = ok | ok.T
+    # a chain of pairwise links whose ends the gate calls two vehicles is no one vehicle:
+    # such a group is left to the gate track by track
+    return [g for g in groups.values()
+            if len(g) > 1 and all(sym[p, q] for p in g for q in g if p != q)]
 
 
 def _collapse(ok: np.ndarray, w: np.ndarray, groups: list[list[int]],
