@@ -534,18 +534,16 @@ def target_sightings(config: ExperimentConfig, rec, out: Path, road_map,
     accepted = candidates
     if config.reid == "look-alike" and config.gate and candidates:
         own = [k for k in candidates if truth.get(k) == target]
-        placed = candidates
-        anchor = None
+        anchor = start = None
         if own:
             first = min(own, key=lambda k: (min(s.t for s in tracks[k]), k))
+            anchor = candidates.index(first)
             # the query is the target's first sighting: a look-alike seen only before
-            # it is another vehicle (as `select_target_tracks`' start_t)
+            # it is another vehicle
             start = min(s.t for s in tracks[first])
-            placed = [k for k in candidates if max(s.t for s in tracks[k]) >= start]
-            anchor = placed.index(first)
-        res = gate_tracks(road_map, [tracks[k] for k in placed], anchor=anchor,
-                          weights=[len(tracks[k]) for k in placed])
-        accepted = [placed[i] for i in res.accepted]
+        res = gate_tracks(road_map, [tracks[k] for k in candidates], anchor=anchor,
+                          weights=[len(tracks[k]) for k in candidates], start_t=start)
+        accepted = [candidates[i] for i in res.accepted]
     keep = set(accepted)
     sightings = sorted((s for k in accepted for s in tracks[k]), key=lambda s: (s.t, s.observer_id))
     return sightings, {**reid_score(keep, truth, target).to_dict(),

@@ -275,3 +275,13 @@ def test_one_vehicle_seen_by_two_cameras_stands_or_falls_whole(town01):
     assert apart.accepted == (0, 2, 1) and apart.rejected == (3,)
     with pytest.raises(GatingError, match="co_observed_m"):
         GateConfig(co_observed_m=-1.0)
+
+
+def test_tracks_seen_only_before_the_first_sighting_are_rejected(town01):
+    early = drive(town01, 0.0, 2.0, 12, 0.0, obs=2)     # reachable, but before start_t
+    first = drive(town01, 5.0, 7.0, 12, 60.0, obs=1)
+    later = drive(town01, 10.0, 12.0, 12, 110.0, obs=3)
+    assert gate_tracks(town01, [early, first, later], anchor=1).accepted == (0, 1, 2)
+    r = gate_tracks(town01, [early, first, later], anchor=1, start_t=5.0)
+    assert r.accepted == (1, 2) and r.rejected == (0,) and r.order == (0, 1, 2)
+    assert r.weight == 2.0

@@ -97,7 +97,8 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
             ``calc_traj`` takes ``veh_t1``), seconds, or None. With a gate, a candidate
             whose sightings all come before it is not the target: the route is rebuilt
             from the first sighting on, and a vehicle seen only before the target's
-            first sighting is another one (a look-alike met earlier).
+            first sighting is another one (a look-alike met earlier; `gate_tracks`'
+            rule).
 
     Returns:
         `Selection`.
@@ -110,9 +111,7 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
     cand_keys = tuple(d.key for d in cand)
     if gate is None:
         return Selection(tuple(decisions), cand_keys, cand_keys, ())
-    placed = [d for d in cand if len(sightings.get(d.key, ())) > 0
-              and (start_t is None or max(s.t for s in sightings[d.key]) >= start_t
-                   or d.key == anchor)]
+    placed = [d for d in cand if len(sightings.get(d.key, ())) > 0]
     scale = threshold if threshold > 0 else 1.0
     weights = [len(sightings[d.key])
                * (1.0 + float(np.clip((threshold - d.distance) / scale / 2, 0.0, 0.499)))
@@ -125,7 +124,8 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
 
     res = gate_tracks(road_map, [sightings[d.key] for d in placed], weights=weights,
                       anchor=idx.get(anchor) if anchor is not None and pin_anchor else None,
-                      config=gate, apart=indices(apart), together=indices(together))
+                      config=gate, apart=indices(apart), together=indices(together),
+                      start_t=start_t)
     accepted = tuple(placed[i].key for i in res.accepted)
     out = tuple(k for k in cand_keys if k not in set(accepted))
     return Selection(tuple(decisions), cand_keys, accepted, out)

@@ -368,7 +368,8 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
                 weights: Sequence[float] | None = None, anchor: int | None = None,
                 config: GateConfig = GateConfig(), method: str = "clique",
                 apart: Collection[tuple[int, int]] = (),
-                together: Collection[tuple[int, int]] = ()) -> GateResult:
+                together: Collection[tuple[int, int]] = (),
+                start_t: float | None = None) -> GateResult:
     """Keep the heaviest set of candidate tracks one vehicle could have produced.
 
     Args:
@@ -385,6 +386,10 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
         together: pairs (i, j) of one camera's tracks known to be one vehicle seen
             twice: never called two vehicles for being seen apart at one moment
             (`GateConfig.same_camera_m`); still judged by reachability.
+        start_t: the time of the target's first sighting (the query's), seconds, or
+            None: a track whose sightings all come before it (other than the anchor)
+            is another vehicle, rejected whatever else it fits (the route is rebuilt
+            from the first sighting on).
 
     Returns:
         `GateResult` (accepted indices in time order, rejected indices).
@@ -426,6 +431,19 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
     if n == 0:
         return GateResult((), (), 0.0, ())
     order = sorted(range(n), key=lambda i: (ts[i][0].t, i))
+    if start_t is not None:
+        keep = [i for i in range(n) if i == anchor or ts[i][-1].t >= start_t]
+        if len(keep) < n:  # gate the others alone; the early ones are rejected
+            at = {i: j for j, i in enumerate(keep)}
+            sub = gate_tracks(road_map, [ts[i] for i in keep], weights=w[keep],
+                              anchor=None if anchor is None else at[anchor], config=config,
+                              method=method,
+                              apart=[(at[i], at[j]) for i, j in two if i in at and j in at],
+                              together=[(at[i], at[j]) for i, j in one
+                                        if i in at and j in at])
+            accepted = tuple(keep[j] for j in sub.accepted)
+            return GateResult(accepted, tuple(sorted(set(range(n)) - set(accepted))),
+                              sub.weight, tuple(order))
     lanes = _Lanes(road_map, config)
     ok = np.zeros((n, n), dtype=bool)  # ok[p, q]: order[q] can follow order[p]
     for q in range(n):
@@ -436,8 +454,9 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
     wo = w[order]
     if method == "clique":
         a_pos = None if anchor is None else order.index(anchor)
-        groups = _co_observed_groups(ts, order, ok, config.co_observed_m)
-        chain = _best_clique(*_collapse(ok, wo, groups, a_pos), a_pos)
+        sym = ok | ok.T  # consistent pairs, either order
+        groups = _co_observed_groups(ts, order, sym, config.co_observed_m)
+        chain = _best_clique(*_collapse(ok, sym, wo, groups, a_pos), a_pos)
         for g in groups:  # a group's members stand or fall with its first (or the anchor)
             if set(g) & set(chain):
                 chain = sorted(set(chain) | set(g))
@@ -478,7 +497,7 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
     return GateResult(accepted, rejected, float(wo[chain].sum()), tuple(order))
 
 
-def _co_observed_groups(ts: list[list[Sighting]], order: list[int], ok: np.ndarray,
+def _co_observed_groups(ts: list[list[Sighting]], order: list[int], sym: np.ndarray,
                         max_m: float) -> list[list[int]]:
     """Positions (time order) of the tracks that show one vehicle to several cameras
     (`co_observed`, and consistent by the gate), grouped; groups of two or more whose
@@ -495,26 +514,24 @@ def _co_observed_groups(ts: list[list[Sighting]], order: list[int], ok: np.ndarr
     if max_m > 0:
         for q in range(n):
             for p in range(q):
-                if ok[p, q] and co_observed(ts[order[p]], ts[order[q]], max_m):
+                if sym[p, q] and co_observed(ts[order[p]], ts[order[q]], max_m):
                     parent[root(q)] = root(p)
     groups: dict[int, list[int]] = {}
     for j in range(n):
         groups.setdefault(root(j), []).append(j)
-    sym = ok | ok.T
     # a chain of pairwise links whose ends the gate calls two vehicles is no one vehicle:
     # such a group is left to the gate track by track
     return [g for g in groups.values()
             if len(g) > 1 and all(sym[p, q] for p in g for q in g if p != q)]
 
 
-def _collapse(ok: np.ndarray, w: np.ndarray, groups: list[list[int]],
+def _collapse(ok: np.ndarray, sym: np.ndarray, w: np.ndarray, groups: list[list[int]],
               anchor: int | None) -> tuple[np.ndarray, np.ndarray]:
     """`ok` and weights with each group reduced to one track (the anchor if it is a member,
     else the first): consistent with another track when every member is, weighing what
     they all weigh; the other members drop out of the problem (weight 0, no pairs)."""
     if not groups:
         return ok, w
-    sym = ok | ok.T
     ok2, w2 = ok.copy(), w.copy()
     for g in groups:
         r = anchor if anchor in g else g[0]
