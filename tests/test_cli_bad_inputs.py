@@ -410,6 +410,68 @@ CASES: list[tuple[str, list[str], str]] = [
                                  "{OUT_PNG}"], "--overwrite"),
     ("reid-query-sheet-suffix", ["reid", "query", "{QUERY_DB}", "--track", "2", "-o",
                                  "{NEW_FILE}"], "name a .png file"),
+    # --- malformed files and values that used to end in a traceback or a silent answer
+    ("map-info-length-not-a-number", ["map", "info", "{ABC_LENGTH_XODR}"],
+     "line 1: <road> length='abc' is not a number"),
+    ("map-info-width-not-a-number", ["map", "info", "{ABC_WIDTH_XODR}"],
+     "<width> a='abc' is not a number"),
+    ("simulate-xodr-named-by-path", ["simulate", "--town", "{GARBAGE_XODR}", "-o", "{NEW_DIR}"],
+     "garbage.xodr is not OpenDRIVE"),
+    ("bench-reconstruct-no-driving-lane", ["bench-reconstruct", "--map", "{SIDEWALK_XODR}",
+                                           "--trips", "1"], "no driving lane"),
+    ("score-not-utf8", ["score", "--truth", "{TRUTH}", "--estimate", "{LATIN_CSV}"],
+     "latin.csv: not UTF-8 text"),
+    ("reconstruct-not-utf8", ["reconstruct", "--map", "town01", "--sightings", "{LATIN_CSV}",
+                              "-o", "{NEW_FILE}"], "latin.csv: not UTF-8 text"),
+    ("score-resample-too-fine", ["score", "--truth", "{TRUTH}", "--estimate", "{TRUTH}",
+                                 "--resample-m", "1e-300"], "--truth would become 1e+301 points"),
+    ("reconstruct-turn-cost-huge", ["reconstruct", "--map", "town01", "--sightings",
+                                    "{SIGHTINGS}", "-o", "{NEW_FILE}", "--turn-cost", "1e308"],
+     "--turn-cost 1e+308 m per radian is more than 1000"),
+    ("simulate-step-tiny", ["simulate", "--duration", "2", "--step", "1e-9", "-o", "{NEW_DIR}"],
+     "step_s must be at least 0.001 s"),
+    ("simulate-classes-empty", ["simulate", "--vehicle-classes", "car,,bus", "-o", "{NEW_DIR}"],
+     "has an empty class between commas"),
+    ("sightings-meta-fov-text", ["sightings", "{REC_FOV_TEXT}", "-o", "{NEW_FILE}"],
+     "camera fov_deg must be a number in [1, 179], got 'abc'"),
+    ("sightings-meta-fov-negative", ["sightings", "{REC_FOV_NEGATIVE}", "-o", "{NEW_FILE}"],
+     "camera fov_deg must be a number in [1, 179], got -90"),
+    ("sightings-meta-version-text", ["sightings", "{REC_VERSION_TEXT}", "-o", "{NEW_FILE}"],
+     "format_version must be an integer, got 'x'"),
+    ("sightings-meta-array", ["sightings", "{REC_META_ARRAY}", "-o", "{NEW_FILE}"],
+     "is not a dashtraj-recording meta file"),
+    ("sightings-meta-map-text", ["sightings", "{REC_MAP_TEXT}", "-o", "{NEW_FILE}"],
+     "map must be an object"),
+    ("sightings-meta-observers-text", ["sightings", "{REC_OBSERVERS_TEXT}", "-o", "{NEW_FILE}"],
+     "observer_ids must be a list of integers"),
+    ("sightings-vehicles-not-utf8", ["sightings", "{REC_VEHICLES_LATIN}", "-o", "{NEW_FILE}"],
+     "vehicles.csv: not UTF-8 text"),
+    ("sightings-oracle-tracker", ["sightings", "{REC}", "--tracker", "sort", "-o", "{NEW_FILE}"],
+     "--tracker applies to the camera pipeline"),
+    ("sightings-oracle-sample", ["sightings", "{REC}", "--sample", "1", "-o", "{NEW_FILE}"],
+     "--sample applies to the camera pipeline"),
+    ("sightings-export-folder", ["sightings", "export", "{OUT_DIR}", "-o", "{NEW_FILE}"],
+     "is a folder, not a file"),
+    ("sightings-export-bad-run-row", ["sightings", "export", "{BAD_RUN_DB}", "-o",
+                                      "{NEW_FILE}"], "the run row's camera is not a JSON object"),
+    ("reid-threshold-no-image-size", ["reid-threshold", "{QUERY_DB}", "-o", "{NEW_FILE}"],
+     "the run's camera has no image size"),
+    ("reid-eval-data-is-file", ["reid", "eval", "--data", "{TRUTH}"], "a file, not a folder"),
+    ("reid-eval-no-cross-camera-match", ["reid", "eval", "--data", "{VERI_ONE_CAMERA}"],
+     "nothing to rank"),
+    ("reid-moving-bad-json", ["reid", "moving-queries", "{REID_BAD_JSON}", "{REC}"],
+     "reid.json is not valid JSON"),
+    ("reid-moving-train-no-config", ["reid", "moving-train", "{REID_NO_CONFIG}", "{REC}"],
+     'has no "config" object'),
+    ("reid-query-image-is-folder", ["reid", "query", "{QUERY_DB}", "--image", "{OUT_DIR}"],
+     "a folder, not an image file"),
+    ("detector-eval-size-huge", ["detector", "eval", "{REC}", "--size", "100000x100000"],
+     "is too large (at most 8192x8192 pixels)"),
+    ("detector-eval-external-label-outside", ["detector", "eval-external", "{EXT_OUTSIDE}",
+                                              "--names", "vehicle"],
+     "normalised to 0..1, got '0 5 5 0.2 0.2'"),
+    ("detector-eval-external-names-not-utf8", ["detector", "eval-external", "{EXT_LATIN}"],
+     "classes.txt: not UTF-8 text"),
     ("no-command", [], "the following arguments are required: COMMAND"),
     ("unknown-command", ["frobnicate"], "invalid choice: 'frobnicate'"),
 ]
@@ -447,9 +509,88 @@ def inputs(tmp_path_factory) -> dict[str, str]:
     truth.write_text("x,y\n0,0\n10,0\n")
     garbage = root / "garbage.xodr"
     garbage.write_text("not xml at all")
+    dbs = _sightings_dbs(root)
     return {"REC": str(rec), "SIGHTINGS": str(sightings), "FAR_CSV": str(far),
             "NAN_CSV": str(nan), "TRUTH": str(truth), "GARBAGE_XODR": str(garbage),
-            **_sightings_dbs(root)}
+            **dbs, **_broken_inputs(root, rec, Path(dbs["QUERY_DB"]))}
+
+
+ONE_ROAD_XODR = (
+    '<OpenDRIVE><header/><road id="1" length="{length}" junction="-1"><planView>'
+    '<geometry s="0" x="0" y="0" hdg="0" length="100"><line/></geometry></planView><lanes>'
+    '<laneSection s="0"><center><lane id="0" type="none"/></center><right>'
+    '<lane id="-1" type="{lane}"><width sOffset="0" a="{width}" b="0" c="0" d="0"/></lane>'
+    '</right></laneSection></lanes></road></OpenDRIVE>')
+
+
+def _broken_inputs(root: Path, rec: Path, query_db: Path) -> dict[str, str]:
+    """Inputs that are broken in one way each: maps with a non-numeric attribute or no
+    driving lane, a Latin-1 CSV, copies of the recording with a bad meta.json entry or
+    vehicles.csv, a sightings database whose run row is not JSON, ReID and detection sets
+    that cannot be scored."""
+    import json
+    import shutil
+    import sqlite3
+
+    from PIL import Image
+
+    out: dict[str, Path] = {}
+    for key, kw in (("ABC_LENGTH_XODR", {"length": "abc", "lane": "driving", "width": "3.5"}),
+                    ("ABC_WIDTH_XODR", {"length": "100", "lane": "driving", "width": "abc"}),
+                    ("SIDEWALK_XODR", {"length": "100", "lane": "sidewalk", "width": "3.5"})):
+        out[key] = root / f"{key.lower()}.xodr"
+        out[key].write_text(ONE_ROAD_XODR.format(**kw))
+    out["LATIN_CSV"] = root / "latin.csv"
+    out["LATIN_CSV"].write_bytes(b"x,y\n0,0\n10,0\n# caf\xe9\n")
+    meta = json.loads((rec / "meta.json").read_text())
+
+    def broken(key: str, change) -> None:
+        out[key] = root / key.lower()
+        shutil.copytree(rec, out[key])
+        m = json.loads(json.dumps(meta))
+        m = change(m)
+        (out[key] / "meta.json").write_text(json.dumps(m))
+
+    def camera(value):
+        def change(m):
+            m["config"]["camera"]["fov_deg"] = value
+            return m
+        return change
+
+    broken("REC_FOV_TEXT", camera("abc"))
+    broken("REC_FOV_NEGATIVE", camera(-90))
+    broken("REC_VERSION_TEXT", lambda m: {**m, "format_version": "x"})
+    broken("REC_META_ARRAY", lambda m: [1, 2])
+    broken("REC_MAP_TEXT", lambda m: {**m, "map": "town10"})
+    broken("REC_OBSERVERS_TEXT", lambda m: {**m, "observer_ids": "abc"})
+    broken("REC_VEHICLES_LATIN", lambda m: m)
+    vehicles = out["REC_VEHICLES_LATIN"] / "vehicles.csv"
+    vehicles.write_bytes(vehicles.read_bytes() + b"# caf\xe9\n")
+    out["BAD_RUN_DB"] = root / "bad_run.db"
+    shutil.copy(query_db, out["BAD_RUN_DB"])
+    con = sqlite3.connect(out["BAD_RUN_DB"])
+    con.execute("UPDATE run SET camera = 'not json'")
+    con.commit()
+    con.close()
+    out["VERI_ONE_CAMERA"] = root / "veri_one_camera"
+    for split, name in (("image_query", "0001_c001_a.jpg"), ("image_test", "0001_c001_b.jpg")):
+        (out["VERI_ONE_CAMERA"] / split).mkdir(parents=True)
+        Image.new("RGB", (32, 32), (90, 40, 20)).save(out["VERI_ONE_CAMERA"] / split / name)
+    out["REID_BAD_JSON"] = root / "reid_bad_json"
+    out["REID_BAD_JSON"].mkdir()
+    (out["REID_BAD_JSON"] / "reid.json").write_text("{")
+    out["REID_NO_CONFIG"] = root / "reid_no_config"
+    out["REID_NO_CONFIG"].mkdir()
+    (out["REID_NO_CONFIG"] / "reid.json").write_text("[1]")
+    for key, label, names in (("EXT_OUTSIDE", b"0 5 5 0.2 0.2\n", b"vehicle\n"),
+                              ("EXT_LATIN", b"0 0.5 0.5 0.2 0.2\n", b"v\xe9hicle\n")):
+        out[key] = root / key.lower()
+        (out[key] / "images").mkdir(parents=True)
+        (out[key] / "labels").mkdir()
+        Image.new("RGB", (64, 48), (90, 90, 90)).save(out[key] / "images" / "a.jpg")
+        (out[key] / "labels" / "a.txt").write_bytes(label)
+        (out[key] / "classes.txt").write_bytes(names)
+    return {k: str(v) for k, v in out.items()}
 
 
 def _sightings_dbs(root: Path) -> dict[str, str]:

@@ -19,6 +19,11 @@ class NoRouteError(DashtrajError):
     """The destination cannot be reached from the origin on the lane graph."""
 
 
+def not_utf8(path, exc: UnicodeDecodeError) -> str:
+    """The one-line message for a text input that does not decode as UTF-8."""
+    return f"{path}: not UTF-8 text ({exc.reason}: byte {exc.object[exc.start:exc.start + 1]!r})"
+
+
 class InputFormatError(DashtrajError):
     """A row, column or value of an input file is malformed.
 

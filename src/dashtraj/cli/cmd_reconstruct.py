@@ -15,6 +15,9 @@ from dashtraj.cli._args import (
 )
 from dashtraj.outputs import add_output_args
 
+MAX_TURN_COST_M_PER_RAD = 1000.0
+"""The largest ``--turn-cost``: a kilometre of route per radian of turning."""
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `reconstruct` and `bench-reconstruct` commands to the `dashtraj` parser.
@@ -150,6 +153,10 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     if args.turn_cost is not None:
         if args.method != "hmm":
             raise ArgumentError("--turn-cost applies to --method hmm only")
+        if args.turn_cost > MAX_TURN_COST_M_PER_RAD:
+            raise ArgumentError(f"--turn-cost {args.turn_cost:g} m per radian is more than "
+                                f"{MAX_TURN_COST_M_PER_RAD:g}: every turn would cost more than "
+                                "any route, and the HMM would jump straight between sightings")
         options["turn_cost_m_per_rad"] = args.turn_cost
     road_map = _load_map(args.map)
     read = read_sightings(args.sightings)

@@ -173,9 +173,18 @@ def run_eval(args: argparse.Namespace) -> int:
     import time
 
     from dashtraj.reid.embed import ReidEmbedder
-    from dashtraj.reid.evaluate import evaluate_features, open_veri
+    from dashtraj.reid.evaluate import VeriLayoutError, evaluate_features, open_veri
 
     q, g = open_veri(args.data, args.query)
+    pairs = set(zip(g.pids.tolist(), g.camids.tolist(), strict=True))
+    gallery_cams: dict = {}
+    for pid, cam in pairs:
+        gallery_cams.setdefault(pid, set()).add(cam)
+    if not any(gallery_cams.get(p, set()) - {c}
+               for p, c in zip(q.pids.tolist(), q.camids.tolist(), strict=True)):
+        raise VeriLayoutError(f"--data {args.data}: no query of {args.query} has an image of "
+                              "its identity from another camera in the gallery (VeRi's rule "
+                              "excludes the query's own camera): nothing to rank")
     emb = ReidEmbedder(args.model, threads=args.threads, flip=args.flip)
     t0 = time.time()
     gf = emb.embed(g.paths)
@@ -275,7 +284,13 @@ def run_moving(args: argparse.Namespace) -> int:
     meta_path = root / "reid.json"
     if not meta_path.is_file():
         raise VeriLayoutError(f"{root}: no reid.json (not a 'dashtraj reid-dataset' folder)")
-    info = json.loads(meta_path.read_text(encoding="utf-8"))
+    try:
+        info = json.loads(meta_path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise VeriLayoutError(f"{meta_path} is not valid JSON: {exc}") from None
+    if not (isinstance(info, dict) and isinstance(info.get("config"), dict)):
+        raise VeriLayoutError(f"{meta_path} has no \"config\" object (not a 'dashtraj "
+                              "reid-dataset' folder)")
     dest = root / f"image_{stem}"
     if args.append and args.overwrite:
         raise VeriLayoutError("--append and --overwrite: choose one")
@@ -296,7 +311,10 @@ def run_moving(args: argparse.Namespace) -> int:
             raise VeriLayoutError(f"--every {args.every}: {dest} was sampled every "
                                   f"{prev['every_s']} s")
         cfg_d["every_s"] = prev["every_s"]
-    cfg = ReidConfig(**cfg_d)
+    try:
+        cfg = ReidConfig(**cfg_d)
+    except (TypeError, ValueError) as exc:
+        raise VeriLayoutError(f"{meta_path}: bad config: {exc}") from None
     recs = [Recording.open(p) for p in args.recordings]
     first = {}
     if prev is not None:

@@ -106,6 +106,10 @@ def run(args) -> int:
             run_info = db.run_info()
             dets = {(d.observer_id, d.frame, d.idx): d for d in db.detections()}
             cam = run_info["camera"]
+            if not all(isinstance(cam.get(k), int) and cam[k] > 0
+                       for k in ("width_px", "height_px")):
+                raise DashtrajError(f"{db_path}: the run's camera has no image size "
+                                    f"(width_px, height_px): {cam!r}")
             keys, e = crop_embeddings(db, embedder)
         boxes = np.array([[dets[k].x0, dets[k].y0, dets[k].x1, dets[k].y1] if k in dets
                           else [0.0, 0.0, 0.0, 0.0] for k in keys]).reshape(-1, 4)

@@ -5,6 +5,10 @@ from __future__ import annotations
 import argparse
 import json
 
+MAX_RESAMPLED_POINTS = 200_000
+"""The most points ``--resample-m`` may make of one trajectory (SSPD compares every
+point with every segment of the other trajectory)."""
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `score` command to the `dashtraj` parser.
@@ -52,6 +56,8 @@ def run(args: argparse.Namespace) -> int:
         $ dashtraj score --truth truth.csv --estimate est.csv
         SSPD 1.234 m  Hausdorff 5.678 m  (truth 120 points, estimate 98 points)
     """
+    import numpy as np
+
     from dashtraj.errors import InputFormatError
     from dashtraj.trajectory.io import read_trajectory
     from dashtraj.trajectory.metrics import hausdorff, sspd
@@ -62,6 +68,14 @@ def run(args: argparse.Namespace) -> int:
         )
     truth = read_trajectory(args.truth)
     estimate = read_trajectory(args.estimate)
+    if args.resample_m is not None:
+        for name, traj in (("--truth", truth), ("--estimate", estimate)):
+            p = np.asarray(traj.points, np.float64)
+            n = float(np.hypot(*np.diff(p, axis=0).T).sum()) / args.resample_m
+            if n > MAX_RESAMPLED_POINTS:
+                raise InputFormatError(
+                    f"--resample-m {args.resample_m:g}: {name} would become {n:.3g} points "
+                    f"(at most {MAX_RESAMPLED_POINTS:,}); choose a coarser step")
     sspd_m = sspd(truth, estimate, resample_m=args.resample_m)
     hausdorff_m = hausdorff(truth, estimate, resample_m=args.resample_m)
     if args.json:

@@ -86,9 +86,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "source; the flag is kept for old scripts)")
     s.add_argument("--detector", metavar="oracle|M.onnx",
                    help="run the camera pipeline with this detector instead (see perceive)")
-    s.add_argument("--tracker", choices=("sort", "ego"), default="ego",
+    s.add_argument("--tracker", choices=("sort", "ego"), default=None,
                    help="with --detector: the tracker (default ego)")
-    s.add_argument("--localizer", default="smoothed",
+    s.add_argument("--localizer", default=None,
                    help="with --detector: paper, ground, fused, tracked, smoothed or mapped "
                         "(default smoothed)")
     s.add_argument("--noise", choices=("none", "paper"), default="none",
@@ -98,7 +98,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     s.add_argument("--seed", type=seed, default=0, help="noise seed (default 0)")
     s.add_argument("--max-distance", type=positive_float, default=15.0, metavar="M",
                    help="keep detections this close to the camera, metres (default 15)")
-    s.add_argument("--sample", type=non_negative_float, default=0.5, metavar="S",
+    s.add_argument("--sample", type=non_negative_float, default=None, metavar="S",
                    help="detections/export: one sighting per track every S seconds (default 0.5)")
     s.add_argument("-o", "--output", required=True, metavar="CSV", help="sightings CSV to write")
     add_output_args(s)
@@ -108,7 +108,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _classes(text: str) -> tuple[str, ...]:
     from dashtraj.world.catalog import VEHICLE_CLASSES
 
-    out = tuple(c.strip() for c in text.split(",") if c.strip())
+    out = tuple(c.strip() for c in text.split(","))
+    if "" in out:
+        raise argparse.ArgumentTypeError(f"{text!r} has an empty class between commas")
     bad = [c for c in out if c not in VEHICLE_CLASSES]
     if not out or bad:
         raise argparse.ArgumentTypeError(f"unknown vehicle class(es) {bad or text!r}; valid: "
@@ -184,6 +186,10 @@ def run_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+SIGHTINGS_DB_DEFAULTS = {"tracker": "ego", "localizer": "smoothed", "sample": 0.5}
+"""`sightings` options of the camera pipeline and 'export', with their defaults."""
+
+
 def run_sightings(args: argparse.Namespace) -> int:
     """Write oracle sightings of one vehicle to a CSV and print how many; returns 0."""
     from dashtraj.cli._args import ArgumentError
@@ -197,7 +203,14 @@ def run_sightings(args: argparse.Namespace) -> int:
             raise ArgumentError("--oracle cannot be combined with --detector or 'export'")
         from dashtraj.cli.sightings_db import run_sightings_db
 
+        for name, default in SIGHTINGS_DB_DEFAULTS.items():
+            if getattr(args, name) is None:
+                setattr(args, name, default)
         return run_sightings_db(args)
+    for name in SIGHTINGS_DB_DEFAULTS:
+        if getattr(args, name) is not None:
+            raise ArgumentError(f"--{name} applies to the camera pipeline (--detector) and "
+                                "'export' only, not to the oracle's sightings")
     check_output(args.output, overwrite=args.overwrite, kind="file")
     rec = Recording.open(args.recording)
     cfg = OracleConfig(vehicle=args.vehicle, max_distance_m=args.max_distance, noise=args.noise,

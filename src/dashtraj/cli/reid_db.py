@@ -161,7 +161,8 @@ def _read_image(path: str):
 
     p = Path(path)
     if not p.is_file():
-        raise DashtrajError(f"--image {p}: no such file")
+        raise DashtrajError(f"--image {p}: " + ("a folder, not an image file" if p.is_dir()
+                                                 else "no such file"))
     try:
         with Image.open(p) as im:
             return im.convert("RGB")

@@ -72,6 +72,8 @@ def parse_size(text: str) -> tuple[int, int]:
         raise DatasetError(f"bad image size {text!r}; expected WxH, e.g. 640x360") from e
     if w < 8 or h < 8:
         raise DatasetError(f"image size {text!r} is too small (at least 8x8 pixels)")
+    if w > 8192 or h > 8192:
+        raise DatasetError(f"image size {text!r} is too large (at most 8192x8192 pixels)")
     return w, h
 
 

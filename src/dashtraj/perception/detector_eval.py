@@ -139,6 +139,16 @@ def parse_class_map(text: str) -> dict[str, str]:
     return out
 
 
+def _read_text(path) -> str:
+    """A label or names file's text; DashtrajError naming it when it is not UTF-8."""
+    from dashtraj.errors import DashtrajError, not_utf8
+
+    try:
+        return path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise DashtrajError(not_utf8(path, exc)) from None
+
+
 def read_external_names(folder) -> list[str] | None:
     """Class names of a YOLO folder: data.yaml ``names`` or classes.txt/obj.names (one
     per line); None when it has neither."""
@@ -152,8 +162,7 @@ def read_external_names(folder) -> list[str] | None:
             return read_names_yaml(folder / y)
     for t in ("classes.txt", "obj.names"):
         if (folder / t).is_file():
-            return [ln.strip() for ln in (folder / t).read_text(encoding="utf-8").splitlines()
-                    if ln.strip()]
+            return [ln.strip() for ln in _read_text(folder / t).splitlines() if ln.strip()]
     return None
 
 
@@ -182,7 +191,7 @@ def read_external_set(folder, num_classes: int) -> list[tuple[object, np.ndarray
         lab = lab_dir / p.relative_to(img_dir).with_suffix(".txt")
         rows = []
         if lab.is_file():
-            for i, line in enumerate(lab.read_text(encoding="utf-8").splitlines(), 1):
+            for i, line in enumerate(_read_text(lab).splitlines(), 1):
                 vals = line.split()
                 if not vals:
                     continue
@@ -191,9 +200,11 @@ def read_external_set(folder, num_classes: int) -> list[tuple[object, np.ndarray
                 except ValueError:
                     row = []
                 if (len(row) != 5 or not np.all(np.isfinite(row)) or row[0] != int(row[0])
-                        or not 0 <= row[0] < num_classes or min(row[3], row[4]) < 0):
+                        or not 0 <= row[0] < num_classes or min(row[3], row[4]) < 0
+                        or not all(-0.01 <= v <= 1.01 for v in row[1:])):
                     raise DashtrajError(f"{lab}:{i}: expected 'class cx cy w h' with a class "
-                                        f"id 0..{num_classes - 1}, got {line.strip()!r}")
+                                        f"id 0..{num_classes - 1} and cx, cy, w, h normalised "
+                                        f"to 0..1, got {line.strip()!r}")
                 rows.append(row)
         out.append((p, np.array(rows, np.float64).reshape(-1, 5)))
     return out

@@ -34,6 +34,11 @@ class VeriLayoutError(DashtrajError):
     """A folder is not in the VeRi-776 layout; the message names the folder or file."""
 
 
+class NoTrueMatchError(DashtrajError, ValueError):
+    """No query has an image of its identity from another camera in the gallery, so
+    there is nothing to rank (VeRi's rule excludes the query's own camera)."""
+
+
 @dataclass(frozen=True)
 class VeriSplit:
     """The images of one folder of a VeRi-layout set.
@@ -84,7 +89,8 @@ def open_veri(root: str | Path, query: str = "image_query") -> tuple[VeriSplit, 
     """
     r = Path(root)
     if not r.is_dir():
-        raise VeriLayoutError(f"--data {r}: no such folder")
+        raise VeriLayoutError(f"--data {r}: " + ("a file, not a folder" if r.exists()
+                                                 else "no such folder"))
     missing = [n for n in (query, "image_test") if not (r / n).is_dir()]
     if missing:
         raise VeriLayoutError(f"--data {r}: not a VeRi-776 layout folder (missing "
@@ -152,7 +158,8 @@ def evaluate_rank(distmat: np.ndarray, q_pids, g_pids, q_camids, g_camids,
         inps.append(len(hits) / (hits[-1] + 1))
     n = nq - skipped
     if n == 0:
-        raise ValueError("no query has a true match in the gallery from another camera")
+        raise NoTrueMatchError("no query has a true match in the gallery from another camera "
+                               "(VeRi's rule excludes the query's own camera)")
     cmc = cmc_sum / n
     return {"cmc": cmc, "map": float(np.mean(aps)), "minp": float(np.mean(inps)),
             "rank1": float(cmc[0]), "rank5": float(cmc[min(4, max_rank - 1)]),

@@ -140,13 +140,25 @@ def _warn(source: str, message: str) -> None:
     warnings.warn(f"{source}: {message}", OpenDriveWarning, stacklevel=4)
 
 
+class _NotANumber(OpenDriveError):
+    """An attribute that should be a number is not; `parse_opendrive` adds the file."""
+
+
+def _number(el, attr: str, v: str) -> float:
+    try:
+        return float(v)
+    except ValueError:
+        raise _NotANumber(f"line {el.sourceline}: <{el.tag}> {attr}={v!r} is not a number") \
+            from None
+
+
 def _f(el, attr: str, default: float | None = None) -> float:
     v = el.get(attr)
     if v is None:
         if default is None:
             raise KeyError(attr)
         return default
-    return float(v)
+    return _number(el, attr, v)
 
 
 def _check_finite(source: str, where: str, what: str, values, names=None) -> None:
@@ -238,6 +250,19 @@ def parse_opendrive(data: bytes | str, name: str = "<string>") -> OpenDrive:
         )
     header_el = root.find("header")
     header = dict(header_el.attrib) if header_el is not None else {}
+    try:
+        roads, junctions = _parse_children(root, name)
+    except _NotANumber as exc:
+        raise OpenDriveError(f"{name}: {exc}") from None
+    if not roads:
+        raise OpenDriveError(f"{name}: the OpenDRIVE file has no <road> elements")
+    od = OpenDrive(name=name, header=header, roads=roads, junctions=junctions)
+    _check_links(od)
+    return od
+
+
+def _parse_children(root, name: str) -> tuple[dict, dict]:
+    """The roads and junctions of the document root, by id."""
     roads: dict[int, RoadRecord] = {}
     junctions: dict[int, JunctionRecord] = {}
     for child in root:
@@ -255,11 +280,7 @@ def parse_opendrive(data: bytes | str, name: str = "<string>") -> OpenDrive:
             junctions[j.id] = j
         elif isinstance(tag, str) and tag not in _KNOWN_TOP:
             _warn(name, f"unknown element <{tag}> at line {child.sourceline} ignored")
-    if not roads:
-        raise OpenDriveError(f"{name}: the OpenDRIVE file has no <road> elements")
-    od = OpenDrive(name=name, header=header, roads=roads, junctions=junctions)
-    _check_links(od)
-    return od
+    return roads, junctions
 
 
 def _parse_link(el, source: str, where: str) -> RoadLink | None:
@@ -370,10 +391,11 @@ _POLY_KEYS = {"sOffset": ["sOffset", "a", "b", "c", "d"], "s": ["s", "a", "b", "
 def _poly(el, start: str) -> tuple[float, float, float, float, float]:
     """(start, a, b, c, d) of a cubic record; missing attributes read as 0."""
     if el.keys() == _POLY_KEYS[start]:  # the usual attribute order: read them in one call
-        return tuple(map(float, el.values()))
-    g = el.get
-    return (float(g(start) or 0.0), float(g("a") or 0.0), float(g("b") or 0.0),
-            float(g("c") or 0.0), float(g("d") or 0.0))
+        try:
+            return tuple(map(float, el.values()))
+        except ValueError:
+            pass  # name the attribute below
+    return tuple(_number(el, k, el.get(k) or "0") for k in (start, "a", "b", "c", "d"))
 
 
 def _lane_id(el, what, source: str) -> int:

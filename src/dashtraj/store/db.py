@@ -351,7 +351,8 @@ class SightingsDB:
         """
         p = Path(path)
         if not p.is_file():
-            raise StoreError(f"sightings database {p} does not exist")
+            raise StoreError(f"sightings database {p} "
+                             + ("is a folder, not a file" if p.is_dir() else "does not exist"))
         with open(p, "rb") as fh:
             head = fh.read(len(_SQLITE_MAGIC))
         if head != _SQLITE_MAGIC:
@@ -479,8 +480,17 @@ class SightingsDB:
             raise StoreError(f"{self.path} has no run row (written by a run that stopped "
                              "before it started)")
         r = rows[0]
+        parsed = {}
+        for key, text in (("camera", r[3]), ("config", r[4])):
+            try:
+                parsed[key] = json.loads(text)
+            except (TypeError, json.JSONDecodeError):
+                parsed[key] = None
+            if not isinstance(parsed[key], dict):
+                raise StoreError(f"{self.path}: the run row's {key} is not a JSON object "
+                                 f"({str(text)[:40]!r})")
         return {"recording": r[0], "map_name": r[1], "map_sha256": r[2],
-                "camera": json.loads(r[3]), "config": json.loads(r[4]), "complete": bool(r[5])}
+                "camera": parsed["camera"], "config": parsed["config"], "complete": bool(r[5])}
 
     def observers(self) -> list[dict]:
         return [{"observer_id": o, "role": r, "frames": n, "complete": bool(c)}

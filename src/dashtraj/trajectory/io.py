@@ -25,6 +25,7 @@ dashtraj reads back and re-writes byte-identically.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import warnings
 from collections.abc import Callable, Iterable, Sequence
@@ -33,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from dashtraj.errors import InputFormatError
+from dashtraj.errors import InputFormatError, not_utf8
 from dashtraj.trajectory.records import (
     ORIENTATIONS,
     VEHICLE_CLASSES,
@@ -123,10 +124,12 @@ def _read_table(
     path = Path(path)
     name = path.name
     try:
-        handle = path.open(newline="", encoding="utf-8-sig")
+        text = path.read_bytes().decode("utf-8-sig")
     except OSError as exc:
         raise InputFormatError(f"{path}: cannot open ({exc.strerror})") from exc
-    with handle:
+    except UnicodeDecodeError as exc:
+        raise InputFormatError(not_utf8(name, exc)) from None
+    with io.StringIO(text, newline="") as handle:
         reader = csv.reader(handle)
         header: list[str] | None = None
         for row in reader:

@@ -331,6 +331,9 @@ def make_trips(road_map: RoadMap, n_trips: int, rng: np.random.Generator, *,
         True
     """
     pool = [w for w in road_map.generate_waypoints(10.0) if not w.is_junction]
+    if not pool:
+        raise DashtrajError(f"{road_map.name}: no driving lane outside junctions to "
+                            "drive a trip on")
     trips = []
     while len(trips) < n_trips:
         poly, detour = _choose_route(road_map, pool, rng, min_route_m, max_route_m, detour_prob)

@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import io
 import json
 import math
 import warnings
@@ -57,7 +58,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from dashtraj.errors import DashtrajError, InputFormatError
+from dashtraj.errors import DashtrajError, InputFormatError, not_utf8
 from dashtraj.world.camera import CameraSpec, visible_boxes
 from dashtraj.world.traffic import CAPACITY_SPACING_M as CAPACITY_HINT_M
 from dashtraj.world.traffic import LaneNetwork, TrafficConfig, TrafficSim, VehicleSpec
@@ -302,6 +303,10 @@ class _ChunkWriter:
             self.writer.close()
 
 
+MIN_STEP_S = 0.001
+"""The shortest simulation step (1 kHz): a step of nanoseconds would run for ever."""
+
+
 def _check_config(config: RunConfig) -> None:
     """Refuse a run that cannot mean anything (RecordingError naming the field)."""
     for name in ("duration_s", "truth_step_s", "chunk_s", "max_range_m"):
@@ -309,13 +314,26 @@ def _check_config(config: RunConfig) -> None:
         if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
             raise RecordingError(f"run config: {name} must be a finite number > 0, got {v!r}")
     step = config.traffic.step_s
-    if not (math.isfinite(step) and 0 < step <= config.duration_s):
-        raise RecordingError(f"run config: step_s must be > 0 and at most duration_s "
-                             f"({config.duration_s:g} s), got {step!r}")
+    if not (isinstance(step, int | float) and math.isfinite(step)
+            and MIN_STEP_S <= step <= config.duration_s):
+        raise RecordingError(f"run config: step_s must be at least {MIN_STEP_S:g} s and at "
+                             f"most duration_s ({config.duration_s:g} s), got {step!r}")
     for name in ("n_observers", "n_agents", "n_twins"):
         v = getattr(config, name)
         if not (isinstance(v, int) and v >= 0):
             raise RecordingError(f"run config: {name} must be an integer >= 0, got {v!r}")
+    cam = config.camera
+    for name in ("width_px", "height_px"):
+        v = getattr(cam, name)
+        if not (isinstance(v, int) and not isinstance(v, bool) and 8 <= v <= 8192):
+            raise RecordingError(f"run config: camera {name} must be an integer in "
+                                 f"[8, 8192], got {v!r}")
+    for name, lo, hi in (("fov_deg", 1.0, 179.0), ("pitch_deg", -89.0, 89.0),
+                         ("x_m", -50.0, 50.0), ("y_m", -50.0, 50.0), ("z_m", -50.0, 50.0)):
+        v = getattr(cam, name)
+        if not (isinstance(v, int | float) and not isinstance(v, bool) and lo <= v <= hi):
+            raise RecordingError(f"run config: camera {name} must be a number in "
+                                 f"[{lo:g}, {hi:g}], got {v!r}")
 
 
 def simulate(config: RunConfig, out_dir: str | Path,
@@ -344,7 +362,8 @@ def simulate(config: RunConfig, out_dir: str | Path,
     xodr = map_path.read_bytes()
     # a built-in town is named as the user named it, not by its cache file
     name = map_path.stem if map_path == Path(config.map) else str(config.map).lower()
-    road_map = RoadMap.from_string(xodr, name=name)
+    road_map = RoadMap.from_string(xodr, name=str(map_path))  # errors name the file
+    road_map.name = name
     seeds = np.random.SeedSequence(config.seed).spawn(2)
     rng_ids, rng_traffic = (np.random.default_rng(s) for s in seeds)
     n_own = 1 + config.n_observers + config.n_agents
@@ -458,6 +477,36 @@ def simulate(config: RunConfig, out_dir: str | Path,
     return RunSummary(out, n, frames, truth_rows, t, sim.target_arrived_t, complete)
 
 
+def _check_meta(meta: dict, path: Path) -> None:
+    """Refuse a meta.json whose entries have the wrong types (RecordingError naming the
+    key): every reader below trusts them."""
+    def bad(key: str, want: str) -> RecordingError:
+        return RecordingError(f"{path}: {key} must be {want}, got {meta[key]!r}")
+
+    def is_int(v) -> bool:
+        return isinstance(v, int) and not isinstance(v, bool)
+
+    if "format_version" in meta and not is_int(meta["format_version"]):
+        raise bad("format_version", "an integer")
+    if "config" in meta and not isinstance(meta["config"], dict):
+        raise bad("config", "an object")
+    m = meta.get("map")
+    if m is not None and not (isinstance(m, dict) and isinstance(m.get("file", ""), str)
+                              and isinstance(m.get("sha256") or "", str)):
+        raise bad("map", 'an object {"file": name, "sha256": hex digest}')
+    for key in ("step_s", "duration_s", "simulated_to_t"):
+        v = meta.get(key)
+        if v is not None and not (isinstance(v, int | float) and not isinstance(v, bool)
+                                  and math.isfinite(v) and (v > 0 or key == "simulated_to_t")):
+            raise bad(key, "a finite number" + ("" if key == "simulated_to_t" else " > 0"))
+    if "target_vehicle_id" in meta and not is_int(meta["target_vehicle_id"]):
+        raise bad("target_vehicle_id", "an integer")
+    for key in ("observer_ids", "twin_vehicle_ids", "parked_observer_ids"):
+        v = meta.get(key)
+        if v is not None and not (isinstance(v, list) and all(is_int(i) for i in v)):
+            raise bad(key, "a list of integers")
+
+
 def _write_meta(out: Path, meta: dict) -> None:
     tmp = out / ".meta.json.tmp"
     tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
@@ -527,8 +576,9 @@ class Recording:
             meta = json.loads(need("meta.json").read_text(encoding="utf-8"))
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise RecordingError(f"{root / 'meta.json'} is not valid JSON: {exc}") from exc
-        if meta.get("format") != FORMAT:
+        if not isinstance(meta, dict) or meta.get("format") != FORMAT:
             raise RecordingError(f"{root / 'meta.json'} is not a {FORMAT} meta file")
+        _check_meta(meta, root / "meta.json")
         if meta.get("format_version", 0) > FORMAT_VERSION:
             raise RecordingError(f"{root / 'meta.json'}: format version "
                                  f"{meta['format_version']} is newer than this dashtraj reads "
@@ -537,8 +587,16 @@ class Recording:
             config = RunConfig.from_dict(meta["config"])
         except (KeyError, TypeError, ValueError) as exc:
             raise RecordingError(f"{root / 'meta.json'}: bad config: {exc}") from exc
+        try:
+            _check_config(config)
+        except RecordingError as exc:
+            raise RecordingError(f"{root / 'meta.json'}: {exc}") from None
         vehicles = []
-        with open(need("vehicles.csv"), newline="", encoding="utf-8") as fh:
+        try:
+            text = need("vehicles.csv").read_bytes().decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise RecordingError(not_utf8(root / "vehicles.csv", exc)) from None
+        with io.StringIO(text, newline="") as fh:
             for line, row in enumerate(csv.DictReader(fh), start=2):
                 try:
                     for k in ("vehicle_id", "identity_id"):
