@@ -147,6 +147,23 @@ def test_killed_writer_leaves_committed_frames_readable(tmp_path):
         assert db.observers()[0]["complete"] is False
 
 
+def test_a_finished_database_is_one_file_that_reading_leaves_alone(tmp_path):
+    path = tmp_path / "run.db"
+    _write(path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.db"]
+    before = path.read_bytes()
+    with SightingsDB.open(path) as db:
+        assert len(db.detections(1)) == 12
+    out = tmp_path / "s.csv"
+    assert main(["sightings", "export", str(path), "-o", str(out), "--vehicle", "7"]) == 0
+    # no -wal / -shm left beside the user's file by the readers, and not a byte changed
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.db", "s.csv"]
+    assert path.read_bytes() == before
+    con = sqlite3.connect(path)
+    assert con.execute("PRAGMA journal_mode").fetchone()[0] == "delete"
+    con.close()
+
+
 def test_create_refuses_an_existing_file_and_reads_are_read_only(tmp_path):
     path = tmp_path / "run.db"
     _write(path)

@@ -393,11 +393,18 @@ class SightingsDB:
         return cls(conn, p, writable, version)
 
     def close(self) -> None:
-        """Commit nothing further, fold the WAL into the file and close."""
+        """Commit nothing further, fold the WAL into the file and close.
+
+        A writer leaves the file in SQLite's rollback-journal mode, one self-contained
+        file: WAL is for the run while it is written (readers see every committed frame,
+        a killed writer loses nothing committed), and a reader of a WAL file leaves its
+        ``-wal`` and ``-shm`` files beside the user's database. (Another connection still
+        open keeps the file in WAL mode; SQLite refuses the switch then.)"""
         if self.conn is None:
             return
         if self.writable:
             self.conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+            self.conn.execute("PRAGMA journal_mode=DELETE")
         self.conn.close()
         self.conn = None
 
