@@ -164,6 +164,18 @@ def test_a_finished_database_is_one_file_that_reading_leaves_alone(tmp_path):
     con.close()
 
 
+def test_a_reader_open_while_the_writer_closes_keeps_the_file_in_wal_mode(tmp_path):
+    path = tmp_path / "run.db"
+    db = SightingsDB.create(path)
+    db.write_run("r", None, None, {}, {}, [(1, None)])
+    db.add_frames(*_rows(1, range(3)))
+    with SightingsDB.open(path) as reader:
+        db.close()  # SQLite refuses to leave WAL mode while the reader is open: no error
+        assert len(reader.detections(1)) == 6
+    with SightingsDB.open(path) as again:
+        assert [p.frame for p in again.poses(1)] == [0, 1, 2]
+
+
 def test_create_refuses_an_existing_file_and_reads_are_read_only(tmp_path):
     path = tmp_path / "run.db"
     _write(path)

@@ -75,6 +75,7 @@ Embeddings API (appearance vectors of the crops, written by ``dashtraj reid embe
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sqlite3
 from collections.abc import Iterable, Sequence
@@ -399,12 +400,13 @@ class SightingsDB:
         file: WAL is for the run while it is written (readers see every committed frame,
         a killed writer loses nothing committed), and a reader of a WAL file leaves its
         ``-wal`` and ``-shm`` files beside the user's database. (Another connection still
-        open keeps the file in WAL mode; SQLite refuses the switch then.)"""
+        open keeps the file in WAL mode: SQLite refuses the switch then.)"""
         if self.conn is None:
             return
         if self.writable:
             self.conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
-            self.conn.execute("PRAGMA journal_mode=DELETE")
+            with contextlib.suppress(sqlite3.OperationalError):  # a reader is still open
+                self.conn.execute("PRAGMA journal_mode=DELETE")
         self.conn.close()
         self.conn = None
 
