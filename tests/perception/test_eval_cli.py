@@ -51,6 +51,12 @@ def test_localization_eval_json_and_scatter(small_run, gl_available, tmp_path, c
     assert r["tracked"]["rmse_lt20_m"] < r["paper"]["rmse_lt20_m"]
     assert r["smoothed"]["rmse_lt20_m"] < r["paper"]["rmse_lt20_m"]
     assert r["smoothed"]["n_lt20"] == r["tracked"]["n_lt20"] == r["paper"]["n_lt20"]
+    # the detector protocol's ignore regions: the same detections less the tiny or mostly
+    # hidden vehicles, the same for every estimator
+    ign = {n: r[n]["ignore_regions"] for n in ("paper", "fused", "mapped")}
+    assert ign["paper"]["n_lt20"] == ign["mapped"]["n_lt20"] <= r["paper"]["n_lt20"]
+    assert 0 < ign["paper"]["n_20_60"] <= r["paper"]["n_20_60"]
+    assert ign["fused"]["rmse_lt20_m"] <= 1.5
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert main(["localization", "eval", str(small_run.path), "--plot", str(png)]) == 2
 

@@ -90,14 +90,21 @@ def run_eval(args: argparse.Namespace) -> int:
         print(json.dumps(out))
         return 0
     print(f"{out['detections']} detections of {len(recs)} recordings (detector {args.detector})")
-    for n in args.localizers:
-        r = summary[n]
 
-        def f(v):
-            return "  n/a" if v is None else f"{v:5.2f}"
+    def f(v):
+        return "  n/a" if v is None else f"{v:5.2f}"
+
+    def line(n, r):
         print(f"  {n:8s} position RMSE < 20 m {f(r['rmse_lt20_m'])} m (median "
               f"{f(r['median_lt20_m'])}), 20–60 m {f(r['rmse_20_60_m'])} m (median "
               f"{f(r['median_20_60_m'])})")
+
+    for n in args.localizers:
+        line(n, summary[n])
+    print("ignore regions (the detector protocol's: vehicles under 20 px high at 1280 x 720 "
+          "or over 70 % hidden are not scored):")
+    for n in args.localizers:
+        line(n, summary[n]["ignore_regions"])
     return 0
 
 

@@ -214,9 +214,13 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
     scored on the same frames as the others (an offline one, ``smoothed``, once the
     observer's frames ended; ``mapped`` too). Returns
     (summary {estimator: {"rmse_lt20_m", "median_lt20_m", "rmse_20_60_m",
-    "median_20_60_m", "dist_rmse_lt20_m", "dist_rmse_20_60_m", "n_lt20", "n_20_60"}},
-    samples {"true_m": (N,), estimator: (N,) estimated distance, estimator + "_err":
-    (N,) position error}).
+    "median_20_60_m", "dist_rmse_lt20_m", "dist_rmse_20_60_m", "n_lt20", "n_20_60",
+    "ignore_regions": the same figures over the detections of vehicles the detector
+    protocol expects to be found (not under `IGNORE_BELOW_PX` high or `IGNORE_BELOW_VISIBLE`
+    visible: `tracker_eval`'s ignore regions); every detection is still localized with the
+    others in its frame}},
+    samples {"true_m": (N,), "scored": (N,) bool, not on an ignore region; estimator: (N,)
+    estimated distance, estimator + "_err": (N,) position error}).
     """
     from dashtraj.perception.localize import NEEDS_MAP
 
@@ -226,6 +230,7 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
     offline = [n for n in seq if getattr(locs[n], "offline", False)]
     period = min(track_every_s, every_s) if seq else every_s
     true_d: list = []
+    on_scored: list = []
     est: dict = {n: [] for n in localizers}
     err: dict = {n: [] for n in localizers}
     scored: list = []  # this observer's scored frames: (index in its sequence, mask, tx, ty)
@@ -268,6 +273,7 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
             j = np.searchsorted(keys, q)
             tx, ty = xs[j], ys[j]
             true_d.append(np.hypot(tx - ef.pose.x, ty - ef.pose.y))
+            on_scored.append(np.isin(d.truth_ids[m], ef.scored.truth_ids))
             scored.append((index - 1, m, tx, ty))
             for n, loc in locs.items():
                 if n in offline:
@@ -282,24 +288,32 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
                 err[n].append(np.hypot(r.x - tx, r.y - ty))
         flush()
     td = np.concatenate(true_d) if true_d else np.zeros(0)
+    ok = np.concatenate(on_scored) if on_scored else np.zeros(0, bool)
     summary: dict = {}
-    samples: dict = {"true_m": td}
+    samples: dict = {"true_m": td, "scored": ok}
     for n in localizers:
         e = np.concatenate(err[n]) if err[n] else np.zeros(0)
         de = (np.concatenate(est[n]) if est[n] else np.zeros(0))
         samples[n] = de
         samples[n + "_err"] = e
-        row: dict = {}
-        for band, (lo, hi) in BANDS_M.items():
-            sel = (td >= lo) & (td < hi)
-            k = int(sel.sum())
-            row[f"n_{band}"] = k
-            row[f"rmse_{band}_m"] = float(np.sqrt(np.mean(e[sel] ** 2))) if k else None
-            row[f"median_{band}_m"] = float(np.median(e[sel])) if k else None
-            row[f"dist_rmse_{band}_m"] = (float(np.sqrt(np.mean((de[sel] - td[sel]) ** 2)))
-                                          if k else None)
-        summary[n] = row
+        summary[n] = _band_errors(td, de, e, np.ones(len(td), bool))
+        summary[n]["ignore_regions"] = _band_errors(td, de, e, ok)
     return summary, samples
+
+
+def _band_errors(td: np.ndarray, de: np.ndarray, e: np.ndarray, keep: np.ndarray) -> dict:
+    """Position RMSE and median, distance RMSE and counts per band of true distance, over
+    the detections ``keep`` selects."""
+    row: dict = {}
+    for band, (lo, hi) in BANDS_M.items():
+        sel = keep & (td >= lo) & (td < hi)
+        k = int(sel.sum())
+        row[f"n_{band}"] = k
+        row[f"rmse_{band}_m"] = float(np.sqrt(np.mean(e[sel] ** 2))) if k else None
+        row[f"median_{band}_m"] = float(np.median(e[sel])) if k else None
+        row[f"dist_rmse_{band}_m"] = (float(np.sqrt(np.mean((de[sel] - td[sel]) ** 2)))
+                                      if k else None)
+    return row
 
 
 def scatter_png(samples: dict, localizers, path) -> None:
