@@ -19,9 +19,16 @@ class NoRouteError(DashtrajError):
     """The destination cannot be reached from the origin on the lane graph."""
 
 
-def not_utf8(path, exc: UnicodeDecodeError) -> str:
-    """The one-line message for a text input that does not decode as UTF-8."""
-    return f"{path}: not UTF-8 text ({exc.reason}: byte {exc.object[exc.start:exc.start + 1]!r})"
+def read_utf8(path, error: type[Exception] = DashtrajError, encoding: str = "utf-8",
+              label=None) -> str:
+    """The text of the file ``path`` (a `pathlib.Path`); a file that does not decode
+    raises ``error`` with one line naming it (``label``, default the path). OSError
+    passes through, for the caller's own message."""
+    try:
+        return path.read_bytes().decode(encoding)
+    except UnicodeDecodeError as exc:
+        bad = exc.object[exc.start:exc.start + 1]
+        raise error(f"{label or path}: not UTF-8 text ({exc.reason}: byte {bad!r})") from None
 
 
 class InputFormatError(DashtrajError):

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dashtraj.errors import DashtrajError, not_utf8
+from dashtraj.errors import DashtrajError, read_utf8
 
 PAD_VALUE = 114
 """Grey of the letterbox padding (ultralytics')."""
@@ -211,11 +211,9 @@ def read_names_yaml(path) -> list[str]:
     """
     path = Path(path)
     try:
-        lines = path.read_bytes().decode("utf-8").splitlines()
+        lines = read_utf8(path, DetectorError).splitlines()
     except OSError as exc:
         raise DetectorError(f"{path}: cannot read ({exc.strerror})") from exc
-    except UnicodeDecodeError as exc:
-        raise DetectorError(not_utf8(path, exc)) from None
     for i, line in enumerate(lines):
         if not line.startswith("names:"):
             continue

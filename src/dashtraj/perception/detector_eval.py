@@ -139,21 +139,12 @@ def parse_class_map(text: str) -> dict[str, str]:
     return out
 
 
-def _read_text(path) -> str:
-    """A label or names file's text; DashtrajError naming it when it is not UTF-8."""
-    from dashtraj.errors import DashtrajError, not_utf8
-
-    try:
-        return path.read_bytes().decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise DashtrajError(not_utf8(path, exc)) from None
-
-
 def read_external_names(folder) -> list[str] | None:
     """Class names of a YOLO folder: data.yaml ``names`` or classes.txt/obj.names (one
     per line); None when it has neither."""
     from pathlib import Path
 
+    from dashtraj.errors import read_utf8
     from dashtraj.perception.detect import read_names_yaml
 
     folder = Path(folder)
@@ -162,7 +153,7 @@ def read_external_names(folder) -> list[str] | None:
             return read_names_yaml(folder / y)
     for t in ("classes.txt", "obj.names"):
         if (folder / t).is_file():
-            return [ln.strip() for ln in _read_text(folder / t).splitlines() if ln.strip()]
+            return [ln.strip() for ln in read_utf8(folder / t).splitlines() if ln.strip()]
     return None
 
 
@@ -177,7 +168,7 @@ def read_external_set(folder, num_classes: int) -> list[tuple[object, np.ndarray
     """
     from pathlib import Path
 
-    from dashtraj.errors import DashtrajError
+    from dashtraj.errors import DashtrajError, read_utf8
 
     folder = Path(folder)
     img_dir = folder / "images" if (folder / "images").is_dir() else folder
@@ -191,7 +182,7 @@ def read_external_set(folder, num_classes: int) -> list[tuple[object, np.ndarray
         lab = lab_dir / p.relative_to(img_dir).with_suffix(".txt")
         rows = []
         if lab.is_file():
-            for i, line in enumerate(_read_text(lab).splitlines(), 1):
+            for i, line in enumerate(read_utf8(lab).splitlines(), 1):
                 vals = line.split()
                 if not vals:
                     continue

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from dashtraj.errors import InputFormatError, not_utf8
+from dashtraj.errors import InputFormatError, read_utf8
 from dashtraj.trajectory.records import (
     ORIENTATIONS,
     VEHICLE_CLASSES,
@@ -124,11 +124,9 @@ def _read_table(
     path = Path(path)
     name = path.name
     try:
-        text = path.read_bytes().decode("utf-8-sig")
+        text = read_utf8(path, InputFormatError, "utf-8-sig", label=name)
     except OSError as exc:
         raise InputFormatError(f"{path}: cannot open ({exc.strerror})") from exc
-    except UnicodeDecodeError as exc:
-        raise InputFormatError(not_utf8(name, exc)) from None
     with io.StringIO(text, newline="") as handle:
         reader = csv.reader(handle)
         header: list[str] | None = None

@@ -58,7 +58,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from dashtraj.errors import DashtrajError, InputFormatError, not_utf8
+from dashtraj.errors import DashtrajError, InputFormatError, read_utf8
 from dashtraj.world.camera import CameraSpec, visible_boxes
 from dashtraj.world.traffic import CAPACITY_SPACING_M as CAPACITY_HINT_M
 from dashtraj.world.traffic import LaneNetwork, TrafficConfig, TrafficSim, VehicleSpec
@@ -592,10 +592,7 @@ class Recording:
         except RecordingError as exc:
             raise RecordingError(f"{root / 'meta.json'}: {exc}") from None
         vehicles = []
-        try:
-            text = need("vehicles.csv").read_bytes().decode("utf-8")
-        except UnicodeDecodeError as exc:
-            raise RecordingError(not_utf8(root / "vehicles.csv", exc)) from None
+        text = read_utf8(need("vehicles.csv"), RecordingError)
         with io.StringIO(text, newline="") as fh:
             for line, row in enumerate(csv.DictReader(fh), start=2):
                 try:
