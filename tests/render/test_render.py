@@ -288,3 +288,14 @@ def test_vehicle_meshes_fit_their_dimensions():
         assert np.abs(p[:, 1]).max() <= model.width_m / 2 + 0.05
         assert p[:, 2].min() >= 0.0 and p[:, 2].max() <= model.height_m + 1e-6
         assert math.isclose(p[:, 2].max(), model.height_m, abs_tol=0.02)
+
+
+def test_a_sample_count_the_context_cannot_render_is_refused(gl_ctx, straight_map):
+    from dashtraj.errors import DashtrajError
+    from dashtraj.render.scene import Renderer
+
+    most = int(gl_ctx.max_samples)
+    for bad in (3, 2 * most):  # not a power of two; more than the context takes
+        with pytest.raises(DashtrajError, match=rf"msaa {bad}: .* up to {most} samples"):
+            Renderer(straight_map, 64, 36, 90.0, msaa=bad, ctx=gl_ctx)
+    Renderer(straight_map, 64, 36, 90.0, msaa=most, ctx=gl_ctx).release()

@@ -93,15 +93,14 @@ def run_perceive(args: argparse.Namespace) -> int:
         from dashtraj.datasets.frames import parse_size
 
         size = parse_size(args.size)
-    if args.msaa > 1:
-        from dashtraj.render.gl import create_context
+    if args.msaa > 1:  # before the database is created (the workers render later)
+        from dashtraj.render.gl import check_samples, create_context
 
         ctx = create_context()
-        most = int(ctx.max_samples)
-        ctx.release()
-        if args.msaa > most or args.msaa & (args.msaa - 1):
-            raise DashtrajError(f"--msaa {args.msaa}: this OpenGL renderer takes 0 or a power "
-                                f"of two up to {most} samples")
+        try:
+            check_samples(ctx, args.msaa, "--msaa")
+        finally:
+            ctx.release()
     check_output(args.output, overwrite=args.overwrite, kind="file")
     for extra in (args.save_frames, args.mot):
         if extra:

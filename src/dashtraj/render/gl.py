@@ -70,6 +70,15 @@ class RenderUnavailableError(DashtrajError):
     """No headless OpenGL context could be created (moderngl, EGL or Mesa missing)."""
 
 
+def check_samples(ctx, samples: int, name: str = "msaa") -> None:
+    """Raise DashtrajError (naming ``name``) unless ``ctx`` can render with ``samples``
+    colour samples: 0 or 1 (none), or a power of two up to the context's maximum."""
+    most = int(ctx.max_samples)
+    if samples > 1 and (samples > most or samples & (samples - 1)):
+        raise DashtrajError(f"{name} {samples}: this OpenGL renderer takes 0 or a power of "
+                            f"two up to {most} samples")
+
+
 def _load_triton_first() -> None:
     """Import triton before Mesa's llvmpipe loads, where triton is installed.
 

@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 
 from dashtraj.render import shaders
-from dashtraj.render.gl import create_context, gl_function
+from dashtraj.render.gl import check_samples, create_context, gl_function
 from dashtraj.render.look import LookConfig, lighting
 from dashtraj.render.meshes import (
     MAT_ASPHALT,
@@ -285,6 +285,7 @@ class Renderer:
         self._proj = _gl_projection(self.k, self.width, self.height)
         self._owns_ctx = ctx is None
         self.ctx = ctx if ctx is not None else create_context(threads)
+        check_samples(self.ctx, self.msaa)
         self._make_current()  # a given context may not be the current one
         ctx = self.ctx
         vs = shaders.VS
