@@ -8,7 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-from dashtraj.cli._args import fraction, int_at_least, positive_float, seed
+from dashtraj.cli._args import fraction, image_size, int_at_least, positive_float, seed
 from dashtraj.outputs import add_output_args
 from dashtraj.train.detector_recipes import RECIPES
 
@@ -238,7 +238,7 @@ def register_eval(sub) -> None:
                    help="class names (default: the model's metadata)")
     v.add_argument("--every", type=positive_float, default=2.0, metavar="S",
                    help="sampling period, seconds (default 2)")
-    v.add_argument("--size", default=None, metavar="WxH",
+    v.add_argument("--size", type=image_size, default=None, metavar="WxH",
                    help="frame size (default: the recordings' camera, 1280x720)")
     v.add_argument("--conf", type=fraction, default=0.25,
                    help="threshold of the precision/recall figures (0.25)")

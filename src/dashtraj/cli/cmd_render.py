@@ -104,7 +104,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     r.add_argument("--fov", default="90", metavar="DEG|zoom",
                    help="horizontal FOV of every ring camera, degrees (default 90, a fixed lens "
                         "as the paper's cameras); 'zoom' fits a FOV per camera instead")
-    r.add_argument("--image-size", default="800x600", metavar="WxH",
+    r.add_argument("--image-size", type=image_size, default="800x600", metavar="WxH",
                    help="ring camera image size with a fixed FOV (default 800x600)")
     r.add_argument("--seed", type=seed_int, default=0, help="camera and split seed (default 0)")
     _randomize_args(r, "ring image (or --randomize-per identity)")
