@@ -56,8 +56,6 @@ def run(args: argparse.Namespace) -> int:
         $ dashtraj score --truth truth.csv --estimate est.csv
         SSPD 1.234 m  Hausdorff 5.678 m  (truth 120 points, estimate 98 points)
     """
-    import numpy as np
-
     from dashtraj.errors import InputFormatError
     from dashtraj.trajectory.io import read_trajectory
     from dashtraj.trajectory.metrics import hausdorff, sspd
@@ -70,8 +68,7 @@ def run(args: argparse.Namespace) -> int:
     estimate = read_trajectory(args.estimate)
     if args.resample_m is not None:
         for name, traj in (("--truth", truth), ("--estimate", estimate)):
-            p = np.asarray(traj.points, np.float64)
-            n = float(np.hypot(*np.diff(p, axis=0).T).sum()) / args.resample_m
+            n = traj.length_m / args.resample_m
             if n > MAX_RESAMPLED_POINTS:
                 raise InputFormatError(
                     f"--resample-m {args.resample_m:g}: {name} would become {n:.3g} points "
