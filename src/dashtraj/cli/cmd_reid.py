@@ -173,15 +173,15 @@ def run_eval(args: argparse.Namespace) -> int:
     import time
 
     from dashtraj.reid.embed import ReidEmbedder
-    from dashtraj.reid.evaluate import VeriLayoutError, evaluate_features, open_veri
+    from dashtraj.reid.evaluate import (
+        VeriLayoutError,
+        evaluate_features,
+        has_true_match,
+        open_veri,
+    )
 
     q, g = open_veri(args.data, args.query)
-    pairs = set(zip(g.pids.tolist(), g.camids.tolist(), strict=True))
-    gallery_cams: dict = {}
-    for pid, cam in pairs:
-        gallery_cams.setdefault(pid, set()).add(cam)
-    if not any(gallery_cams.get(p, set()) - {c}
-               for p, c in zip(q.pids.tolist(), q.camids.tolist(), strict=True)):
+    if not has_true_match(q, g).any():  # before embedding: nothing to rank
         raise VeriLayoutError(f"--data {args.data}: no query of {args.query} has an image of "
                               "its identity from another camera in the gallery (VeRi's rule "
                               "excludes the query's own camera): nothing to rank")

@@ -117,6 +117,13 @@ def distance_matrix(qf: np.ndarray, gf: np.ndarray) -> np.ndarray:
     return np.maximum(d, 0.0)
 
 
+def has_true_match(q: VeriSplit, g: VeriSplit) -> np.ndarray:
+    """(n_query,) bool: the gallery holds an image of the query's identity from another
+    camera (VeRi's rule; a query without one is skipped by `evaluate_rank`)."""
+    same_id = g.pids[None, :] == q.pids[:, None]
+    return (same_id & (g.camids[None, :] != q.camids[:, None])).any(axis=1)
+
+
 def evaluate_rank(distmat: np.ndarray, q_pids, g_pids, q_camids, g_camids,
                   max_rank: int = 50) -> dict:
     """CMC, mAP and mINP under VeRi's rule (module docstring).
