@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -114,6 +116,72 @@ def test_two_workers_write_the_same_content(small_run, small_db, tmp_path):
     other = tmp_path / "w2.db"
     perceive(small_run, other, PerceiveConfig(observers=(1, 3)), workers=2)
     _same_content(path, other)
+
+
+def test_perceive_into_postgres_two_writers_give_the_file_s_content(small_run, small_db,
+                                                                    pg_url, tmp_path, capsys):
+    """--workers 2 into a PostgreSQL schema: each worker writes its observer in its own
+    connection; the run reads back as the SQLite file of one writer, and exports the same
+    CSV byte for byte."""
+    import psycopg
+
+    from dashtraj.store.backend import parse_url
+
+    path, summary = small_db
+    assert main(["perceive", str(small_run.path), "-o", pg_url, "--observers", "1", "3",
+                 "--workers", "2", "-q", "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["frames"] == summary.frames and "schema=" in info["db"]
+    _same_content(path, pg_url)
+    target = parse_url(pg_url)
+    with psycopg.connect(target.conninfo) as c:
+        left = c.execute("SELECT schema_name FROM information_schema.schemata WHERE "
+                         "schema_name LIKE %s", (target.schema + "%",)).fetchall()
+    assert left == [(target.schema,)]  # the partial schema was renamed, nothing else left
+    for src, out in ((str(path), "file.csv"), (pg_url, "pg.csv")):
+        assert main(["sightings", "export", src, "-o", str(tmp_path / out), "--vehicle",
+                     "all", "--max-distance", "60"]) == 0
+    assert (tmp_path / "pg.csv").read_bytes() == (tmp_path / "file.csv").read_bytes()
+    assert len((tmp_path / "pg.csv").read_text().splitlines()) > 50
+
+
+def test_perceive_into_postgres_refuses_replaces_whole_and_keeps_a_partial_run(
+        small_run, gl_available, pg_url, capsys, monkeypatch):
+    import psycopg
+
+    from dashtraj.store.backend import parse_url
+
+    args = ["perceive", str(small_run.path), "-o", pg_url, "--observers", "3", "--every",
+            "1.0", "--tracker", "sort", "--localizer", "paper", "-q"]
+    assert main(args) == 0
+    with SightingsDB.open(pg_url) as db:
+        assert db.count("poses") == 26
+    capsys.readouterr()
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "exists; pass --overwrite" in err and err.count("\n") == 1
+    # Ctrl-C at the end of the run: the old run stays, the new one is kept as a partial schema
+    with monkeypatch.context() as m:
+        m.setattr(SightingsDB, "finish_run", lambda self: (_ for _ in ()).throw(
+            KeyboardInterrupt()))
+        assert main([*args[:7], "0.5", *args[8:], "--overwrite"]) == 130
+    assert "kept the partial output in schema" in capsys.readouterr().err
+    target = parse_url(pg_url)
+    partial = target.with_schema(target.schema + "__partial_1")
+    with SightingsDB.open(pg_url) as old, SightingsDB.open(partial) as part:
+        assert old.count("poses") == 26 and part.count("poses") == 51
+        assert not part.run_info()["complete"]
+    assert main([*args[:7], "0.5", *args[8:], "--overwrite"]) == 0
+    with SightingsDB.open(pg_url) as db:
+        assert db.count("poses") == 51 and db.run_info()["complete"]
+    # a schema that is not a dashtraj run is never replaced
+    foreign = target.with_schema(target.schema + "_notes")
+    with psycopg.connect(target.conninfo, autocommit=True) as c:
+        c.execute(f'CREATE SCHEMA "{target.schema}_notes"')
+        c.execute(f'CREATE TABLE "{target.schema}_notes".notes (a TEXT)')
+        assert main([*args[:3], foreign, *args[4:], "--overwrite"]) == 2
+        assert "not a dashtraj sightings database; it is not replaced" in capsys.readouterr().err
+        assert c.execute(f'SELECT COUNT(*) FROM "{target.schema}_notes".notes').fetchone() == (0,)
 
 
 def _same_content(path_a, path_b) -> None:

@@ -31,12 +31,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "the same filter forward and backward in time, positions rewritten when the "
             "observer's frames end; mapped: smoothed, and a position beside every lane moved "
             "along its ray onto the nearest one), map-match "
-            "them to waypoints, and write the SQLite sightings database (with the crops of "
+            "them to waypoints, and write the sightings database (an SQLite file, or a schema of "
+            "a PostgreSQL database where --workers write in parallel; with the crops of "
             "the detections within the ReID range)."
         ),
     )
     p.add_argument("recording", metavar="RUN", help="recording directory (dashtraj simulate)")
-    p.add_argument("-o", "--output", required=True, metavar="DB", help="database file to write")
+    p.add_argument("-o", "--output", required=True, metavar="DB",
+                   help="database file to write (SQLite), or a PostgreSQL URL "
+                        "postgresql://[user@]host[:port]/dbname[?schema=NAME] (one schema per "
+                        "run, default dashtraj; needs pip install 'dashtraj[postgres]')")
     p.add_argument("--detector", default="oracle", metavar="oracle|M.onnx",
                    help="detector (default oracle: the renderer's exact visible boxes)")
     add_detector_filter_args(p)
@@ -101,7 +105,14 @@ def run_perceive(args: argparse.Namespace) -> int:
             check_samples(ctx, args.msaa, "--msaa")
         finally:
             ctx.release()
-    check_output(args.output, overwrite=args.overwrite, kind="file")
+    from dashtraj.store.backend import is_url
+    from dashtraj.store.pg_output import check_pg_output, pg_atomic_output
+
+    to_pg = is_url(args.output)
+    if to_pg:
+        check_pg_output(args.output, overwrite=args.overwrite)
+    else:
+        check_output(args.output, overwrite=args.overwrite, kind="file")
     for extra in (args.save_frames, args.mot):
         if extra:
             check_output(extra, overwrite=args.overwrite, kind="dir")
@@ -125,8 +136,10 @@ def run_perceive(args: argparse.Namespace) -> int:
         frames_tmp = (stack.enter_context(atomic_output(args.save_frames,
                                                         overwrite=args.overwrite))
                       if args.save_frames else None)
-        tmp = stack.enter_context(atomic_output(args.output, overwrite=args.overwrite,
-                                                kind="file", keep_partial=True))
+        tmp = stack.enter_context(
+            pg_atomic_output(args.output, overwrite=args.overwrite) if to_pg
+            else atomic_output(args.output, overwrite=args.overwrite, kind="file",
+                               keep_partial=True))
         summary = perceive(rec, tmp, cfg, workers=args.workers, progress=progress,
                            frames_dir=frames_tmp)
     wall = time.perf_counter() - t0

@@ -88,6 +88,7 @@ def run(args) -> int:
         threshold_path,
     )
     from dashtraj.store import SightingsDB
+    from dashtraj.store.backend import display_name
 
     model = Path(args.model) if args.model else shipped_model_path()
     out = Path(args.output) if args.output else threshold_path(model)
@@ -108,7 +109,7 @@ def run(args) -> int:
             cam = run_info["camera"]
             if not all(isinstance(cam.get(k), int) and cam[k] > 0
                        for k in ("width_px", "height_px")):
-                raise DashtrajError(f"{db_path}: the run's camera has no image size "
+                raise DashtrajError(f"{db.path}: the run's camera has no image size "
                                     f"(width_px, height_px): {cam!r}")
             keys, e = crop_embeddings(db, embedder)
         boxes = np.array([[dets[k].x0, dets[k].y0, dets[k].x1, dets[k].y1] if k in dets
@@ -133,7 +134,7 @@ def run(args) -> int:
             cams.append(1000 * i + keys[j][0])
         embs.append(e[keep])
         cfg = run_info.get("config") or {}
-        sources.append({"database": str(db_path), "recording": str(rec),
+        sources.append({"database": display_name(db_path), "recording": str(rec),
                         "town": (rec_meta.get("config") or {}).get("map"),
                         "seed": (rec_meta.get("config") or {}).get("seed"),
                         "identity_range": (rec_meta.get("config") or {}).get("identity_range"),

@@ -81,13 +81,15 @@ def run_embed(args: argparse.Namespace) -> int:
     from dashtraj.reid.database import embed_database
     from dashtraj.reid.embed import ReidEmbedder
     from dashtraj.store import SightingsDB
+    from dashtraj.store.backend import display_name
 
     model = _model_path(args.model)
+    name = display_name(args.db)
     with SightingsDB.open(args.db, writable=True) as db:
         if db.count("crops") == 0:  # before loading the model
             from dashtraj.reid.database import EmbedError
 
-            raise EmbedError(f"{args.db} has no crops (perceive keeps crops of detections "
+            raise EmbedError(f"{name} has no crops (perceive keeps crops of detections "
                              "within its --reid-range); nothing to embed")
         emb = ReidEmbedder(model, threads=args.threads)
         bar = None
@@ -105,20 +107,20 @@ def run_embed(args: argparse.Namespace) -> int:
             if bar is not None:
                 bar.close()
                 bar = None
-            print(f"interrupted: the crops embedded so far are kept in {args.db}; rerun to "
+            print(f"interrupted: the crops embedded so far are kept in {name}; rerun to "
                   "embed the rest", file=sys.stderr)
             raise
         finally:
             if bar is not None:
                 bar.close()
-    out = {"db": str(args.db), "model": s.model, "model_sha256": s.model_sha256, "dim": s.dim,
+    out = {"db": name, "model": s.model, "model_sha256": s.model_sha256, "dim": s.dim,
            "crops": s.crops, "already": s.already, "added": s.added, "batches": s.batches,
            "wall_s": s.wall_s, "crops_per_s": s.crops_per_s}
     if args.json:
         print(json.dumps(out))
     else:
         rate = f" in {s.wall_s:.1f} s ({s.crops_per_s:.0f} crops/s)" if s.added else ""
-        print(f"{args.db}: {s.added} crops embedded{rate} with {s.model} ({s.dim}-d, sha256 "
+        print(f"{name}: {s.added} crops embedded{rate} with {s.model} ({s.dim}-d, sha256 "
               f"{s.model_sha256[:12]}...); {s.already} of {s.crops} had a vector of this "
               "model already")
     return 0
@@ -182,6 +184,7 @@ def run_query(args: argparse.Namespace) -> int:
     from dashtraj.reid.database import EmbedError, decode_crop, file_sha256
     from dashtraj.reidentify.rank import TrackGallery, query_vector
     from dashtraj.store import SightingsDB
+    from dashtraj.store.backend import display_name
 
     if args.output is not None:
         if Path(args.output).suffix.lower() != ".png":
@@ -190,9 +193,10 @@ def run_query(args: argparse.Namespace) -> int:
     if args.observer is not None and args.track is None:
         raise ArgumentError("--observer goes with --track")
     model = _model_path(args.model)
+    name = display_name(args.db)
     with SightingsDB.open(args.db) as db:
         if db.count("crops") == 0:
-            raise EmbedError(f"{args.db} has no crops (perceive keeps crops of detections "
+            raise EmbedError(f"{name} has no crops (perceive keeps crops of detections "
                              "within its --reid-range); nothing to search")
         sha = file_sha256(model)
         import faiss  # noqa: F401  (imported before the clock starts: ~0.1 s once)
@@ -208,7 +212,7 @@ def run_query(args: argparse.Namespace) -> int:
             v = ReidEmbedder(model, threads=args.threads).embed([image])
             if v.shape[1] != emb.dim:
                 raise DashtrajError(f"--model {model.name} outputs {v.shape[1]}-d vectors but "
-                                    f"{args.db} holds {emb.dim}-d embeddings of it")
+                                    f"{name} holds {emb.dim}-d embeddings of it")
             exclude, q_rows, query = None, np.zeros(0, np.int64), {"image": str(args.image)}
             t1 = time.perf_counter()
             q = query_vector(v)
@@ -237,7 +241,7 @@ def run_query(args: argparse.Namespace) -> int:
             sheet_crops = {(c.observer_id, c.frame, c.idx): decode_crop(c.jpeg, (
                 c.observer_id, c.frame, c.idx)) for c in db.crops(keys=keys)}
             q_keys = [emb.keys()[i] for i in pick]
-    out = {"db": str(args.db), "model": emb.model, "model_sha256": emb.model_sha256,
+    out = {"db": name, "model": emb.model, "model_sha256": emb.model_sha256,
            "query": query, "aggregate": r.aggregate, "distance": "cosine (1 - q.g)",
            "k": args.k, "tracks_searched": r.tracks_searched, "crops_searched": r.crops_searched,
            "load_ms": 1000 * load_s, "index_ms": 1000 * (t2 - t1),
@@ -251,7 +255,7 @@ def run_query(args: argparse.Namespace) -> int:
     what = (f"image {args.image}" if args.image is not None else
             f"track {query['track_id']} of observer {query['observer_id']} "
             f"({query['crops']} crops, mean embedding)")
-    print(f"{args.db}: {what} against {r.crops_searched} crops of {r.tracks_searched} tracks "
+    print(f"{name}: {what} against {r.crops_searched} crops of {r.tracks_searched} tracks "
           f"({emb.model}, {r.aggregate} cosine distance per track) in "
           f"{1000 * query_s:.1f} ms (read {1000 * load_s:.0f} ms, index "
           f"{1000 * (t2 - t1):.1f} ms, search {1000 * (t3 - t2):.1f} ms)")

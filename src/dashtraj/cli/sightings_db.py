@@ -25,8 +25,8 @@ def _vehicle_id(db, spec: str, recording_meta: dict | None) -> int | None:
         raise DashtrajError(f"--vehicle must be an id, 'target' or 'all', got {spec!r}") from None
 
 
-def export_csv(db_path: Path, output: str, vehicle: str, max_distance_m: float, sample_s: float,
-               overwrite: bool) -> tuple[int, int, int]:
+def export_csv(db_path: Path | str, output: str, vehicle: str, max_distance_m: float,
+               sample_s: float, overwrite: bool) -> tuple[int, int, int]:
     """Write a database's sightings as CSV; returns (sightings, observers, tracks)."""
     import json
 
@@ -58,9 +58,12 @@ def run_sightings_db(args: argparse.Namespace) -> int:
         if args.db is None:
             raise DashtrajError("sightings export: name the database: dashtraj sightings export "
                                 "DB -o S.csv")
-        n, n_obs, n_tr = export_csv(Path(args.db), args.output, args.vehicle, args.max_distance,
-                                    args.sample, args.overwrite)
-        src = args.db
+        from dashtraj.store.backend import display_name, is_url
+
+        n, n_obs, n_tr = export_csv(args.db if is_url(args.db) else Path(args.db), args.output,
+                                    args.vehicle, args.max_distance, args.sample,
+                                    args.overwrite)
+        src = display_name(args.db)
     else:
         import warnings
 

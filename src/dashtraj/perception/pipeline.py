@@ -10,7 +10,10 @@ the observer's last batch rewrites every detection's position with the smoothed 
 (same transaction as its last frames; the crops, cut while the frame was in memory,
 are those within the ReID range by the forward estimate). With
 ``workers > 1`` observers are processed in parallel processes (spawned; each opens
-its own renderer), and the database content is the same as with one worker. Within a
+its own renderer), and the database content is the same as with one worker; into a
+PostgreSQL database (``db_path`` a URL: `dashtraj.store.backend`) each worker writes its
+observers' batches itself, in its own connection (many writers), where SQLite's workers
+send them to the one writer. Within a
 process the work is pipelined (`PerceiveConfig.parallel_frames`): a thread renders the
 frames ahead (`dashtraj.datasets.frames.RenderAhead`), a pool of threads runs the
 detector model on several frames at once (onnxruntime releases Python's GIL while it
@@ -20,6 +23,7 @@ content is the same as without.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import multiprocessing as mp
 import queue as queue_mod
@@ -49,6 +53,7 @@ from dashtraj.store import (
     SightingsDB,
     TrackRow,
 )
+from dashtraj.store.backend import is_url
 
 
 class PerceiveError(DashtrajError):
@@ -317,7 +322,6 @@ def _all_batches(recording, observers: list[int], config: PerceiveConfig, road_m
     with ``parallel_frames`` ≥ 1 the frames are rendered ahead in a thread
     (`RenderAhead`) and detected that many at once; with 0 everything runs in turn on
     this thread. The batches are the same either way."""
-    import contextlib
 
     from dashtraj.datasets.frames import RenderAhead, recording_renderer
 
@@ -344,8 +348,10 @@ def _all_batches(recording, observers: list[int], config: PerceiveConfig, road_m
 
 
 def _worker(recording_path: str, observers: list[int], config_dict: dict, workers: int,
-            out_q, frames_dir: str | None) -> None:
-    """Process entry point: run `observer_batches` for each observer, send the batches."""
+            out_q, frames_dir: str | None, db_url: str | None = None) -> None:
+    """Process entry point: run `observer_batches` for each observer and send the batches
+    to the writer, or, with ``db_url`` (PostgreSQL: many writers), write them there in
+    this process's own connection and send the frame counts."""
     import warnings
 
     try:
@@ -357,9 +363,18 @@ def _worker(recording_path: str, observers: list[int], config_dict: dict, worker
             warnings.simplefilter("ignore")
             rec = Recording.open(recording_path)
         road_map = RoadMap.from_file(rec.map_path)
-        for o, b in _all_batches(rec, observers, config, road_map,
-                                 Path(frames_dir) if frames_dir else None):
-            out_q.put(("batch", b) if b is not None else ("done", o))
+        with contextlib.ExitStack() as stack:
+            db = (stack.enter_context(SightingsDB.open(db_url, writable=True))
+                  if db_url else None)
+            for o, b in _all_batches(rec, observers, config, road_map,
+                                     Path(frames_dir) if frames_dir else None):
+                if db is None:
+                    out_q.put(("batch", b) if b is not None else ("done", o))
+                elif b is None:
+                    db.finish_observer(o)
+                else:
+                    db.add_frames(b.poses, b.detections, b.crops, b.tracks, b.updates)
+                    out_q.put(("frames", len(b.poses)))
     except BaseException as exc:  # reported to the writer, which raises
         out_q.put(("error", f"{type(exc).__name__}: {exc}"))
     out_q.put(("exit", None))
@@ -367,9 +382,10 @@ def _worker(recording_path: str, observers: list[int], config_dict: dict, worker
 
 @dataclass(frozen=True)
 class PerceiveSummary:
-    """What a run wrote: observers, frames, detections, tracks, crops."""
+    """What a run wrote: observers, frames, detections, tracks, crops (``db_path``: the
+    file, or the PostgreSQL URL without its password)."""
 
-    db_path: Path
+    db_path: Path | str
     observers: int
     frames: int
     detections: int
@@ -384,7 +400,8 @@ def perceive(recording, db_path: str | Path, config: PerceiveConfig = PerceiveCo
 
     Args:
         recording: a `dashtraj.world.recording.Recording`.
-        db_path: the database file to create (must not exist; see `atomic_output`).
+        db_path: the database file to create (must not exist; see `atomic_output`), or a
+            PostgreSQL URL whose schema must not exist (`pg_atomic_output`).
         config: the settings. workers: observer processes (1 = in this process).
         progress: called with the number of frames done after each batch.
         frames_dir: write the rendered frames as JPEGs under it (``<observer>/<frame>.jpg``).
@@ -426,20 +443,22 @@ def perceive(recording, db_path: str | Path, config: PerceiveConfig = PerceiveCo
                 if progress is not None:
                     progress(len(b.poses))
         else:
-            _run_workers(recording, obs, config, workers, db, progress, fdir)
+            _run_workers(recording, obs, config, workers, db, progress, fdir,
+                         str(db_path) if is_url(db_path) else None)
         db.finish_run()
-        summary = PerceiveSummary(Path(db_path), len(obs), db.count("poses"),
+        summary = PerceiveSummary(db.path, len(obs), db.count("poses"),
                                   db.count("detections"), db.count("tracks"), db.count("crops"))
     return summary
 
 
-def _run_workers(recording, obs, config, workers, db, progress, fdir) -> None:
+def _run_workers(recording, obs, config, workers, db, progress, fdir,
+                 db_url: str | None = None) -> None:
     ctx = mp.get_context("spawn")
     q = ctx.Queue(maxsize=4 * workers)
     k = min(workers, len(obs))
     procs = [ctx.Process(target=_worker, daemon=True,
                          args=(str(recording.path), obs[i::k], config.to_dict(), k, q,
-                               str(fdir) if fdir else None)) for i in range(k)]
+                               str(fdir) if fdir else None, db_url)) for i in range(k)]
     for p in procs:
         p.start()
     live = k
@@ -456,6 +475,9 @@ def _run_workers(recording, obs, config, workers, db, progress, fdir) -> None:
                              item.updates)
                 if progress is not None:
                     progress(len(item.poses))
+            elif kind == "frames":
+                if progress is not None:
+                    progress(item)
             elif kind == "done":
                 db.finish_observer(item)
             elif kind == "error":

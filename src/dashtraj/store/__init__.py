@@ -1,9 +1,10 @@
 """store: the sightings database (layer 3; imports roads and trajectory only).
 
-One database per perception run (SQLite by default, one file; the SQL is plain DB-API
-so that a PostgreSQL connection can take the same repository later). See
+One database per perception run: an SQLite file by default, or one schema of a
+PostgreSQL database for many writers (a ``postgresql://`` URL wherever a database path
+is taken; `dashtraj.store.backend`). The SQL is written once over DB-API. See
 `dashtraj.store.db` for the tables, the embeddings API and `SightingsDB` for the
-repository.
+repository, `dashtraj.store.pg_output` for how a run is published into PostgreSQL whole.
 """
 
 from dashtraj.store.db import (

@@ -37,6 +37,10 @@ its crop or an orphan file; one file per run is one thing to copy, check and rep
 whole; crops are small (≈5–30 kB), where SQLite reads blobs as fast as a file system;
 and PostgreSQL stores them the same way (``bytea``).
 
+In PostgreSQL (`dashtraj.store.backend`) a run is a schema holding the same tables
+(DOUBLE PRECISION for REAL, BYTEA for BLOB); every method below reads and writes it the
+same way, and several processes may write one run at once (each its own observers).
+
 Writing: `SightingsDB.create` (WAL journal) and one transaction per batch of frames
 (`add_frames`): a killed run leaves every committed frame readable. A batch may also carry
 `LocationUpdate` rows that rewrite the position columns of detections written before
@@ -84,16 +88,20 @@ from pathlib import Path
 
 import numpy as np
 
-from dashtraj.errors import DashtrajError
+from dashtraj.store.backend import (
+    Dialect,
+    PgDialect,
+    StoreError,
+    connect_pg,
+    is_url,
+    parse_url,
+    quote_ident,
+)
 from dashtraj.trajectory.records import Sighting
 
 FORMAT = "dashtraj-sightings"
 SCHEMA_VERSION = 3
 _SQLITE_MAGIC = b"SQLite format 3\x00"
-
-
-class StoreError(DashtrajError):
-    """A sightings database is missing, foreign, truncated, newer, or misused."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -285,23 +293,28 @@ _TABLES_V1 = _TABLES[:-1]
 _VECTOR = np.dtype("<f4")
 
 
-def _insert(table: str, cols: Sequence[str], upsert: bool = False) -> str:
-    verb = "INSERT OR REPLACE" if upsert else "INSERT"
-    return f"{verb} INTO {table} ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})"
+def _insert(table: str, cols: Sequence[str], key: Sequence[str] = ()) -> str:
+    """INSERT of ``cols``; with ``key`` (the primary key) a row of that key is replaced
+    (SQLite 3.24+ and PostgreSQL take the same ON CONFLICT clause)."""
+    sql = f"INSERT INTO {table} ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})"
+    if key:
+        sets = ", ".join(f"{c} = excluded.{c}" for c in cols if c not in key)
+        sql += f" ON CONFLICT ({', '.join(key)}) DO UPDATE SET {sets}"
+    return sql
 
 
-def _migrate(conn, path: Path, version: int) -> None:
+def _migrate(dialect: Dialect, path, version: int) -> None:
     """Upgrade an open file from ``version`` to `SCHEMA_VERSION` in one transaction."""
     try:
-        conn.execute("BEGIN IMMEDIATE")
-        for v in range(version + 1, SCHEMA_VERSION + 1):
-            for stmt in _MIGRATIONS[v]:
-                conn.execute(stmt)
-        conn.execute("UPDATE meta SET value = ? WHERE key = 'schema_version'",
-                      (str(SCHEMA_VERSION),))
-        conn.commit()
-    except sqlite3.DatabaseError as exc:
-        conn.rollback()
+        if dialect.name == "sqlite":  # sqlite3 opens no transaction before DDL by itself
+            dialect.execute("BEGIN IMMEDIATE")
+        with dialect.transaction():
+            for v in range(version + 1, SCHEMA_VERSION + 1):
+                for stmt in _MIGRATIONS[v]:
+                    dialect.execute(dialect.ddl(stmt))
+            dialect.execute("UPDATE meta SET value = ? WHERE key = 'schema_version'",
+                            (str(SCHEMA_VERSION),))
+    except dialect.errors as exc:
         raise StoreError(f"{path}: cannot upgrade schema version {version} to "
                          f"{SCHEMA_VERSION}: {exc}") from exc
 
@@ -309,22 +322,27 @@ def _migrate(conn, path: Path, version: int) -> None:
 class SightingsDB:
     """Repository of one run's sightings database over a DB-API connection.
 
-    Create with `SightingsDB.create(path)` (a new file) or `SightingsDB.open(path)`
-    (an existing one, read-only; ``writable=True`` to add embeddings); use as a context
-    manager or call `close`.
+    Create with `SightingsDB.create(target)` (a new file, or a new schema of a PostgreSQL
+    database: `dashtraj.store.backend`) or `SightingsDB.open(target)` (an existing one,
+    read-only; ``writable=True`` to add embeddings); use as a context manager or call
+    `close`. ``path`` is the file, or the URL without its password, for messages.
     """
 
-    def __init__(self, conn, path: Path, writable: bool, version: int = SCHEMA_VERSION):
-        self.conn = conn
+    def __init__(self, dialect: Dialect, path, writable: bool, version: int = SCHEMA_VERSION):
+        self.dialect = dialect
+        self.conn = dialect.conn
         self.path = path
         self.writable = writable
         self.version = version  # the file's schema version (read-only files stay as they are)
 
     # ------------------------------------------------------------------ opening
     @classmethod
-    def create(cls, path: str | Path) -> SightingsDB:
-        """A new, empty database at ``path`` (must not exist): WAL journal, tables, meta."""
-        p = Path(path)
+    def create(cls, target: str | Path) -> SightingsDB:
+        """A new, empty database at ``target`` (must not exist): a file (WAL journal) or a
+        PostgreSQL schema; tables and meta."""
+        if is_url(target):
+            return cls._create_pg(target)
+        p = Path(target)
         if p.exists():
             raise StoreError(f"{p} exists; a sightings database is written whole into a new "
                              "file")
@@ -332,82 +350,132 @@ class SightingsDB:
         conn.execute("PRAGMA foreign_keys=ON")
         conn.execute("PRAGMA journal_mode=WAL")
         conn.execute("PRAGMA synchronous=NORMAL")
-        with conn:
-            for stmt in _DDL:
-                conn.execute(stmt)
-            conn.executemany(_insert("meta", ("key", "value")),
-                             [("format", FORMAT), ("schema_version", str(SCHEMA_VERSION))])
-        return cls(conn, p, True)
+        db = cls(Dialect(conn), p, True)
+        db._create_tables()
+        return db
 
     @classmethod
-    def open(cls, path: str | Path, check: bool = True, writable: bool = False) -> SightingsDB:
-        """Open an existing database, read-only unless ``writable``.
+    def _create_pg(cls, url: str) -> SightingsDB:
+        target = parse_url(url)
+        dialect = PgDialect(connect_pg(target), target.schema)
+        try:
+            with dialect.transaction():
+                if dialect.schema_exists():
+                    raise StoreError(f"{target.display} exists; a sightings database is written "
+                                     "whole into a new schema")
+                dialect.execute(f"CREATE SCHEMA {quote_ident(target.schema)}")
+            dialect.use_schema()
+            db = cls(dialect, target.display, True)
+            db._create_tables()
+        except BaseException:
+            dialect.close()
+            raise
+        return db
 
-        ``writable`` is for adding embeddings: a version-1 file is upgraded to the current
+    def _create_tables(self) -> None:
+        with self.dialect.transaction():
+            for stmt in _DDL:
+                self.dialect.execute(self.dialect.ddl(stmt))
+            self.dialect.many(_insert("meta", ("key", "value")),
+                              [("format", FORMAT), ("schema_version", str(SCHEMA_VERSION))])
+
+    @classmethod
+    def open(cls, target: str | Path, check: bool = True, writable: bool = False) -> SightingsDB:
+        """Open an existing database (a file, or a PostgreSQL URL), read-only unless
+        ``writable``.
+
+        ``writable`` is for adding embeddings: an older file is upgraded to the current
         schema first (one transaction; module docstring).
 
         Raises:
-            StoreError: no such file; not an SQLite file; truncated or corrupt (integrity
-                check fails); not a dashtraj sightings database; a newer schema.
+            StoreError: no such file or schema; not an SQLite file; truncated or corrupt
+                (integrity check fails); not a dashtraj sightings database; a newer schema.
         """
-        p = Path(path)
-        if not p.is_file():
-            raise StoreError(f"sightings database {p} "
-                             + ("is a folder, not a file" if p.is_dir() else "does not exist"))
-        with open(p, "rb") as fh:
-            head = fh.read(len(_SQLITE_MAGIC))
-        if head != _SQLITE_MAGIC:
-            raise StoreError(f"{p} is not a sightings database (not an SQLite file)")
+        if is_url(target):
+            pg = parse_url(target)
+            dialect: Dialect = PgDialect(connect_pg(pg), pg.schema)
+            where = pg.display
+            try:
+                if not dialect.schema_exists():
+                    raise StoreError(f"{where}: no such schema; a run is written there by "
+                                     "dashtraj perceive RUN -o URL")
+                dialect.use_schema()
+                if not writable:
+                    dialect.execute("SET default_transaction_read_only = on")
+            except BaseException:
+                dialect.close()
+                raise
+        else:
+            p = Path(target)
+            where = p
+            if not p.is_file():
+                raise StoreError(f"sightings database {p} "
+                                 + ("is a folder, not a file" if p.is_dir()
+                                    else "does not exist"))
+            with open(p, "rb") as fh:
+                head = fh.read(len(_SQLITE_MAGIC))
+            if head != _SQLITE_MAGIC:
+                raise StoreError(f"{p} is not a sightings database (not an SQLite file)")
+            dialect = Dialect(sqlite3.connect(
+                f"{p.resolve().as_uri()}?mode={'rw' if writable else 'ro'}", uri=True))
         try:
-            conn = sqlite3.connect(f"{p.resolve().as_uri()}?mode={'rw' if writable else 'ro'}",
-                                   uri=True)
-            if check:
-                res = conn.execute("PRAGMA quick_check").fetchone()
+            return cls._checked(dialect, where, check, writable)
+        except BaseException:
+            dialect.close()
+            raise
+
+    @classmethod
+    def _checked(cls, dialect: Dialect, where, check: bool, writable: bool) -> SightingsDB:
+        kind = "an SQLite file" if dialect.name == "sqlite" else "a PostgreSQL schema"
+        try:
+            if check and dialect.name == "sqlite":
+                res = dialect.execute("PRAGMA quick_check").fetchone()
                 if res is None or res[0] != "ok":
-                    raise StoreError(f"{p} is corrupt: integrity check says {res[0]!r}")
-            tables = {r[0] for r in conn.execute(
-                "SELECT name FROM sqlite_master WHERE type = 'table'")}
+                    raise StoreError(f"{where} is corrupt: integrity check says {res[0]!r}")
+            tables = dialect.tables()
             if "meta" not in tables:
-                raise StoreError(f"{p} is an SQLite file but not a dashtraj sightings database "
+                raise StoreError(f"{where} is {kind} but not a dashtraj sightings database "
                                  "(no meta table)")
-            meta = dict(conn.execute("SELECT key, value FROM meta").fetchall())
-        except sqlite3.DatabaseError as exc:
-            raise StoreError(f"{p} is truncated or corrupt: {exc}") from exc
+            meta = dict(dialect.execute("SELECT key, value FROM meta").fetchall())
+        except dialect.errors as exc:
+            raise StoreError(f"{where} is truncated or corrupt: {exc}") from exc
         if meta.get("format") != FORMAT:
-            raise StoreError(f"{p} is not a dashtraj sightings database (format "
+            raise StoreError(f"{where} is not a dashtraj sightings database (format "
                              f"{meta.get('format')!r})")
         try:
             version = int(meta.get("schema_version", ""))
         except ValueError:
-            raise StoreError(f"{p}: bad schema_version {meta.get('schema_version')!r}") from None
+            raise StoreError(f"{where}: bad schema_version "
+                             f"{meta.get('schema_version')!r}") from None
         if version > SCHEMA_VERSION:
-            raise StoreError(f"{p}: schema version {version} is newer than this dashtraj reads "
-                             f"({SCHEMA_VERSION}); upgrade dashtraj")
+            raise StoreError(f"{where}: schema version {version} is newer than this dashtraj "
+                             f"reads ({SCHEMA_VERSION}); upgrade dashtraj")
         missing = [t for t in (_TABLES if version >= 2 else _TABLES_V1) if t not in tables]
         if missing:
-            raise StoreError(f"{p}: missing table {missing[0]!r}; the file is damaged")
+            raise StoreError(f"{where}: missing table {missing[0]!r}; the file is damaged")
         if writable:
-            conn.execute("PRAGMA foreign_keys=ON")
+            if dialect.name == "sqlite":
+                dialect.execute("PRAGMA foreign_keys=ON")
             if version < SCHEMA_VERSION:
-                _migrate(conn, p, version)
+                _migrate(dialect, where, version)
                 version = SCHEMA_VERSION
-        return cls(conn, p, writable, version)
+        return cls(dialect, where, writable, version)
 
     def close(self) -> None:
         """Commit nothing further, fold the WAL into the file and close.
 
-        A writer leaves the file in SQLite's rollback-journal mode, one self-contained
+        A writer leaves an SQLite file in its rollback-journal mode, one self-contained
         file: WAL is for the run while it is written (readers see every committed frame,
         a killed writer loses nothing committed), and a reader of a WAL file leaves its
         ``-wal`` and ``-shm`` files beside the user's database. (Another connection still
         open keeps the file in WAL mode: SQLite refuses the switch then.)"""
         if self.conn is None:
             return
-        if self.writable:
+        if self.writable and self.dialect.name == "sqlite":
             self.conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
             with contextlib.suppress(sqlite3.OperationalError):  # a reader is still open
                 self.conn.execute("PRAGMA journal_mode=DELETE")
-        self.conn.close()
+        self.dialect.close()
         self.conn = None
 
     def __enter__(self) -> SightingsDB:
@@ -422,8 +490,8 @@ class SightingsDB:
 
     def _query(self, sql: str, args: Sequence = ()) -> list[tuple]:
         try:
-            return self.conn.execute(sql, tuple(args)).fetchall()
-        except sqlite3.DatabaseError as exc:
+            return self.dialect.execute(sql, tuple(args)).fetchall()
+        except self.dialect.errors as exc:
             raise StoreError(f"{self.path} is truncated or corrupt: {exc}") from exc
 
     # ------------------------------------------------------------------ writing
@@ -431,14 +499,14 @@ class SightingsDB:
                   camera: dict, config: dict, observers: Iterable[tuple[int, str | None]]) -> None:
         """The run row and one row per observer (id, role)."""
         self._need_writable()
-        with self.conn:
-            self.conn.execute(_insert("run", ("id", "recording", "map_name", "map_sha256",
-                                              "camera", "config")),
-                              (1, str(recording), map_name, map_sha256,
-                               json.dumps(camera, sort_keys=True),
-                               json.dumps(config, sort_keys=True)))
-            self.conn.executemany(_insert("observers", ("observer_id", "role")),
-                                  [(int(o), r) for o, r in observers])
+        d = self.dialect
+        with d.transaction():
+            d.execute(_insert("run", ("id", "recording", "map_name", "map_sha256", "camera",
+                                      "config")),
+                      (1, str(recording), map_name, map_sha256,
+                       json.dumps(camera, sort_keys=True), json.dumps(config, sort_keys=True)))
+            d.many(_insert("observers", ("observer_id", "role")),
+                   [(int(o), r) for o, r in observers])
 
     def add_frames(self, poses: Sequence[PoseRow], detections: Sequence[DetectionRow],
                    crops: Sequence[CropRow] = (), tracks: Sequence[TrackRow] = (),
@@ -447,38 +515,37 @@ class SightingsDB:
         ``updates`` rewrite the positions of detections written before or in the batch;
         `StoreError` names one that has no detection)."""
         self._need_writable()
-        with self.conn:
-            self.conn.executemany(_insert("poses", _cols(PoseRow)), [astuple(r) for r in poses])
-            self.conn.executemany(_insert("detections", _cols(DetectionRow)),
-                                  [astuple(r) for r in detections])
-            self.conn.executemany(_insert("crops", _cols(CropRow)), [astuple(r) for r in crops])
-            self.conn.executemany(_insert("tracks", _cols(TrackRow), upsert=True),
-                                  [astuple(r) for r in tracks])
+        d = self.dialect
+        with d.transaction():
+            d.many(_insert("poses", _cols(PoseRow)), [astuple(r) for r in poses])
+            d.many(_insert("detections", _cols(DetectionRow)), [astuple(r) for r in detections])
+            d.many(_insert("crops", _cols(CropRow)), [astuple(r) for r in crops])
+            d.many(_insert("tracks", _cols(TrackRow), key=("observer_id", "track_id")),
+                   [astuple(r) for r in tracks])
             if updates:
                 cols = _cols(LocationUpdate)[3:]
                 sql = (f"UPDATE detections SET {', '.join(c + ' = ?' for c in cols)} "
                        "WHERE observer_id = ? AND frame = ? AND idx = ?")
-                before = self.conn.total_changes
-                self.conn.executemany(sql, [astuple(r)[3:] + astuple(r)[:3] for r in updates])
-                if self.conn.total_changes - before != len(updates):
+                changed = d.many(sql, [astuple(r)[3:] + astuple(r)[:3] for r in updates])
+                if changed != len(updates):
                     raise StoreError(f"{self.path}: a location update names a detection "
                                      "that is not in the file")
             by_obs: dict[int, int] = {}
             for r in poses:
                 by_obs[r.observer_id] = by_obs.get(r.observer_id, 0) + 1
-            self.conn.executemany("UPDATE observers SET frames = frames + ? WHERE observer_id = ?",
-                                  [(n, o) for o, n in by_obs.items()])
+            d.many("UPDATE observers SET frames = frames + ? WHERE observer_id = ?",
+                   [(n, o) for o, n in sorted(by_obs.items())])
 
     def finish_observer(self, observer_id: int) -> None:
         self._need_writable()
-        with self.conn:
-            self.conn.execute("UPDATE observers SET complete = 1 WHERE observer_id = ?",
-                              (int(observer_id),))
+        with self.dialect.transaction():
+            self.dialect.execute("UPDATE observers SET complete = 1 WHERE observer_id = ?",
+                                 (int(observer_id),))
 
     def finish_run(self) -> None:
         self._need_writable()
-        with self.conn:
-            self.conn.execute("UPDATE run SET complete = 1 WHERE id = 1")
+        with self.dialect.transaction():
+            self.dialect.execute("UPDATE run SET complete = 1 WHERE id = 1")
 
     # ------------------------------------------------------------------ reading
     def run_info(self) -> dict:
@@ -547,8 +614,10 @@ class SightingsDB:
 
     # --------------------------------------------------------------- embeddings
     def _has_embeddings(self) -> bool:
-        return bool(self._query("SELECT 1 FROM sqlite_master WHERE type = 'table' AND "
-                                "name = 'embeddings'"))
+        try:
+            return "embeddings" in self.dialect.tables()
+        except self.dialect.errors as exc:
+            raise StoreError(f"{self.path} is truncated or corrupt: {exc}") from exc
 
     def count_missing_embeddings(self, model_sha256: str) -> int:
         """Number of crops without a vector of the model ``model_sha256``."""
@@ -623,13 +692,11 @@ class SightingsDB:
         rows = [(o, f, i, model, model_sha256, dim, le[n].tobytes())
                 for n, (o, f, i) in enumerate(keys)]
         try:
-            with self.conn:
-                before = self.conn.total_changes
-                self.conn.executemany(
-                    "INSERT OR IGNORE INTO embeddings (observer_id, frame, idx, model, "
-                    "model_sha256, dim, vector) VALUES (?, ?, ?, ?, ?, ?, ?)", rows)
-                return self.conn.total_changes - before
-        except sqlite3.IntegrityError as exc:
+            with self.dialect.transaction():
+                return self.dialect.many(
+                    "INSERT INTO embeddings (observer_id, frame, idx, model, model_sha256, dim, "
+                    "vector) VALUES (?, ?, ?, ?, ?, ?, ?) ON CONFLICT DO NOTHING", rows)
+        except self.dialect.integrity_errors as exc:
             raise StoreError(f"{self.path}: add_embeddings: a key has no crop ({exc})") from exc
 
     def embedding_models(self) -> list[EmbeddingModel]:
@@ -637,8 +704,8 @@ class SightingsDB:
         if not self._has_embeddings():
             return []
         return [EmbeddingModel(m, s, int(d), int(n)) for m, s, d, n in self._query(
-            "SELECT model, model_sha256, dim, COUNT(*) FROM embeddings GROUP BY model_sha256 "
-            "ORDER BY model, model_sha256")]
+            "SELECT MIN(model), model_sha256, MIN(dim), COUNT(*) FROM embeddings "
+            "GROUP BY model_sha256 ORDER BY 1, 2")]
 
     def embeddings(self, model_sha256: str, observer_id: int | None = None,
                    track_id: int | None = None) -> EmbeddingSet:
@@ -724,7 +791,7 @@ class SightingsDB:
             where.append("d.track_id IS NOT NULL")
         if where:
             sql += " WHERE " + " AND ".join(where)
-        sql += " ORDER BY d.observer_id, d.track_id, d.t, d.idx"
+        sql += " ORDER BY d.observer_id, d.track_id NULLS FIRST, d.t, d.idx"
         rows = self._query(sql, args)
         if sample_s is not None and sample_s > 0:
             kept, key, t0, last_bin = [], None, 0.0, -1

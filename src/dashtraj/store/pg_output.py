@@ -1,0 +1,96 @@
+"""Output discipline for a run written into a PostgreSQL schema (a file's is
+`dashtraj.outputs.atomic_output`).
+
+A run is written into a new schema ``<schema>__partial_<n>`` and published in one
+transaction (PostgreSQL's DDL is transactional): the old run's schema, if ``overwrite``,
+is dropped and the new one renamed to its name. Readers see the old run or the new one,
+never a mix. A failure or Ctrl-C keeps the partial schema under its own name (every
+committed frame readable, like a file's ``.partial-<n>``) and leaves the old run as it
+was. A schema that is not a dashtraj sightings database is never replaced.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+from collections.abc import Iterator
+
+from dashtraj.store.backend import (
+    MAX_RUN_SCHEMA,
+    PARTIAL_TAG,
+    PgDialect,
+    PgTarget,
+    StoreError,
+    connect_pg,
+    parse_url,
+    quote_ident,
+)
+from dashtraj.store.db import FORMAT
+
+
+def _connect(target: PgTarget) -> PgDialect:
+    return PgDialect(connect_pg(target), target.schema)
+
+
+def _refuse_foreign(d: PgDialect, target: PgTarget, schema: str) -> None:
+    """StoreError unless ``schema`` holds a dashtraj sightings database."""
+    q = quote_ident(schema)
+    has_meta = bool(d.conn.execute(
+        "SELECT 1 FROM information_schema.tables WHERE table_schema = %s AND "
+        "table_name = 'meta'", (schema,)).fetchall())
+    fmt = (d.conn.execute(f"SELECT value FROM {q}.meta WHERE key = 'format'").fetchall()
+           if has_meta else [])
+    if not fmt or fmt[0][0] != FORMAT:
+        raise StoreError(f"{target.display} is a schema that is not a dashtraj sightings "
+                         "database; it is not replaced (choose another ?schema=)")
+
+
+def check_pg_output(url: str, *, overwrite: bool) -> PgTarget:
+    """Refuse early (before any work) what `pg_atomic_output` would refuse at the end: the
+    run's schema exists and ``overwrite`` is off, or it exists and is not a dashtraj run."""
+    target = parse_url(url)
+    if len(target.schema) > MAX_RUN_SCHEMA:
+        raise StoreError(f"{target.display}: a run's schema name is at most {MAX_RUN_SCHEMA} "
+                         "characters (its partial name must fit PostgreSQL's 63)")
+    d = _connect(target)
+    try:
+        if d.schema_exists():
+            if not overwrite:
+                raise StoreError(f"{target.display} exists; pass --overwrite to replace it "
+                                 "whole")
+            _refuse_foreign(d, target, target.schema)
+    finally:
+        d.close()
+    return target
+
+
+@contextlib.contextmanager
+def pg_atomic_output(url: str, *, overwrite: bool = False, quiet: bool = False) -> Iterator[str]:
+    """Yield the URL of a new partial schema to write the run into; publish it as the run's
+    schema when the block ends without an exception (module docstring)."""
+    target = check_pg_output(url, overwrite=overwrite)
+    d = _connect(target)
+    try:
+        n = 1
+        while d.schema_exists(f"{target.schema}{PARTIAL_TAG}{n}"):
+            n += 1
+        partial = f"{target.schema}{PARTIAL_TAG}{n}"
+        try:
+            yield target.with_schema(partial)
+            with d.transaction():
+                d.conn.execute("SELECT pg_advisory_xact_lock(hashtext(%s))", (target.schema,))
+                if d.schema_exists():
+                    if not overwrite:
+                        raise StoreError(f"{target.display} was created while this run was "
+                                         "written; pass --overwrite to replace it whole")
+                    _refuse_foreign(d, target, target.schema)
+                    d.conn.execute(f"DROP SCHEMA {quote_ident(target.schema)} CASCADE")
+                d.conn.execute(f"ALTER SCHEMA {quote_ident(partial)} RENAME TO "
+                               f"{quote_ident(target.schema)}")
+        except BaseException:
+            if not quiet and not d.conn.closed and d.schema_exists(partial):
+                print(f"dashtraj: kept the partial output in schema {partial} "
+                      f"({target.display} is unchanged)", file=sys.stderr)
+            raise
+    finally:
+        d.close()
