@@ -477,6 +477,25 @@ CASES: list[tuple[str, list[str], str]] = [
      "classes.txt: not UTF-8 text"),
     ("no-command", [], "the following arguments are required: COMMAND"),
     ("unknown-command", ["frobnicate"], "invalid choice: 'frobnicate'"),
+    # --- PostgreSQL targets (no server needed: refused before connecting, or unreachable)
+    ("sightings-copy-missing-src", ["sightings-copy", "{MISSING}.db", "-o", "{NEW_FILE}"],
+     "does not exist"),
+    ("sightings-copy-exists", ["sightings-copy", "{CROPS_DB}", "-o", "{OUT_FILE}"],
+     "--overwrite"),
+    ("sightings-copy-foreign", ["sightings-copy", "{FOREIGN_DB}", "-o", "{NEW_FILE}"],
+     "not a dashtraj sightings database"),
+    ("sightings-copy-bad-schema", ["sightings-copy", "{CROPS_DB}", "-o",
+                                   "postgresql:///x?schema=Bad-Name"],
+     "schema 'Bad-Name' must be lower-case letters"),
+    ("perceive-pg-schema-digit", ["perceive", "{REC}", "-o", "postgresql:///x?schema=1run"],
+     "schema '1run' must be lower-case letters"),
+    ("perceive-pg-schema-long", ["perceive", "{REC}", "-o", "postgresql:///x?schema=" + "r" * 50],
+     "at most 48 characters"),
+    ("perceive-pg-unreachable", ["perceive", "{REC}", "-o",
+                                 "postgresql://u:secret@/db?host={MISSING}&schema=r"],
+     "postgresql://u:***@/db?host="),
+    ("sightings-export-pg-unreachable", ["sightings", "export", "postgresql:///db?host={MISSING}",
+                                         "-o", "{NEW_FILE}"], "cannot connect"),
 ]
 
 

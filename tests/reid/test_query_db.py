@@ -256,3 +256,25 @@ def test_image_query_of_a_stored_crop_ranks_its_track_first(embedded, tmp_path, 
     assert main(["reid", "query", str(embedded), "--image", str(img), "-o", str(sheet),
                  "--overwrite", "--k", "2"]) == 0
     assert sheet.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_embed_and_query_a_run_in_postgres_as_in_its_file(run_db, embedded, pg_url, capsys,
+                                                          tmp_path):
+    """The run copied into PostgreSQL (`dashtraj sightings-copy`), embedded there, gives the
+    file's vectors, and a track query the file's answer."""
+    assert main(["sightings-copy", str(run_db), "-o", pg_url]) == 0
+    capsys.readouterr()
+    assert main(["reid", "embed", pg_url, "-q", "--json"]) == 0
+    out = _json(capsys)
+    assert "schema=" in out["db"] and out["added"] > 100
+    with SightingsDB.open(embedded) as f, SightingsDB.open(pg_url) as p:
+        a, b = f.embeddings(_sha(f)), p.embeddings(_sha(p))
+    assert a.keys() == b.keys() and np.allclose(a.vectors, b.vectors, atol=1e-6)
+    trk = int(a.track_id[np.flatnonzero(a.track_id >= 0)[0]])
+    obs = int(a.observer_id[np.flatnonzero(a.track_id >= 0)[0]])
+    answers = []
+    for db in (str(embedded), pg_url):
+        assert main(["reid", "query", db, "--track", str(trk), "--observer", str(obs), "--k",
+                     "5", "--json"]) == 0
+        answers.append(_json(capsys)["results"])
+    assert answers[0] == answers[1] and len(answers[0]) == 5

@@ -4,6 +4,7 @@ schemas are clear errors; a reader cannot write."""
 
 from __future__ import annotations
 
+import json
 import sys
 
 import numpy as np
@@ -110,3 +111,68 @@ def test_readers_cannot_write_and_the_driver_is_named_when_missing(pg_url, monke
     monkeypatch.setitem(sys.modules, "psycopg", None)
     with pytest.raises(StoreError, match=r"pip install 'dashtraj\[postgres\]'"):
         SightingsDB.open(pg_url)
+
+
+def _embed(path) -> np.ndarray:
+    with SightingsDB.open(path, writable=True) as db:
+        keys = [(c.observer_id, c.frame, c.idx) for c in db.crops()]
+        vec = np.random.default_rng(1).normal(size=(len(keys), 16)).astype(np.float32)
+        db.add_embeddings("m.onnx", "ef" * 32, keys, vec)
+    return vec
+
+
+def test_sightings_copy_file_to_postgres_and_back_keeps_every_row(pg_url, tmp_path, capsys,
+                                                                 monkeypatch):
+    src, back = tmp_path / "run.db", tmp_path / "back.db"
+    _write(src)
+    vec = _embed(src)
+    assert main(["sightings-copy", str(src), "-o", pg_url, "--json"]) == 0
+    counts = json.loads(capsys.readouterr().out)
+    assert {k: counts[k] for k in ("poses", "detections", "tracks", "crops", "embeddings")} == {
+        "poses": 12, "detections": 24, "tracks": 4, "crops": 12, "embeddings": 12}
+    assert main(["sightings-copy", pg_url, "-o", str(back)]) == 0
+    with SightingsDB.open(src) as a, SightingsDB.open(pg_url) as b, SightingsDB.open(back) as c:
+        assert _everything(a) == _everything(b) == _everything(c)
+        for db in (b, c):
+            assert np.array_equal(db.embeddings("ef" * 32).vectors, vec)
+    # refused without --overwrite; a copy that fails leaves the old run and no partial schema
+    assert main(["sightings-copy", str(src), "-o", pg_url]) == 2
+    assert "exists; pass --overwrite" in capsys.readouterr().err
+
+    def fail(self, *a, **k):
+        raise StoreError("disk full (simulated)")
+
+    other = tmp_path / "other.db"
+    _write(other, observers=(5,))
+    monkeypatch.setattr(SightingsDB, "finish_run", fail)  # after every row is written
+    assert main(["sightings-copy", str(other), "-o", pg_url, "--overwrite"]) == 2
+    assert "disk full" in capsys.readouterr().err
+    with SightingsDB.open(pg_url) as db:
+        assert [o["observer_id"] for o in db.observers()] == [1, 2]
+    target = parse_url(pg_url)
+    with SightingsDB.open(pg_url) as db:
+        left = db.conn.execute("SELECT schema_name FROM information_schema.schemata WHERE "
+                               "schema_name LIKE %s", (target.schema + "%",)).fetchall()
+    assert left == [(target.schema,)]
+
+
+def test_two_writers_adding_the_same_vectors_at_once_add_each_once(pg_url):
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    _write(pg_url)
+    with SightingsDB.open(pg_url) as db:
+        keys = [(c.observer_id, c.frame, c.idx) for c in db.crops()]
+    vec = np.random.default_rng(2).normal(size=(len(keys), 8)).astype(np.float32)
+    start = threading.Barrier(2)
+
+    def embed(part):
+        with SightingsDB.open(pg_url, writable=True) as db:
+            start.wait()
+            return db.add_embeddings("m.onnx", "ab" * 32, [keys[i] for i in part], vec[part])
+
+    with ThreadPoolExecutor(2) as ex:  # overlapping halves, each in its own connection
+        added = list(ex.map(embed, [list(range(0, 9)), list(range(3, 12))]))
+    assert sum(added) == 12 and min(added) >= 3
+    with SightingsDB.open(pg_url) as db:
+        assert np.array_equal(db.embeddings("ab" * 32).vectors, vec)

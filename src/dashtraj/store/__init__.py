@@ -19,8 +19,9 @@ from dashtraj.store.db import (
     SightingsDB,
     StoreError,
     TrackRow,
+    copy_database,
 )
 
 __all__ = ["FORMAT", "SCHEMA_VERSION", "CropRow", "DetectionRow", "EmbeddingModel",
            "EmbeddingSet", "LocationUpdate",
-           "PoseRow", "SightingsDB", "StoreError", "TrackRow"]
+           "PoseRow", "SightingsDB", "StoreError", "TrackRow", "copy_database"]

@@ -147,6 +147,12 @@ class Dialect:
         cur.executemany(self.sql(text), rows)
         return max(cur.rowcount, 0)
 
+    def insert(self, table: str, cols, rows, types=None) -> int:
+        """Append rows to a table (no conflict clause); the rows inserted. ``types``: the
+        columns' PostgreSQL type names (`PgDialect` streams them in binary)."""
+        sql = f"INSERT INTO {table} ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})"
+        return self.many(sql, rows)
+
     def transaction(self):
         """A context that commits on success and rolls back on an exception."""
         return self.conn
@@ -177,6 +183,21 @@ class PgDialect(Dialect):
 
     def ddl(self, text: str) -> str:
         return re.sub(r"\bBLOB\b", "BYTEA", re.sub(r"\bREAL\b", "DOUBLE PRECISION", text))
+
+    def insert(self, table: str, cols, rows, types=None) -> int:
+        """COPY FROM STDIN (binary where the column ``types`` are given, PostgreSQL type
+        names): one stream per table, where an INSERT per row costs a round trip."""
+        rows = list(rows)
+        if not rows:
+            return 0
+        fmt = " (FORMAT BINARY)" if types else ""
+        with self.conn.cursor() as cur, cur.copy(
+                f"COPY {table} ({', '.join(cols)}) FROM STDIN{fmt}") as copy:
+            if types:
+                copy.set_types(list(types))
+            for r in rows:
+                copy.write_row(r)
+        return len(rows)
 
     def transaction(self):
         return self.conn.transaction()

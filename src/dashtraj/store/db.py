@@ -293,6 +293,13 @@ _TABLES_V1 = _TABLES[:-1]
 _VECTOR = np.dtype("<f4")
 
 
+def _pg_types(cls) -> tuple[str, ...]:
+    """PostgreSQL type names of a row class's columns, from its annotations (the DDL's
+    INTEGER, REAL → DOUBLE PRECISION, TEXT, BLOB → BYTEA)."""
+    names = {"int": "int4", "float": "float8", "str": "text", "bytes": "bytea"}
+    return tuple(names[str(f.type).split(" | ")[0]] for f in fields(cls))
+
+
 def _insert(table: str, cols: Sequence[str], key: Sequence[str] = ()) -> str:
     """INSERT of ``cols``; with ``key`` (the primary key) a row of that key is replaced
     (SQLite 3.24+ and PostgreSQL take the same ON CONFLICT clause)."""
@@ -517,9 +524,10 @@ class SightingsDB:
         self._need_writable()
         d = self.dialect
         with d.transaction():
-            d.many(_insert("poses", _cols(PoseRow)), [astuple(r) for r in poses])
-            d.many(_insert("detections", _cols(DetectionRow)), [astuple(r) for r in detections])
-            d.many(_insert("crops", _cols(CropRow)), [astuple(r) for r in crops])
+            for table, cls, rows in (("poses", PoseRow, poses),
+                                     ("detections", DetectionRow, detections),
+                                     ("crops", CropRow, crops)):
+                d.insert(table, _cols(cls), [astuple(r) for r in rows], _pg_types(cls))
             d.many(_insert("tracks", _cols(TrackRow), key=("observer_id", "track_id")),
                    [astuple(r) for r in tracks])
             if updates:
@@ -592,16 +600,23 @@ class SightingsDB:
         return [DetectionRow(*r) for r in self._query(sql + " ORDER BY observer_id, frame, idx",
                                                       args)]
 
-    def tracks(self) -> list[TrackRow]:
+    def tracks(self, observer_id: int | None = None) -> list[TrackRow]:
+        where, args = ("", ()) if observer_id is None else (" WHERE observer_id = ?",
+                                                            (int(observer_id),))
         return [TrackRow(*r) for r in self._query(
-            f"SELECT {', '.join(_cols(TrackRow))} FROM tracks ORDER BY observer_id, track_id")]
+            f"SELECT {', '.join(_cols(TrackRow))} FROM tracks{where} "
+            "ORDER BY observer_id, track_id", args)]
 
-    def crops(self, keys: Iterable[tuple[int, int, int]] | None = None) -> list[CropRow]:
-        """All crops, or those of ``keys`` [(observer_id, frame, idx)] (missing keys are
-        skipped), in key order."""
+    def crops(self, keys: Iterable[tuple[int, int, int]] | None = None,
+              observer_id: int | None = None) -> list[CropRow]:
+        """All crops (of one observer), or those of ``keys`` [(observer_id, frame, idx)]
+        (missing keys are skipped), in key order."""
         sql = f"SELECT {', '.join(_cols(CropRow))} FROM crops"
         if keys is None:
-            return [CropRow(*r) for r in self._query(sql + " ORDER BY observer_id, frame, idx")]
+            where, args = ("", ()) if observer_id is None else (" WHERE observer_id = ?",
+                                                                (int(observer_id),))
+            return [CropRow(*r) for r in self._query(
+                sql + where + " ORDER BY observer_id, frame, idx", args)]
         out: list[CropRow] = []
         ks = sorted({(int(o), int(f), int(i)) for o, f, i in keys})
         for a in range(0, len(ks), 300):  # SQLite's host-parameter limit
@@ -809,3 +824,43 @@ class SightingsDB:
                         track_id=r[9], distance=r[10], bearing=r[11]) for r in rows]
         out.sort(key=lambda s: (s.t, s.observer_id))
         return out
+
+
+def copy_database(src: SightingsDB, dst: SightingsDB, batch_frames: int = 500) -> dict:
+    """Copy every row of ``src`` into the new, empty ``dst`` (an SQLite file into a
+    PostgreSQL schema or back): the run, each observer's frames, detections, crops and
+    tracks in batches of ``batch_frames`` frames, each observer's and the run's
+    completeness as they are, and the vectors of every embedding model. Returns the rows
+    copied per table; `StoreError` when a count of ``dst`` differs from ``src``'s."""
+    run = src.run_info()
+    observers = src.observers()
+    dst.write_run(run["recording"], run["map_name"], run["map_sha256"], run["camera"],
+                  run["config"], [(o["observer_id"], o["role"]) for o in observers])
+    for o in observers:
+        oid = o["observer_id"]
+        rows: dict[int, tuple[list, list, list]] = {}
+        for k, table in enumerate((src.poses(oid), src.detections(oid),
+                                   src.crops(observer_id=oid))):
+            for r in table:
+                rows.setdefault(r.frame, ([], [], []))[k].append(r)
+        frames = sorted(rows)
+        tracks = src.tracks(oid)
+        for a in range(0, max(len(frames), 1), batch_frames):
+            batch = [rows[f] for f in frames[a:a + batch_frames]]
+            dst.add_frames(*([r for b in batch for r in b[k]] for k in range(3)),
+                           tracks=tracks if a + batch_frames >= len(frames) else ())
+        if o["complete"]:
+            dst.finish_observer(oid)
+    for m in src.embedding_models():
+        e = src.embeddings(m.model_sha256)
+        for a in range(0, len(e), 20_000):
+            dst.add_embeddings(m.model, m.model_sha256, e.keys()[a:a + 20_000],
+                               e.vectors[a:a + 20_000])
+    if run["complete"]:
+        dst.finish_run()
+    counts = {t: src.count(t) for t in _TABLES[2:]}
+    for t, n in counts.items():
+        if dst.count(t) != n:
+            raise StoreError(f"copy of {src.path} into {dst.path}: {dst.count(t)} rows of {t}, "
+                             f"the source has {n}")
+    return counts

@@ -65,9 +65,12 @@ def check_pg_output(url: str, *, overwrite: bool) -> PgTarget:
 
 
 @contextlib.contextmanager
-def pg_atomic_output(url: str, *, overwrite: bool = False, quiet: bool = False) -> Iterator[str]:
+def pg_atomic_output(url: str, *, overwrite: bool = False, keep_partial: bool = True,
+                     quiet: bool = False) -> Iterator[str]:
     """Yield the URL of a new partial schema to write the run into; publish it as the run's
-    schema when the block ends without an exception (module docstring)."""
+    schema when the block ends without an exception (module docstring). On an exception
+    the partial schema is kept (and said so on stderr unless ``quiet``), or dropped
+    without ``keep_partial``."""
     target = check_pg_output(url, overwrite=overwrite)
     d = _connect(target)
     try:
@@ -88,9 +91,12 @@ def pg_atomic_output(url: str, *, overwrite: bool = False, quiet: bool = False) 
                 d.conn.execute(f"ALTER SCHEMA {quote_ident(partial)} RENAME TO "
                                f"{quote_ident(target.schema)}")
         except BaseException:
-            if not quiet and not d.conn.closed and d.schema_exists(partial):
-                print(f"dashtraj: kept the partial output in schema {partial} "
-                      f"({target.display} is unchanged)", file=sys.stderr)
+            if not d.conn.closed and d.schema_exists(partial):
+                if not keep_partial:
+                    d.conn.execute(f"DROP SCHEMA {quote_ident(partial)} CASCADE")
+                elif not quiet:
+                    print(f"dashtraj: kept the partial output in schema {partial} "
+                          f"({target.display} is unchanged)", file=sys.stderr)
             raise
     finally:
         d.close()
