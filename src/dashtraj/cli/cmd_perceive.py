@@ -36,7 +36,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "the detections within the ReID range)."
         ),
     )
-    p.add_argument("recording", metavar="RUN", help="recording directory (dashtraj simulate)")
+    p.add_argument("recording", metavar="RUN",
+                   help="recording directory (dashtraj simulate), or a drive: a folder of "
+                        "dashcam images with their camera poses (drive.json, poses.csv; "
+                        "dashtraj render writes one; see dashtraj.datasets.drive)")
     p.add_argument("-o", "--output", required=True, metavar="DB",
                    help="database file to write (SQLite), or a PostgreSQL URL "
                         "postgresql://[user@]host[:port]/dbname[?schema=NAME] (one schema per "
@@ -82,13 +85,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run_perceive(args: argparse.Namespace) -> int:
     import contextlib
     import time
-    import warnings
 
     from dashtraj.cli._args import progress_bar
     from dashtraj.errors import DashtrajError
     from dashtraj.outputs import atomic_output, check_output
-    from dashtraj.perception.pipeline import PerceiveConfig, perceive, write_mot
-    from dashtraj.world.recording import Recording
+    from dashtraj.perception.pipeline import (
+        PerceiveConfig,
+        check_drive_config,
+        open_source,
+        perceive,
+        write_mot,
+    )
 
     if args.workers < 1:
         raise DashtrajError(f"--workers must be >= 1, got {args.workers}")
@@ -116,9 +123,7 @@ def run_perceive(args: argparse.Namespace) -> int:
     for extra in (args.save_frames, args.mot):
         if extra:
             check_output(extra, overwrite=args.overwrite, kind="dir")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        rec = Recording.open(args.recording)
+    rec = open_source(args.recording)
     cfg = PerceiveConfig(detector=args.detector, tracker=args.tracker, localizer=args.localizer,
                          mu_h=args.mu_h, every_s=args.every, size=size, msaa=args.msaa,
                          reid_range_m=args.reid_range, look=args.look,
@@ -126,10 +131,16 @@ def run_perceive(args: argparse.Namespace) -> int:
                          confirm_score=args.confirm_score,
                          threads=args.threads, parallel_frames=args.parallel_frames,
                          observers=tuple(args.observers) if args.observers else None)
+    from dashtraj.datasets.drive import Drive
     from dashtraj.datasets.frames import observer_ids, sample_steps
 
-    n_obs = len(args.observers) if args.observers else len(observer_ids(rec))
-    total = n_obs * len(sample_steps(rec, args.every))
+    obs = list(args.observers) if args.observers else observer_ids(rec)
+    if isinstance(rec, Drive):
+        check_drive_config(cfg)
+        total = sum(len(rec.frame_poses(o, args.every)) for o in obs if o in rec.poses)
+    else:
+        total = len(obs) * len(sample_steps(rec, args.every))
+    n_obs = len(obs)
     t0 = time.perf_counter()
     with contextlib.ExitStack() as stack:
         progress = stack.enter_context(progress_bar(args.quiet, total=total, unit="frame"))

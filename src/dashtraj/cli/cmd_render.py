@@ -27,7 +27,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=(
             "Render every observer's dashcam every --every seconds: DIR/<observer>/<frame>.jpg "
             "and DIR/labels.parquet (observer_id, t, vehicle_id, label, class id, visible "
-            "and silhouette boxes, visible fraction, truncation, distance). --preview adds "
+            "and silhouette boxes, visible fraction, truncation, distance), and the camera "
+            "poses (DIR/drive.json, poses.csv, map.xodr): DIR is a drive, which dashtraj "
+            "perceive reads from its images like a real one. --preview adds "
             "DIR/preview/ PNGs with boxes and a contact sheet of crops per vehicle."
         ),
     )
@@ -39,6 +41,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="sampling period, seconds (default 0.5)")
     p.add_argument("--size", type=image_size, default=None, metavar="WxH",
                    help="image size (default: the recording's camera)")
+    p.add_argument("--png", action="store_true",
+                   help="write the frames as PNG (lossless) instead of JPEG")
     p.add_argument("--preview", action="store_true",
                    help="also write preview pictures, and preview/look_sheet.png: frames before "
                         "and after the realistic look (and a randomized one)")
@@ -182,7 +186,8 @@ def run_render(args: argparse.Namespace) -> int:
         with atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:
             s = export_frames(rec, tmp, args.every, size, args.observer, args.preview,
                               progress=bar.update if bar is not None else None,
-                              compare_dir=args.compare)
+                              compare_dir=args.compare,
+                              image_format="png" if args.png else "jpg")
     finally:
         if bar is not None:
             bar.close()

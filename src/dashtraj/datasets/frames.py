@@ -24,7 +24,7 @@ import io
 import itertools
 import math
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -410,11 +410,14 @@ class ExportSummary:
 
 def export_frames(recording, out_dir, every_s: float = 0.5, size: tuple[int, int] | None = None,
                   observers: Iterable[int] | None = None, preview: bool = False,
-                  progress=None, compare_dir=None) -> ExportSummary:
-    """Write a recording's observer frames as JPEGs and their labels as Parquet.
+                  progress=None, compare_dir=None, image_format: str = "jpg") -> ExportSummary:
+    """Write a recording's observer frames as JPEGs (or PNGs) and their labels as Parquet.
 
-    Files: ``out_dir/<observer_id>/<frame:06d>.jpg`` and ``out_dir/labels.parquet``
-    (``LABEL_COLUMNS``); with ``preview`` also ``out_dir/preview/<observer>/<frame>.png``
+    Files: ``out_dir/<observer_id>/<frame:06d>.jpg`` (``.png`` with ``image_format``
+    "png": lossless), ``out_dir/labels.parquet`` (``LABEL_COLUMNS``), and the drive files
+    (``drive.json``, ``poses.csv``, ``map.xodr``: `dashtraj.datasets.drive`), so the
+    folder is a drive that ``dashtraj perceive`` reads like a real one; with ``preview``
+    also ``out_dir/preview/<observer>/<frame>.png``
     (boxes drawn), ``out_dir/preview/contact_sheet.jpg`` (crops per vehicle) and
     ``out_dir/preview/look_sheet.png`` (before/after the realistic look, beside the
     nearest frame of ``compare_dir`` if given; ``dashtraj.datasets.look_sheet``).
@@ -433,12 +436,24 @@ def export_frames(recording, out_dir, every_s: float = 0.5, size: tuple[int, int
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict] = []
     per_obs: dict[int, int] = {}
+    from dashtraj.datasets.drive import DrivePose, write_drive
+
+    if image_format not in ("jpg", "png"):
+        raise DatasetError(f"image format {image_format!r}: expected jpg or png")
     sheet = pv.ContactSheet() if preview else None
+    poses: list[DrivePose] = []
     for rf in recording_frames(recording, every_s, size, observers):
-        rel = f"{rf.observer_id}/{rf.frame:06d}.jpg"
+        rel = f"{rf.observer_id}/{rf.frame:06d}.{image_format}"
         p = out / rel
         p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_bytes(encode_jpeg(rf.frame_data.rgb))
+        if image_format == "png":
+            from PIL import Image
+
+            Image.fromarray(rf.frame_data.rgb).save(p, format="PNG")
+        else:
+            p.write_bytes(encode_jpeg(rf.frame_data.rgb))
+        cx, cy, cz, cyaw, cpitch, _ = rf.frame_data.camera_pose
+        poses.append(DrivePose(rf.observer_id, rf.frame, rf.t, cx, cy, cz, cyaw, cpitch))
         rows.extend(label_rows(rf, rel))
         per_obs[rf.observer_id] = per_obs.get(rf.observer_id, 0) + 1
         if preview:
@@ -455,6 +470,10 @@ def export_frames(recording, out_dir, every_s: float = 0.5, size: tuple[int, int
     table = pa.table({c: [r[c] for r in rows] for c in LABEL_COLUMNS}, schema=schema)
     labels_path = out / "labels.parquet"
     pq.write_table(table, labels_path)
+    spec = recording.config.camera
+    if size is not None:
+        spec = replace(spec, width_px=int(size[0]), height_px=int(size[1]))
+    write_drive(out, recording.map_path, spec, poses, recording.meta.get("observer_roles", {}))
     preview_dir = None
     if preview:
         preview_dir = out / "preview"

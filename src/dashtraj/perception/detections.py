@@ -152,9 +152,9 @@ def depicted_vehicles(frame, boxes: np.ndarray, min_fraction: float = 0.25,
     """
     b = np.asarray(boxes, np.float64).reshape(-1, 4)
     out = np.full(len(b), -1, np.int64)
-    if not len(b):
-        return out
     inst = frame.frame_data.instance
+    if not len(b) or inst is None:  # a drive's frames have no instance image
+        return out
     h, w = inst.shape
     labels = frame.frame_data.labels
     vid_of = {lab.instance_id: int(v) for lab, v in zip(labels, frame.vehicle_ids, strict=True)}

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dashtraj.datasets.drive import Drive, is_drive
 from dashtraj.errors import DashtrajError
 from dashtraj.perception.detect import DEFAULT_MIN_SCORE
 from dashtraj.perception.detections import (
@@ -331,7 +332,10 @@ def _all_batches(recording, observers: list[int], config: PerceiveConfig, road_m
 
         look = preset(config.look)
     with contextlib.ExitStack() as stack:
-        if config.parallel_frames:
+        if isinstance(recording, Drive):  # its images are on disk: nothing to render
+            renderer = None
+            frames_of = lambda o: recording.frames(o, config.every_s)  # noqa: E731
+        elif config.parallel_frames:
             ahead = stack.enter_context(RenderAhead(
                 recording, observers, config.every_s, config.size, config.msaa, look,
                 depth=config.parallel_frames + 2))
@@ -347,21 +351,45 @@ def _all_batches(recording, observers: list[int], config: PerceiveConfig, road_m
             yield o, None
 
 
+def open_source(path: str | Path):
+    """What ``perceive`` reads: a drive folder (`dashtraj.datasets.drive.Drive`: images
+    and camera poses on disk) or a simulated recording (its frames rendered on the fly;
+    an interrupted recording's warning silenced)."""
+    import warnings
+
+    from dashtraj.world.recording import Recording
+
+    if is_drive(path):
+        return Drive.open(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return Recording.open(path)
+
+
+def check_drive_config(config: PerceiveConfig) -> None:
+    """Refuse the settings that need a renderer (PerceiveError naming the option): a
+    drive's images are what they are."""
+    if config.detector == "oracle":
+        raise PerceiveError("a drive has no ground truth for --detector oracle; give a "
+                            "detector model (--detector M.onnx, e.g. the shipped "
+                            "src/dashtraj/data/detector/detector.onnx)")
+    for name, value, default in (("size", config.size, None), ("msaa", config.msaa, 0),
+                                 ("look", config.look, None)):
+        if value != default:
+            raise PerceiveError(f"--{name} applies to rendered recordings; a drive's images "
+                                "are used as they are")
+
+
 def _worker(recording_path: str, observers: list[int], config_dict: dict, workers: int,
             out_q, frames_dir: str | None, db_url: str | None = None) -> None:
     """Process entry point: run `observer_batches` for each observer and send the batches
     to the writer, or, with ``db_url`` (PostgreSQL: many writers), write them there in
     this process's own connection and send the frame counts."""
-    import warnings
-
     try:
         from dashtraj.roads import RoadMap
-        from dashtraj.world.recording import Recording
 
         config = _process_config(PerceiveConfig.from_dict(config_dict), workers)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            rec = Recording.open(recording_path)
+        rec = open_source(recording_path)
         road_map = RoadMap.from_file(rec.map_path)
         with contextlib.ExitStack() as stack:
             db = (stack.enter_context(SightingsDB.open(db_url, writable=True))
@@ -412,6 +440,8 @@ def perceive(recording, db_path: str | Path, config: PerceiveConfig = PerceiveCo
     from dashtraj.datasets.frames import observer_ids
     from dashtraj.roads import RoadMap
 
+    if isinstance(recording, Drive):
+        check_drive_config(config)
     build_detector(config.detector)  # fail early on a bad name
     if config.look is not None:
         from dashtraj.render.look import preset

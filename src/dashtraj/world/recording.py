@@ -322,18 +322,22 @@ def _check_config(config: RunConfig) -> None:
         v = getattr(config, name)
         if not (isinstance(v, int) and v >= 0):
             raise RecordingError(f"run config: {name} must be an integer >= 0, got {v!r}")
-    cam = config.camera
+    check_camera(config.camera, "run config")
+
+
+def check_camera(cam: CameraSpec, where: str, error: type[Exception] = RecordingError) -> None:
+    """Refuse a camera that cannot mean anything: sizes 8–8192 px, FOV 1–179°, pitch
+    ±89°, mount within ±50 m (``error`` naming ``where`` and the field)."""
     for name in ("width_px", "height_px"):
         v = getattr(cam, name)
         if not (isinstance(v, int) and not isinstance(v, bool) and 8 <= v <= 8192):
-            raise RecordingError(f"run config: camera {name} must be an integer in "
-                                 f"[8, 8192], got {v!r}")
+            raise error(f"{where}: camera {name} must be an integer in [8, 8192], got {v!r}")
     for name, lo, hi in (("fov_deg", 1.0, 179.0), ("pitch_deg", -89.0, 89.0),
                          ("x_m", -50.0, 50.0), ("y_m", -50.0, 50.0), ("z_m", -50.0, 50.0)):
         v = getattr(cam, name)
         if not (isinstance(v, int | float) and not isinstance(v, bool) and lo <= v <= hi):
-            raise RecordingError(f"run config: camera {name} must be a number in "
-                                 f"[{lo:g}, {hi:g}], got {v!r}")
+            raise error(f"{where}: camera {name} must be a number in [{lo:g}, {hi:g}], "
+                        f"got {v!r}")
 
 
 def simulate(config: RunConfig, out_dir: str | Path,

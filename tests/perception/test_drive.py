@@ -1,0 +1,153 @@
+"""`dashtraj perceive` on a drive (images and camera poses on disk, no renderer): a recording
+rendered to a lossless drive perceives to its own database, truth aside; bad drives are
+one-line errors naming the file, line or field."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from dashtraj.cli import main
+from dashtraj.datasets.drive import Drive, DriveError, DrivePose, write_drive
+from dashtraj.store import SightingsDB
+from dashtraj.world.camera import CameraSpec
+from dashtraj.world.towns import town_path
+
+
+def test_a_rendered_drive_perceives_as_its_recording(small_run, gl_available, tmp_path,
+                                                     capsys):
+    """`render --png` writes a drive; perceiving its images gives the rows that rendering
+    the same frames on the fly gives (boxes, scores, tracks, positions, crops), with no
+    truth: a drive has none."""
+    from dashtraj.perception.detect import default_model_path
+    from dashtraj.perception.pipeline import PerceiveConfig, perceive
+
+    drive_dir = tmp_path / "drive"
+    assert main(["render", str(small_run.path), "-o", str(drive_dir), "--observer", "1",
+                 "--observer", "3", "--every", "0.5", "--png", "-q"]) == 0
+    drive = Drive.open(drive_dir)
+    assert drive.observer_ids == [1, 3] and len(drive.frame_poses(1)) == 51
+    assert drive.config.camera == small_run.config.camera
+    model = str(default_model_path())
+    ref = tmp_path / "ref.db"
+    perceive(small_run, ref, PerceiveConfig(detector=model, every_s=0.5, msaa=4,
+                                            observers=(1, 3)))
+    out = tmp_path / "drive.db"
+    assert main(["perceive", str(drive_dir), "-o", str(out), "--detector", model, "--every",
+                 "0.5", "-q", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out.splitlines()[-1])["frames"] == 102
+
+    def no_truth(rows):
+        return [dataclasses.replace(r, truth_vehicle_id=None, **(
+            {"depicted_vehicle_id": None} if hasattr(r, "depicted_vehicle_id") else {}))
+            for r in rows]
+
+    with SightingsDB.open(ref) as a, SightingsDB.open(out) as b:
+        assert a.poses() == b.poses()
+        dets = a.detections()
+        assert len(dets) > 50 and any(d.truth_vehicle_id is not None for d in dets)
+        assert no_truth(dets) == b.detections()
+        assert no_truth(a.tracks()) == b.tracks()
+        assert a.crops() == b.crops() and len(a.crops()) > 0
+        assert b.run_info()["map_sha256"] == a.run_info()["map_sha256"]
+
+
+def _tiny_drive(root, frames=((0, 0.0), (1, 0.05), (2, 0.1)), size=(32, 24)):
+    """A drive of one observer on town01 with grey images."""
+    cam = CameraSpec(width_px=size[0], height_px=size[1])
+    poses = [DrivePose(7, f, t, 100.0 + t, 5.0, 1.6, 90.0, 0.0) for f, t in frames]
+    write_drive(root, town_path("town01"), cam, poses)
+    (root / "7").mkdir()
+    for f, _ in frames:
+        Image.new("RGB", size, (90, 90, 90)).save(root / "7" / f"{f:06d}.png")
+    return root
+
+
+def test_frames_are_sampled_one_per_period_whatever_the_timestamps(tmp_path):
+    ts = [0.0, 0.05, 0.1, 0.15, 0.2, 0.3, 0.31, 0.52]
+    d = Drive.open(_tiny_drive(tmp_path / "d", frames=list(enumerate(ts))))
+    assert [p.t for p in d.frame_poses(7)] == ts
+    assert [p.t for p in d.frame_poses(7, 0.1)] == [0.0, 0.1, 0.2, 0.3, 0.52]
+    assert [p.t for p in d.frame_poses(7, 0.25)] == [0.0, 0.3, 0.52]
+    (f,) = list(d.frames(7, 1.0))
+    assert f.frame_data.rgb.shape == (24, 32, 3) and f.frame_data.camera_pose[:3] == (
+        100.0, 5.0, 1.6)
+
+
+def _edit(path, fn):
+    path.write_text(fn(path.read_text()))
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda r: (r / "drive.json").write_text("{not json"), "drive.json: not JSON"),
+    (lambda r: _edit(r / "drive.json", lambda s: s.replace("dashtraj-drive", "x")),
+     "not a dashtraj drive"),
+    (lambda r: _edit(r / "drive.json", lambda s: s.replace('"format_version": 1',
+                                                          '"format_version": 9')),
+     "format_version 9 is newer"),
+    (lambda r: _edit(r / "drive.json", lambda s: s.replace('"fov_deg": 90.0',
+                                                          '"fov_deg": 190.0')),
+     "camera fov_deg must be a number in [1, 179]"),
+    (lambda r: _edit(r / "drive.json", lambda s: s.replace('"fov_deg"', '"fov"')),
+     "camera must be an object with fields among"),
+    (lambda r: _edit(r / "drive.json", lambda s: s.replace('"map.xodr"', '"nowhere.xodr"')),
+     "map 'nowhere.xodr'"),
+    (lambda r: _edit(r / "poses.csv", lambda s: s.replace("cam_yaw", "heading")),
+     "poses.csv: missing column 'cam_yaw'"),
+    (lambda r: _edit(r / "poses.csv", lambda s: s.replace("100.05", "abc")),
+     "poses.csv, line 3: observer_id and frame must be integers"),
+    (lambda r: _edit(r / "poses.csv", lambda s: s + s.splitlines()[1] + "\n"),
+     "observer 7 frame 0 appears twice"),
+    (lambda r: (r / "7" / "000001.png").unlink(), "observer 7 frame 1 has no image"),
+    (lambda r: Image.new("RGB", (64, 24)).save(r / "7" / "000002.png"),
+     "000002.png: 64x24 pixels, the camera in drive.json is 32x24"),
+    (lambda r: (r / "7" / "000002.png").write_bytes(b"not a picture"),
+     "000002.png: not an image"),
+])
+def test_bad_drives_are_one_line_errors(tmp_path, capsys, damage, message):
+    root = _tiny_drive(tmp_path / "d")
+    damage(root)
+    with pytest.raises(DriveError) as exc:
+        Drive.open(root)
+    assert message in str(exc.value)
+    out = tmp_path / "x.db"
+    assert main(["perceive", str(root), "-o", str(out), "--detector", "m.onnx", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("args, message", [
+    ([], "a drive has no ground truth for --detector oracle"),
+    (["--detector", "{MODEL}", "--size", "64x48"], "--size applies to rendered recordings"),
+    (["--detector", "{MODEL}", "--msaa", "4"], "--msaa applies to rendered recordings"),
+])
+def test_options_that_need_a_renderer_are_refused_on_a_drive(tmp_path, capsys, args,
+                                                             message):
+    from dashtraj.perception.detect import default_model_path
+
+    root = _tiny_drive(tmp_path / "d")
+    args = [a.replace("{MODEL}", str(default_model_path())) for a in args]
+    out = tmp_path / "x.db"
+    assert main(["perceive", str(root), "-o", str(out), "-q", *args]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+    assert not out.exists()
+
+
+def test_a_drive_of_grey_images_perceives_to_an_empty_but_whole_database(tmp_path):
+    from dashtraj.perception.detect import default_model_path
+
+    root = _tiny_drive(tmp_path / "d", size=(64, 48))
+    out = tmp_path / "x.db"
+    assert main(["perceive", str(root), "-o", str(out), "--detector",
+                 str(default_model_path()), "-q"]) == 0
+    with SightingsDB.open(out) as db:
+        assert db.observers() == [{"observer_id": 7, "role": None, "frames": 2,
+                                   "complete": True}]
+        assert db.count("detections") == 0 and db.run_info()["complete"]
+        assert np.allclose([p.cam_x for p in db.poses()], [100.0, 100.1])
