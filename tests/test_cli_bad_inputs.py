@@ -477,6 +477,14 @@ CASES: list[tuple[str, list[str], str]] = [
      "classes.txt: not UTF-8 text"),
     ("no-command", [], "the following arguments are required: COMMAND"),
     ("unknown-command", ["frobnicate"], "invalid choice: 'frobnicate'"),
+    # --- the CARLA bridge (no server here: refused before connecting, or unreachable)
+    ("carla-record-every-big", ["carla-record", "-o", "{NEW_DIR}", "--every", "0.5"],
+     "--every 0.5: CARLA's physics needs a step of at most 0.1 s"),
+    ("carla-record-fov", ["carla-record", "-o", "{NEW_DIR}", "--fov", "200"],
+     "camera fov_deg must be a number in [1, 179]"),
+    ("carla-record-exists", ["carla-record", "-o", "{OUT_DIR}"], "--overwrite"),
+    ("carla-record-no-server", ["carla-record", "-o", "{NEW_DIR}", "--port", "2999",
+                                "--timeout", "0.3"], "no CARLA server answered at localhost:2999"),
     # --- PostgreSQL targets (no server needed: refused before connecting, or unreachable)
     ("sightings-copy-missing-src", ["sightings-copy", "{MISSING}.db", "-o", "{NEW_FILE}"],
      "does not exist"),
