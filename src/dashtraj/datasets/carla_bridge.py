@@ -168,10 +168,7 @@ def record_drive(client, out_dir: str | Path, config: CarlaDriveConfig,
             raise CarlaBridgeError(f"{town} has {len(spawn)} spawn points; {need} vehicles "
                                    "asked for")
         rng.shuffle(spawn)
-        bps = [bp for bp in world.get_blueprint_library().filter("vehicle.*")
-               if not bp.has_attribute("number_of_wheels")
-               or int(bp.get_attribute("number_of_wheels")) >= 2]
-        bps.sort(key=lambda bp: bp.id)
+        bps = sorted(world.get_blueprint_library().filter("vehicle.*"), key=lambda bp: bp.id)
         roles: dict[int, str] = {}
         for sp in spawn:
             if len(actors) == need:
