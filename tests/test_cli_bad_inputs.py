@@ -477,6 +477,16 @@ CASES: list[tuple[str, list[str], str]] = [
      "classes.txt: not UTF-8 text"),
     ("no-command", [], "the following arguments are required: COMMAND"),
     ("unknown-command", ["frobnicate"], "invalid choice: 'frobnicate'"),
+    # --- reidentify
+    ("reidentify-track-format", ["reidentify", "{CROPS_DB}", "--track", "1-2", "--map",
+                                 "town01", "-o", "{NEW_FILE}"],
+     "argument --track: expected OBSERVER:TRACK"),
+    ("reidentify-missing-db", ["reidentify", "{MISSING}.db", "--track", "1:2", "--map",
+                               "town01", "-o", "{NEW_FILE}"], "does not exist"),
+    ("reidentify-bad-map", ["reidentify", "{CROPS_DB}", "--track", "1:2", "--map", "town99",
+                            "-o", "{NEW_FILE}"], "--map 'town99' is neither a file"),
+    ("reidentify-exists", ["reidentify", "{CROPS_DB}", "--track", "1:2", "--map", "town01",
+                           "-o", "{OUT_FILE}"], "--overwrite"),
     # --- the CARLA bridge (no server here: refused before connecting, or unreachable)
     ("carla-record-every-big", ["carla-record", "-o", "{NEW_DIR}", "--every", "0.5"],
      "--every 0.5: CARLA's physics needs a step of at most 0.1 s"),

@@ -258,9 +258,24 @@ def query_detection(db, vehicle_id: int, max_distance_m: float = 15.0, usable=No
         The `DetectionRow` (its (observer_id, track_id) is the gate's anchor), or None
         when no such detection has a crop.
     """
+    return _first_crop(db, lambda d: d.truth_vehicle_id == vehicle_id, max_distance_m, usable,
+                       detections)
+
+
+def track_query_detection(db, key: tuple[int, int], max_distance_m: float = 15.0,
+                          usable=None, detections=None):
+    """The query when the user points at a track instead of a vehicle (a drive has no
+    truth): the first detection of track ``key`` = (observer_id, track_id) with a crop,
+    within `max_distance_m`, preferring what ``usable`` accepts (as `query_detection`).
+    None when the track has no such detection."""
+    return _first_crop(db, lambda d: (d.observer_id, d.track_id) == tuple(key),
+                       max_distance_m, usable, detections)
+
+
+def _first_crop(db, pick, max_distance_m: float, usable, detections):
     with_crop = {(c.observer_id, c.frame, c.idx) for c in db.crops()}
     mine = sorted((d for d in (db.detections() if detections is None else detections)
-                   if d.truth_vehicle_id == vehicle_id and d.distance_m <= max_distance_m
+                   if pick(d) and d.distance_m <= max_distance_m
                    and (d.observer_id, d.frame, d.idx) in with_crop),
                   key=lambda d: (d.t, d.observer_id, d.idx))
     if usable is not None:

@@ -74,6 +74,7 @@ from dashtraj.reidentify.select import (
     box_relations,
     query_detection,
     select_target_tracks,
+    track_query_detection,
 )
 from dashtraj.trajectory.gating import GateConfig
 from dashtraj.trajectory.records import Sighting
@@ -344,7 +345,8 @@ def _majority(votes: Counter):
     return min(votes, key=lambda v: (-votes[v], v is None, v if v is not None else 0))
 
 
-def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
+def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None, *,
+                   query_track: tuple[int, int] | None = None,
                    switches: StageSwitches = StageSwitches(), embedder=None,
                    threshold: float | None = None, aggregate: str = "median",
                    recipe: Recipe | None = None,
@@ -359,7 +361,11 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
     Args:
         db_path: a sightings DB written by `dashtraj.perception.pipeline.perceive`.
         road_map: the run's `RoadMap`.
-        target_vehicle_id: the target's vehicle id (picks the query crop, and scores).
+        target_vehicle_id: the target's vehicle id (picks the query crop, and scores),
+            or None where there is no truth (a drive): nothing is scored.
+        query_track: (observer_id, track_id) of the track the user points at: the query
+            is its first crop within range (`select.track_query_detection`) instead of the
+            target's first crop (appearance ReID).
         switches: real or oracle per stage (`StageSwitches`).
         embedder: a `dashtraj.reid.embed.ReidEmbedder` (reid ``appearance``).
         threshold: the calibrated cosine-distance threshold (reid ``appearance``).
@@ -426,9 +432,14 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
             return ((by_truth or d.track_id is not None)
                     and bool(adequate_crops(box, *size, recipe)[0]))
 
-        query = query_detection(db, target_vehicle_id, max_distance_m,
-                                usable if switches.reid == "appearance" else None,
-                                detections=every)
+        if query_track is not None:
+            query = track_query_detection(db, query_track, max_distance_m,
+                                          usable if switches.reid == "appearance" else None,
+                                          detections=every)
+        else:
+            query = query_detection(db, target_vehicle_id, max_distance_m,
+                                    usable if switches.reid == "appearance" else None,
+                                    detections=every)
         dists = keys = query_crops = None
         extra_split: dict = {}
         if switches.reid == "appearance" and query is not None:
@@ -545,19 +556,23 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int, *,
         if query_crops is not None:  # query expansion: the query track's crops averaged
             extra["reid_query_crops"] = query_crops
         decided, kept = {d.key for d in sel.decisions}, set(accepted)
-        causes = Counter(("no_usable_crop" if k not in decided else
-                          "gate" if k in sel.candidates else "threshold")
-                         for k, v in truth.items() if v == target_vehicle_id and k not in kept)
-        extra["reid_misses_by_cause"] = {c: causes.get(c, 0)
-                                         for c in ("threshold", "gate", "no_usable_crop")}
+        if target_vehicle_id is not None:
+            causes = Counter(("no_usable_crop" if k not in decided else
+                              "gate" if k in sel.candidates else "threshold")
+                             for k, v in truth.items()
+                             if v == target_vehicle_id and k not in kept)
+            extra["reid_misses_by_cause"] = {c: causes.get(c, 0)
+                                             for c in ("threshold", "gate", "no_usable_crop")}
     for k in candidates:
         truth.setdefault(k, None)
     sightings = sorted((s for k in accepted
                         for s in (*tracks[k], *([track_end[k]] if k in track_end else ()))),
                        key=lambda s: (s.t, s.observer_id))
-    score = reid_score(accepted, truth, target_vehicle_id)
-    per_sighting = sighting_score(shown, accepted, target_vehicle_id)
-    return TargetTracks(sightings, {**score.to_dict(), **per_sighting.sightings_dict(),
-                                    "reid_candidates": len(candidates),
+    scores: dict = {}
+    if target_vehicle_id is not None:  # no truth (a drive): nothing to score against
+        scores = {**reid_score(accepted, truth, target_vehicle_id).to_dict(),
+                  **sighting_score(shown, accepted, target_vehicle_id).sightings_dict()}
+    return TargetTracks(sightings, {**scores, "reid_candidates": len(candidates),
                                     "reid_gated_out": len(candidates) - len(accepted), **extra},
-                        {k: truth.get(k) == target_vehicle_id for k in accepted})
+                        {k: target_vehicle_id is not None and truth.get(k) == target_vehicle_id
+                         for k in accepted})

@@ -1,0 +1,55 @@
+"""`dashtraj reidentify`: the experiments' re-identification with the query a track the user
+points at; on the track the experiments' query falls in, the same decision and sightings."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+from dashtraj.cli import main
+from dashtraj.store import SightingsDB
+from dashtraj.trajectory.io import write_sightings
+
+
+def test_reidentify_a_pointed_track_as_the_experiments_do(small_run, small_db, tmp_path,
+                                                          capsys):
+    from dashtraj.reid.embed import ReidEmbedder, shipped_model_path
+    from dashtraj.reidentify.vision import load_threshold, target_from_db
+    from dashtraj.roads import RoadMap
+
+    db = tmp_path / "run.db"
+    shutil.copy(small_db[0], db)
+    target = int(small_run.meta["target_vehicle_id"])
+    th = load_threshold(shipped_model_path())
+    ref = target_from_db(db, RoadMap.from_file(small_run.map_path), target,
+                         embedder=ReidEmbedder(shipped_model_path(), threads=2),
+                         threshold=th.calibration.threshold, recipe=th.calibration.recipe,
+                         sample_s=0.5)
+    q = ref.summary["query"]
+    with SightingsDB.open(db) as d:
+        (tid,) = {x.track_id for x in d.detections(q["observer_id"]) if x.frame == q["frame"]
+                  and x.truth_vehicle_id == target}
+    assert ref.sightings and ref.summary["reid_precision"] == 1.0
+    expected = tmp_path / "expected.csv"
+    write_sightings(expected, ref.sightings)
+    args = ["reidentify", str(db), "--track", f"{q['observer_id']}:{tid}", "--map",
+            str(small_run.map_path), "--json"]
+    assert main([*args, "-o", str(tmp_path / "scored.csv"), "--vehicle", str(target)]) == 0
+    scored = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert main([*args, "-o", str(tmp_path / "plain.csv")]) == 0
+    plain = json.loads(capsys.readouterr().out.splitlines()[-1])
+    for name in ("scored.csv", "plain.csv"):
+        assert (tmp_path / name).read_bytes() == expected.read_bytes()
+    keys = sorted([list(k) for k in ref.true_match])
+    assert scored["accepted_tracks"] == plain["accepted_tracks"] == keys
+    assert scored["reid_precision"] == 1.0 and "reid_precision" not in plain
+    assert plain["query"] == q and plain["sightings"] == len(ref.sightings)
+
+
+def test_reidentify_refuses_a_missing_track_in_one_line(small_run, small_db, tmp_path, capsys):
+    out = tmp_path / "s.csv"
+    assert main(["reidentify", str(small_db[0]), "--track", "1:999", "--map",
+                 str(small_run.map_path), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--track 1:999: no such track" in err and err.count("\n") == 1
+    assert not out.exists()
