@@ -322,8 +322,8 @@ def _all_batches(recording, observers: list[int], config: PerceiveConfig, road_m
     None) when that observer is done. ``config`` is a process's (`_process_config`):
     with ``parallel_frames`` ≥ 1 the frames are rendered ahead in a thread
     (`RenderAhead`) and detected that many at once; with 0 everything runs in turn on
-    this thread. The batches are the same either way."""
-
+    this thread. The batches are the same either way. A drive's frames are read from
+    its images instead."""
     from dashtraj.datasets.frames import RenderAhead, recording_renderer
 
     look = None
@@ -427,7 +427,8 @@ def perceive(recording, db_path: str | Path, config: PerceiveConfig = PerceiveCo
     """Perceive every observer of ``recording`` into a new database at ``db_path``.
 
     Args:
-        recording: a `dashtraj.world.recording.Recording`.
+        recording: a `dashtraj.world.recording.Recording` (its frames rendered), or a
+            `dashtraj.datasets.drive.Drive` (its images read; see `check_drive_config`).
         db_path: the database file to create (must not exist; see `atomic_output`), or a
             PostgreSQL URL whose schema must not exist (`pg_atomic_output`).
         config: the settings. workers: observer processes (1 = in this process).
