@@ -151,3 +151,11 @@ def test_a_drive_of_grey_images_perceives_to_an_empty_but_whole_database(tmp_pat
                                    "complete": True}]
         assert db.count("detections") == 0 and db.run_info()["complete"]
         assert np.allclose([p.cam_x for p in db.poses()], [100.0, 100.1])
+
+
+def test_commands_that_need_a_recording_say_a_drive_is_not_one(tmp_path, capsys):
+    root = _tiny_drive(tmp_path / "d")
+    assert main(["tracker", "eval", str(root), "--json"]) == 2
+    err = capsys.readouterr().err
+    assert "is a drive (images and camera poses, no ground truth), not a simulated " \
+           "recording" in err and err.count("\n") == 1
