@@ -233,21 +233,20 @@ def picture_path(text: str) -> str:
     return text
 
 
-MAX_IMAGE_SIDE_PX = 8192
-"""Largest image side the renderer is asked for (llvmpipe and most GPUs allow 8192+)."""
-
-
 def image_size(text: str) -> str:
-    """``WxH`` in pixels, each side 8 to `MAX_IMAGE_SIDE_PX` (returned as given, for
-    `dashtraj.datasets.frames.parse_size`)."""
+    """``WxH`` in pixels, each side `MIN_IMAGE_SIDE_PX` to `MAX_IMAGE_SIDE_PX` (returned as
+    given, for `dashtraj.datasets.frames.parse_size`)."""
+    from dashtraj.world.camera import MAX_IMAGE_SIDE_PX, MIN_IMAGE_SIDE_PX
+
     try:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected WxH in pixels, e.g. 640x360, got {text!r}") \
             from None
-    if not (8 <= w <= MAX_IMAGE_SIDE_PX and 8 <= h <= MAX_IMAGE_SIDE_PX):
+    lo, hi = MIN_IMAGE_SIDE_PX, MAX_IMAGE_SIDE_PX
+    if not (lo <= w <= hi and lo <= h <= hi):
         raise argparse.ArgumentTypeError(
-            f"expected each side of WxH in 8..{MAX_IMAGE_SIDE_PX} pixels, got {text!r}")
+            f"expected each side of WxH in {lo}..{hi} pixels, got {text!r}")
     return text
 
 

@@ -70,10 +70,13 @@ def parse_size(text: str) -> tuple[int, int]:
         w, h = (int(v) for v in str(text).lower().split("x"))
     except ValueError as e:
         raise DatasetError(f"bad image size {text!r}; expected WxH, e.g. 640x360") from e
-    if w < 8 or h < 8:
-        raise DatasetError(f"image size {text!r} is too small (at least 8x8 pixels)")
-    if w > 8192 or h > 8192:
-        raise DatasetError(f"image size {text!r} is too large (at most 8192x8192 pixels)")
+    from dashtraj.world.camera import MAX_IMAGE_SIDE_PX as HI
+    from dashtraj.world.camera import MIN_IMAGE_SIDE_PX as LO
+
+    if w < LO or h < LO:
+        raise DatasetError(f"image size {text!r} is too small (at least {LO}x{LO} pixels)")
+    if w > HI or h > HI:
+        raise DatasetError(f"image size {text!r} is too large (at most {HI}x{HI} pixels)")
     return w, h
 
 

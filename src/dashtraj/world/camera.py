@@ -42,6 +42,10 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+MIN_IMAGE_SIDE_PX = 8
+MAX_IMAGE_SIDE_PX = 8192
+"""Image sides dashtraj renders and reads, pixels (llvmpipe and most GPUs allow 8192+)."""
+
 DETECTION_CLASSES: tuple[str, ...] = (
     "car_front", "car_back", "car_side",
     "truck_front", "truck_back", "truck_side",

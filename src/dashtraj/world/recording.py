@@ -59,7 +59,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from dashtraj.errors import DashtrajError, InputFormatError, read_utf8
-from dashtraj.world.camera import CameraSpec, visible_boxes
+from dashtraj.world.camera import MAX_IMAGE_SIDE_PX, MIN_IMAGE_SIDE_PX, CameraSpec, visible_boxes
 from dashtraj.world.traffic import CAPACITY_SPACING_M as CAPACITY_HINT_M
 from dashtraj.world.traffic import LaneNetwork, TrafficConfig, TrafficSim, VehicleSpec
 
@@ -326,12 +326,15 @@ def _check_config(config: RunConfig) -> None:
 
 
 def check_camera(cam: CameraSpec, where: str, error: type[Exception] = RecordingError) -> None:
-    """Refuse a camera that cannot mean anything: sizes 8–8192 px, FOV 1–179°, pitch
-    ±89°, mount within ±50 m (``error`` naming ``where`` and the field)."""
+    """Refuse a camera that cannot mean anything: sides `MIN_IMAGE_SIDE_PX` to
+    `MAX_IMAGE_SIDE_PX`, FOV 1–179°, pitch ±89°, mount within ±50 m (``error`` naming
+    ``where`` and the field)."""
     for name in ("width_px", "height_px"):
         v = getattr(cam, name)
-        if not (isinstance(v, int) and not isinstance(v, bool) and 8 <= v <= 8192):
-            raise error(f"{where}: camera {name} must be an integer in [8, 8192], got {v!r}")
+        if not (isinstance(v, int) and not isinstance(v, bool)
+                and MIN_IMAGE_SIDE_PX <= v <= MAX_IMAGE_SIDE_PX):
+            raise error(f"{where}: camera {name} must be an integer in [{MIN_IMAGE_SIDE_PX}, "
+                        f"{MAX_IMAGE_SIDE_PX}], got {v!r}")
     for name, lo, hi in (("fov_deg", 1.0, 179.0), ("pitch_deg", -89.0, 89.0),
                          ("x_m", -50.0, 50.0), ("y_m", -50.0, 50.0), ("z_m", -50.0, 50.0)):
         v = getattr(cam, name)
