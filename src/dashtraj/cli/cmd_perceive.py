@@ -23,7 +23,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="render, detect, track, localize and map-match every observer's frames into a "
              "sightings database",
         description=(
-            "Per observer of a recording: render its dashcam frames on the fly, detect the "
+            "Per observer of a recording: render its dashcam frames on the fly (or, for a "
+            "drive, read its images), detect the "
             "vehicles (the renderer's exact boxes with --detector oracle, or an ONNX model), "
             "track them (sort, or ego: ground-plane tracking with the observer's odometry), "
             "localize them (paper: Eq. 3; ground: bottom edge on the road; fused; tracked: "
