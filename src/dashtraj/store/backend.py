@@ -112,6 +112,16 @@ def connect_pg(target: PgTarget):
         raise StoreError(f"{target.display}: cannot connect: {first}") from None
 
 
+def insert_sql(table: str, cols, key=()) -> str:
+    """INSERT of ``cols`` with ``?`` placeholders; with ``key`` (the primary key) a row of
+    that key is replaced (SQLite 3.24+ and PostgreSQL take the same ON CONFLICT clause)."""
+    sql = f"INSERT INTO {table} ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})"
+    if key:
+        sets = ", ".join(f"{c} = excluded.{c}" for c in cols if c not in key)
+        sql += f" ON CONFLICT ({', '.join(key)}) DO UPDATE SET {sets}"
+    return sql
+
+
 def quote_ident(name: str) -> str:
     """A schema name as an SQL identifier (names are checked by `parse_url`)."""
     return '"' + name.replace('"', '""') + '"'
@@ -150,8 +160,7 @@ class Dialect:
     def insert(self, table: str, cols, rows, types=None) -> int:
         """Append rows to a table (no conflict clause); the rows inserted. ``types``: the
         columns' PostgreSQL type names (`PgDialect` streams them in binary)."""
-        sql = f"INSERT INTO {table} ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})"
-        return self.many(sql, rows)
+        return self.many(insert_sql(table, cols), rows)
 
     def transaction(self):
         """A context that commits on success and rolls back on an exception."""

@@ -93,6 +93,7 @@ from dashtraj.store.backend import (
     PgDialect,
     StoreError,
     connect_pg,
+    insert_sql,
     is_url,
     parse_url,
     quote_ident,
@@ -300,16 +301,6 @@ def _pg_types(cls) -> tuple[str, ...]:
     return tuple(names[str(f.type).split(" | ")[0]] for f in fields(cls))
 
 
-def _insert(table: str, cols: Sequence[str], key: Sequence[str] = ()) -> str:
-    """INSERT of ``cols``; with ``key`` (the primary key) a row of that key is replaced
-    (SQLite 3.24+ and PostgreSQL take the same ON CONFLICT clause)."""
-    sql = f"INSERT INTO {table} ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})"
-    if key:
-        sets = ", ".join(f"{c} = excluded.{c}" for c in cols if c not in key)
-        sql += f" ON CONFLICT ({', '.join(key)}) DO UPDATE SET {sets}"
-    return sql
-
-
 def _migrate(dialect: Dialect, path, version: int) -> None:
     """Upgrade an open file from ``version`` to `SCHEMA_VERSION` in one transaction."""
     try:
@@ -383,7 +374,7 @@ class SightingsDB:
         with self.dialect.transaction():
             for stmt in _DDL:
                 self.dialect.execute(self.dialect.ddl(stmt))
-            self.dialect.many(_insert("meta", ("key", "value")),
+            self.dialect.many(insert_sql("meta", ("key", "value")),
                               [("format", FORMAT), ("schema_version", str(SCHEMA_VERSION))])
 
     @classmethod
@@ -508,11 +499,11 @@ class SightingsDB:
         self._need_writable()
         d = self.dialect
         with d.transaction():
-            d.execute(_insert("run", ("id", "recording", "map_name", "map_sha256", "camera",
+            d.execute(insert_sql("run", ("id", "recording", "map_name", "map_sha256", "camera",
                                       "config")),
                       (1, str(recording), map_name, map_sha256,
                        json.dumps(camera, sort_keys=True), json.dumps(config, sort_keys=True)))
-            d.many(_insert("observers", ("observer_id", "role")),
+            d.many(insert_sql("observers", ("observer_id", "role")),
                    [(int(o), r) for o, r in observers])
 
     def add_frames(self, poses: Sequence[PoseRow], detections: Sequence[DetectionRow],
@@ -528,7 +519,7 @@ class SightingsDB:
                                      ("detections", DetectionRow, detections),
                                      ("crops", CropRow, crops)):
                 d.insert(table, _cols(cls), [astuple(r) for r in rows], _pg_types(cls))
-            d.many(_insert("tracks", _cols(TrackRow), key=("observer_id", "track_id")),
+            d.many(insert_sql("tracks", _cols(TrackRow), key=("observer_id", "track_id")),
                    [astuple(r) for r in tracks])
             if updates:
                 cols = _cols(LocationUpdate)[3:]
