@@ -113,14 +113,9 @@ def run_perceive(args: argparse.Namespace) -> int:
             check_samples(ctx, args.msaa, "--msaa")
         finally:
             ctx.release()
-    from dashtraj.store.backend import is_url
-    from dashtraj.store.pg_output import check_pg_output, pg_atomic_output
+    from dashtraj.store.pg_output import check_db_output, db_output
 
-    to_pg = is_url(args.output)
-    if to_pg:
-        check_pg_output(args.output, overwrite=args.overwrite)
-    else:
-        check_output(args.output, overwrite=args.overwrite, kind="file")
+    check_db_output(args.output, overwrite=args.overwrite)
     for extra in (args.save_frames, args.mot):
         if extra:
             check_output(extra, overwrite=args.overwrite, kind="dir")
@@ -148,10 +143,8 @@ def run_perceive(args: argparse.Namespace) -> int:
         frames_tmp = (stack.enter_context(atomic_output(args.save_frames,
                                                         overwrite=args.overwrite))
                       if args.save_frames else None)
-        tmp = stack.enter_context(
-            pg_atomic_output(args.output, overwrite=args.overwrite) if to_pg
-            else atomic_output(args.output, overwrite=args.overwrite, kind="file",
-                               keep_partial=True))
+        tmp = stack.enter_context(db_output(args.output, overwrite=args.overwrite,
+                                            keep_partial=True))
         summary = perceive(rec, tmp, cfg, workers=args.workers, progress=progress,
                            frames_dir=frames_tmp)
     wall = time.perf_counter() - t0

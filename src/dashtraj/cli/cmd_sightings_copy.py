@@ -34,20 +34,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_sightings_copy(args: argparse.Namespace) -> int:
-    from dashtraj.outputs import atomic_output, check_output
     from dashtraj.store import SightingsDB, copy_database
-    from dashtraj.store.backend import display_name, is_url
-    from dashtraj.store.pg_output import check_pg_output, pg_atomic_output
+    from dashtraj.store.backend import display_name
+    from dashtraj.store.pg_output import check_db_output, db_output
 
-    to_pg = is_url(args.output)
-    if to_pg:
-        check_pg_output(args.output, overwrite=args.overwrite)
-    else:
-        check_output(args.output, overwrite=args.overwrite, kind="file")
+    check_db_output(args.output, overwrite=args.overwrite)
     with SightingsDB.open(args.source) as src:
-        out = (pg_atomic_output(args.output, overwrite=args.overwrite, keep_partial=False)
-               if to_pg else atomic_output(args.output, overwrite=args.overwrite, kind="file"))
-        with out as tmp, SightingsDB.create(tmp) as dst:
+        # a failed copy is not kept: the source is still there
+        with db_output(args.output, overwrite=args.overwrite, keep_partial=False) as tmp, \
+                SightingsDB.create(tmp) as dst:
             counts = copy_database(src, dst)
     name = display_name(args.output)
     if args.json:

@@ -100,3 +100,26 @@ def pg_atomic_output(url: str, *, overwrite: bool = False, keep_partial: bool = 
             raise
     finally:
         d.close()
+
+
+def check_db_output(target, *, overwrite: bool) -> None:
+    """`check_pg_output` for a URL, `dashtraj.outputs.check_output` (a file) otherwise:
+    what a command that writes a sightings database refuses before any work."""
+    from dashtraj.outputs import check_output
+    from dashtraj.store.backend import is_url
+
+    if is_url(target):
+        check_pg_output(target, overwrite=overwrite)
+    else:
+        check_output(target, overwrite=overwrite, kind="file")
+
+
+def db_output(target, *, overwrite: bool, keep_partial: bool):
+    """The context that writes a sightings database whole: `pg_atomic_output` for a URL,
+    `dashtraj.outputs.atomic_output` (a file) otherwise; it yields where to create it."""
+    from dashtraj.outputs import atomic_output
+    from dashtraj.store.backend import is_url
+
+    if is_url(target):
+        return pg_atomic_output(target, overwrite=overwrite, keep_partial=keep_partial)
+    return atomic_output(target, overwrite=overwrite, kind="file", keep_partial=keep_partial)
