@@ -64,6 +64,14 @@ class RecordingFrame:
     identity_ids: tuple[int, ...]
 
 
+def image_camera(recording, size: tuple[int, int] | None):
+    """The `CameraSpec` of the rendered images (the recording's, resized)."""
+    spec = recording.config.camera
+    if size is None:
+        return spec
+    return replace(spec, width_px=int(size[0]), height_px=int(size[1]))
+
+
 def parse_size(text: str) -> tuple[int, int]:
     """``"640x360"`` → (640, 360) pixels. Raises DatasetError naming the bad value."""
     try:
@@ -473,10 +481,8 @@ def export_frames(recording, out_dir, every_s: float = 0.5, size: tuple[int, int
     table = pa.table({c: [r[c] for r in rows] for c in LABEL_COLUMNS}, schema=schema)
     labels_path = out / "labels.parquet"
     pq.write_table(table, labels_path)
-    spec = recording.config.camera
-    if size is not None:
-        spec = replace(spec, width_px=int(size[0]), height_px=int(size[1]))
-    write_drive(out, recording.map_path, spec, poses, recording.meta.get("observer_roles", {}))
+    write_drive(out, recording.map_path, image_camera(recording, size), poses,
+                recording.meta.get("observer_roles", {}))
     preview_dir = None
     if preview:
         preview_dir = out / "preview"

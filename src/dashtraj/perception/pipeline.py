@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from dashtraj.datasets.drive import Drive, is_drive
+from dashtraj.datasets.frames import image_camera
 from dashtraj.errors import DashtrajError
 from dashtraj.perception.detect import DEFAULT_MIN_SCORE
 from dashtraj.perception.detections import (
@@ -135,14 +136,6 @@ class Batch:
     updates: list = field(default_factory=list)
     """`LocationUpdate` rows: detections written earlier get new positions (an offline
     localizer's, when the observer's frames ended)."""
-
-
-def image_camera(recording, size: tuple[int, int] | None):
-    """The `CameraSpec` of the rendered images (the recording's, resized)."""
-    spec = recording.config.camera
-    if size is None:
-        return spec
-    return replace(spec, width_px=int(size[0]), height_px=int(size[1]))
 
 
 def camera_pose_of(frame, spec) -> CameraPose:
