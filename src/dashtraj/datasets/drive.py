@@ -187,39 +187,37 @@ class Drive:
         """`RecordingFrame`s of the observer's images (read from disk, RGB uint8), in
         time order. Raises DriveError for an image that does not decode or has
         another size than the camera's."""
-        from PIL import Image, UnidentifiedImageError
-
-        spec = self.config.camera
         for r in self.frame_poses(observer_id, every_s):
-            p = _image(self.path, observer_id, r.frame)
-            try:
-                with Image.open(p) as im:
-                    rgb = np.asarray(im.convert("RGB"))
-            except (OSError, UnidentifiedImageError) as exc:
-                raise DriveError(f"{p}: not an image ({exc})") from None
-            if rgb.shape[:2] != (spec.height_px, spec.width_px):
-                raise DriveError(f"{p}: {rgb.shape[1]}x{rgb.shape[0]} pixels, the camera in "
-                                 f"drive.json is {spec.width_px}x{spec.height_px}")
+            rgb = _open_image(_image(self.path, observer_id, r.frame), self.config.camera,
+                              decode=True)
             pose = (r.cam_x, r.cam_y, r.cam_z, r.cam_yaw, r.cam_pitch, 0.0)
             yield RecordingFrame(observer_id, r.t, r.frame, DriveImage(rgb, pose), (), ())
 
 
 def _check_image(root: Path, observer_id: int, frame: int, spec) -> None:
     """The frame's image exists, opens and has the camera's size (its header only)."""
-    from PIL import Image, UnidentifiedImageError
-
     p = _image(root, observer_id, frame)
     if p is None:
         raise DriveError(f"{root / 'poses.csv'}: observer {observer_id} frame {frame} has no "
                          f"image {observer_id}/{frame:06d}.jpg (or .png)")
+    _open_image(p, spec, decode=False)
+
+
+def _open_image(p: Path, spec, decode: bool) -> np.ndarray | None:
+    """Open an image, check it has the camera's size, and with ``decode`` return its
+    (H, W, 3) uint8 RGB pixels (else read the header only). Raises DriveError."""
+    from PIL import Image, UnidentifiedImageError
+
     try:
         with Image.open(p) as im:
             size = im.size
+            rgb = np.asarray(im.convert("RGB")) if decode else None
     except (OSError, UnidentifiedImageError) as exc:
         raise DriveError(f"{p}: not an image ({exc})") from None
     if size != (spec.width_px, spec.height_px):
         raise DriveError(f"{p}: {size[0]}x{size[1]} pixels, the camera in drive.json is "
                          f"{spec.width_px}x{spec.height_px}")
+    return rgb
 
 
 def _image(root: Path, observer_id: int, frame: int) -> Path | None:
