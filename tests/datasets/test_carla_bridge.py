@@ -15,6 +15,8 @@ from dashtraj.datasets.carla_bridge import (
     camera_pose,
     image_of_frame,
     image_rgb,
+    truth_row,
+    vehicle_class_of,
 )
 
 carla = pytest.importorskip("carla")
@@ -28,6 +30,34 @@ def test_a_carla_transform_is_the_camera_pose_unflipped():
     # CARLA's world is dashtraj's: 1 m ahead at yaw 30° is (cos 30°, sin 30°)
     assert (x, y) == pytest.approx((10.0 + np.cos(np.radians(30)), 20.0 + 0.5), abs=1e-5)
     assert (z, yaw, pitch) == pytest.approx((1.7, 30.0, -5.0), abs=1e-5)
+
+
+def test_a_truth_row_is_the_bounding_box_footprint_in_the_world(tmp_path):
+    """CARLA's bounding box sits at an offset from the actor's origin: the row gives the
+    centre of the box's bottom face in the world, which the drive's truth reads back."""
+    from dashtraj.datasets.drive_truth import read_truth, write_truth
+
+    actor = carla.Transform(carla.Location(x=10.0, y=20.0, z=0.5), carla.Rotation(yaw=90.0))
+    bb = carla.BoundingBox(carla.Location(x=0.2, y=0.0, z=0.8), carla.Vector3D(2.3, 1.0, 0.7))
+    row = truth_row(42, "target", "vehicle.audi.tt", "car", 1.5, actor, bb)
+    # 0.2 m ahead at yaw 90° is +y; the bottom face is 0.8 − 0.7 m above the origin
+    assert row[:5] == (1.5, 42, "target", "vehicle.audi.tt", "car")
+    assert row[5:] == pytest.approx((10.0, 20.2, 0.6, 90.0, 2.3, 1.0, 0.7), abs=1e-5)
+    write_truth(tmp_path / "truth.csv", [row])
+    m = read_truth(tmp_path / "truth.csv").at(1.5)
+    assert m.vehicle_ids.tolist() == [42] and m.y[0] == pytest.approx(20.2, abs=1e-5)
+
+
+@pytest.mark.parametrize("type_id, attributes, want", [
+    ("vehicle.mercedes.sprinter", {"base_type": "van", "number_of_wheels": "4"}, "car"),
+    ("vehicle.carlamotors.firetruck", {"base_type": "truck"}, "truck"),
+    ("vehicle.mitsubishi.fusorosa", {"base_type": "Bus"}, "bus"),
+    ("vehicle.bh.crossbike", {"number_of_wheels": "2"}, "bicycle"),  # before base_type
+    ("vehicle.yamaha.yzf", {"number_of_wheels": "2"}, "motorcycle"),
+    ("vehicle.tesla.model3", {}, "car"),
+])
+def test_a_blueprint_has_a_dashtraj_class(type_id, attributes, want):
+    assert vehicle_class_of(type_id, attributes) == want
 
 
 def test_bgra_bytes_become_rgb():

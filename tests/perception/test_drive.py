@@ -18,42 +18,103 @@ from dashtraj.world.camera import CameraSpec
 from dashtraj.world.towns import town_path
 
 
-def test_a_rendered_drive_perceives_as_its_recording(small_run, gl_available, tmp_path,
+@pytest.fixture(scope="module")
+def rendered_drive(small_run, gl_available, tmp_path_factory):
+    """`small_run` rendered as a lossless drive every 0.5 s, with depth images."""
+    out = tmp_path_factory.mktemp("drive") / "drive"
+    assert main(["render", str(small_run.path), "-o", str(out), "--every", "0.5", "--png",
+                 "--depth", "-q"]) == 0
+    return out
+
+
+def test_a_rendered_drive_perceives_as_its_recording(small_run, rendered_drive, tmp_path,
                                                      capsys):
     """`render --png` writes a drive; perceiving its images gives the rows that rendering
-    the same frames on the fly gives (boxes, scores, tracks, positions, crops), with no
-    truth: a drive has none."""
+    the same frames on the fly gives (boxes, scores, tracks, positions, crops). Its
+    truth.csv and depth images give the truth columns the renderer gives; truth.csv alone
+    (boxes from the 3-D boxes' outlines) the same vehicle for nearly every detection and
+    never another one; without truth.csv they are empty."""
+    import shutil
+
     from dashtraj.perception.detect import default_model_path
     from dashtraj.perception.pipeline import PerceiveConfig, perceive
 
     drive_dir = tmp_path / "drive"
-    assert main(["render", str(small_run.path), "-o", str(drive_dir), "--observer", "1",
-                 "--observer", "3", "--every", "0.5", "--png", "-q"]) == 0
+    shutil.copytree(rendered_drive, drive_dir)
     drive = Drive.open(drive_dir)
-    assert drive.observer_ids == [1, 3] and len(drive.frame_poses(1)) == 51
-    assert drive.config.camera == small_run.config.camera
+    assert drive.observer_ids == [1, 2, 3] and len(drive.frame_poses(1)) == 51
+    assert drive.config.camera == small_run.config.camera and drive.truth is not None
     model = str(default_model_path())
     ref = tmp_path / "ref.db"
     perceive(small_run, ref, PerceiveConfig(detector=model, every_s=0.5, msaa=4,
                                             observers=(1, 3)))
-    out = tmp_path / "drive.db"
-    assert main(["perceive", str(drive_dir), "-o", str(out), "--detector", model, "--every",
-                 "0.5", "-q", "--json"]) == 0
-    assert json.loads(capsys.readouterr().out.splitlines()[-1])["frames"] == 102
+
+    def run(name):
+        out = tmp_path / name
+        assert main(["perceive", str(drive_dir), "-o", str(out), "--detector", model,
+                     "--every", "0.5", "--observers", "1", "3", "-q", "--json"]) == 0
+        assert json.loads(capsys.readouterr().out.splitlines()[-1])["frames"] == 102
+        return out
+
+    with_depth = run("depth.db")
+    for p in drive_dir.glob("*/*.depth.png"):
+        p.unlink()
+    hull = run("hull.db")
+    (drive_dir / "truth.csv").unlink()
+    bare = run("bare.db")
 
     def no_truth(rows):
         return [dataclasses.replace(r, truth_vehicle_id=None, **(
             {"depicted_vehicle_id": None} if hasattr(r, "depicted_vehicle_id") else {}))
             for r in rows]
 
-    with SightingsDB.open(ref) as a, SightingsDB.open(out) as b:
-        assert a.poses() == b.poses()
+    with SightingsDB.open(ref) as a, SightingsDB.open(with_depth) as b, \
+            SightingsDB.open(hull) as c, SightingsDB.open(bare) as d:
+        assert a.poses() == b.poses() == d.poses()
         dets = a.detections()
-        assert len(dets) > 50 and any(d.truth_vehicle_id is not None for d in dets)
-        assert no_truth(dets) == b.detections()
-        assert no_truth(a.tracks()) == b.tracks()
-        assert a.crops() == b.crops() and len(a.crops()) > 0
-        assert b.run_info()["map_sha256"] == a.run_info()["map_sha256"]
+        assert len(dets) > 50 and any(r.truth_vehicle_id is not None for r in dets)
+        for db in (b, c):
+            assert no_truth(dets) == no_truth(db.detections()) == d.detections()
+            assert no_truth(a.tracks()) == no_truth(db.tracks()) == d.tracks()
+        assert a.crops() == d.crops() and len(a.crops()) > 0
+        assert d.run_info()["map_sha256"] == a.run_info()["map_sha256"]
+        for db, share in ((b, 0.99), (c, 0.95)):  # with depth; from the boxes alone
+            got = db.detections()
+            for col in ("truth_vehicle_id", "depicted_vehicle_id"):
+                pairs = [(getattr(x, col), getattr(y, col))
+                         for x, y in zip(dets, got, strict=True)]
+                same = sum(p == q for p, q in pairs)
+                assert same >= share * len(pairs), (col, same, len(pairs))
+                assert not [p for p in pairs if None not in p and p[0] != p[1]], col
+        assert [t.truth_vehicle_id for t in a.tracks()] == \
+            [t.truth_vehicle_id for t in b.tracks()]
+
+
+def test_a_rendered_drive_with_depth_scores_as_its_recording(small_run, rendered_drive,
+                                                             capsys):
+    """`tracker eval`, `localization eval` and `detector eval` read a drive's truth: with
+    depth images its truth boxes are the renderer's to a pixel or two, so the scores are
+    the recording's."""
+    def scores(cmd, path, *extra, every="0.5"):
+        assert main([*cmd, str(path), "--every", every, "--json", *extra]) == 0
+        return json.loads(capsys.readouterr().out)
+
+    a = scores(["tracker", "eval"], small_run.path, "--peers")
+    b = scores(["tracker", "eval"], rendered_drive, "--peers")
+    assert a["frames"] == b["frames"] == 153
+    for n in ("ego", "sort"):
+        for k in ("idf1", "hota", "mota"):
+            assert b[n][k] == pytest.approx(a[n][k], abs=0.02), (n, k)
+    a = scores(["localization", "eval"], small_run.path, "--track-every", "0.5")
+    b = scores(["localization", "eval"], rendered_drive, "--track-every", "0.5")
+    for n in ("ground", "mapped"):
+        assert b[n]["n_lt20"] == a[n]["n_lt20"] > 20
+        assert b[n]["rmse_lt20_m"] == pytest.approx(a[n]["rmse_lt20_m"], abs=0.25), n
+    a = scores(["detector", "eval"], small_run.path, "-q", every="2")
+    b = scores(["detector", "eval"], rendered_drive, "-q", every="2")
+    assert a["frames"] == b["frames"] == 39 and a["class_counts"] == b["class_counts"]
+    for k in ("map50", "map50_95"):
+        assert b[k] == pytest.approx(a[k], abs=0.03), k
 
 
 def _tiny_drive(root, frames=((0, 0.0), (1, 0.05), (2, 0.1)), size=(32, 24)):
@@ -122,7 +183,7 @@ def test_bad_drives_are_one_line_errors(tmp_path, capsys, damage, message):
 
 
 @pytest.mark.parametrize("args, message", [
-    ([], "a drive has no ground truth for --detector oracle"),
+    ([], "has no truth.csv for --detector oracle"),
     (["--detector", "{MODEL}", "--size", "64x48"], "--size applies to rendered recordings"),
     (["--detector", "{MODEL}", "--msaa", "4"], "--msaa applies to rendered recordings"),
 ])
@@ -155,7 +216,14 @@ def test_a_drive_of_grey_images_perceives_to_an_empty_but_whole_database(tmp_pat
 
 def test_commands_that_need_a_recording_say_a_drive_is_not_one(tmp_path, capsys):
     root = _tiny_drive(tmp_path / "d")
-    assert main(["tracker", "eval", str(root), "--json"]) == 2
+    assert main(["render", str(root), "-o", str(tmp_path / "x"), "-q"]) == 2
     err = capsys.readouterr().err
-    assert "is a drive (images and camera poses, no ground truth), not a simulated " \
-           "recording" in err and err.count("\n") == 1
+    assert "is a drive (images and camera poses), not a simulated recording" in err
+    assert err.count("\n") == 1 and not (tmp_path / "x").exists()
+    for cmd in (["tracker", "eval"], ["localization", "eval"], ["detector", "eval"]):
+        # these read a drive's truth
+        assert main([*cmd, str(root), "--json"]) == 2
+        err = capsys.readouterr().err
+        assert "is a drive without truth.csv: nothing to score against" in err
+        assert err.count("\n") == 1
+

@@ -47,6 +47,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="horizontal field of view (default 90)")
     p.add_argument("--seed", type=seed, default=0, help="spawn and Traffic Manager seed")
     p.add_argument("--tm-port", type=count, default=8000, help="Traffic Manager port (8000)")
+    p.add_argument("--no-depth", action="store_true",
+                   help="no depth camera (by default each dashcam has one, saved as "
+                        "<frame>.depth.png: the truth boxes then hug the vehicles' pixels)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_output_args(p)
@@ -71,7 +74,7 @@ def run_carla_record(args: argparse.Namespace) -> int:
     client = connect(args.host, args.port, args.timeout)
     cfg = CarlaDriveConfig(town=args.town, observers=args.observers, agents=args.agents,
                            duration_s=args.duration, every_s=args.every, camera=cam,
-                           seed=args.seed, tm_port=args.tm_port)
+                           seed=args.seed, tm_port=args.tm_port, depth=not args.no_depth)
     n = int(args.duration / args.every + 1e-9) + 1
     with progress_bar(args.quiet, total=n, unit="step") as bar, \
             atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:

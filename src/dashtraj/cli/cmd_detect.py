@@ -231,7 +231,9 @@ def register_eval(sub) -> None:
             "Vehicles the detection set leaves unlabelled are ignore regions."
         ),
     )
-    v.add_argument("recordings", nargs="+", metavar="RUN", help="recording directories")
+    v.add_argument("recordings", nargs="+", metavar="RUN",
+                   help="recording directories, or drives with truth.csv (their images "
+                        "scored against their truth boxes; record them with depth)")
     v.add_argument("--model", default=None, metavar="M.onnx",
                    help="ONNX model (default: the shipped detector)")
     v.add_argument("--names", default=None, metavar="data.yaml",
@@ -261,13 +263,13 @@ def run_eval(args: argparse.Namespace) -> int:
     from dashtraj.outputs import atomic_output, check_output
     from dashtraj.perception.detect import YoloDetector
     from dashtraj.perception.detector_eval import EvalConfig, evaluate_recordings, plot_per_class
-    from dashtraj.world.recording import Recording
+    from dashtraj.perception.evaluate import open_recording
 
     if args.plot and not args.output:
         raise ArgumentError("--plot needs -o DIR")
     if args.output:
         check_output(args.output, overwrite=args.overwrite, kind="dir")
-    recs = [Recording.open(p) for p in args.recordings]
+    recs = [open_recording(p) for p in args.recordings]
     size = parse_size(args.size) if args.size else None
     w = size[0] if size else recs[0].config.camera.width_px
     cfg = EvalConfig(every_s=args.every, size=size, min_box_height_px=10.0 * w / 640,

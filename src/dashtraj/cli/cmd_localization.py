@@ -112,7 +112,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     import numpy as np
 
     from dashtraj.errors import DashtrajError
-    from dashtraj.perception.evaluate import _truth_positions, eval_frames, open_recording
+    from dashtraj.perception.evaluate import eval_frames, open_recording, truth_positions
     from dashtraj.perception.localize import calibrate_paper_constant
     from dashtraj.perception.pipeline import image_camera
 
@@ -120,13 +120,13 @@ def run_calibrate(args: argparse.Namespace) -> int:
     for path in args.recordings:
         rec = open_recording(path)
         spec = image_camera(rec, None)
-        keys, xs, ys, n_v = _truth_positions(rec)
+        where = truth_positions(rec)
         for ef in eval_frames(rec, "oracle", args.every):
             d = ef.detections
             if not len(d):
                 continue
-            j = np.searchsorted(keys, ef.frame * n_v + d.truth_ids)
-            td = np.hypot(xs[j] - ef.pose.x, ys[j] - ef.pose.y)
+            x, y = where(ef, d.truth_ids)
+            td = np.hypot(x - ef.pose.x, y - ef.pose.y)
             ok = (td <= args.max_distance) & (d.boxes[:, 1] > 1) & \
                  (d.boxes[:, 3] < spec.height_px - 1)
             boxes.append(d.boxes[ok])

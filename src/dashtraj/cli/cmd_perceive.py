@@ -46,7 +46,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "postgresql://[user@]host[:port]/dbname[?schema=NAME] (one schema per "
                         "run, default dashtraj; needs pip install 'dashtraj[postgres]')")
     p.add_argument("--detector", default="oracle", metavar="oracle|M.onnx",
-                   help="detector (default oracle: the renderer's exact visible boxes)")
+                   help="detector (default oracle: the renderer's exact visible boxes, or a "
+                        "drive's truth boxes from its truth.csv)")
     add_detector_filter_args(p)
     p.add_argument("--tracker", default="ego", help="sort or ego (default ego)")
     p.add_argument("--localizer", default="smoothed",
@@ -132,7 +133,7 @@ def run_perceive(args: argparse.Namespace) -> int:
 
     obs = list(args.observers) if args.observers else observer_ids(rec)
     if isinstance(rec, Drive):
-        check_drive_config(cfg)
+        check_drive_config(cfg, rec)
         total = sum(len(rec.frame_poses(o, args.every)) for o in obs if o in rec.poses)
     else:
         total = len(obs) * len(sample_steps(rec, args.every))

@@ -28,8 +28,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "Render every observer's dashcam every --every seconds: DIR/<observer>/<frame>.jpg "
             "and DIR/labels.parquet (observer_id, t, vehicle_id, label, class id, visible "
             "and silhouette boxes, visible fraction, truncation, distance), and the camera "
-            "poses (DIR/drive.json, poses.csv, map.xodr): DIR is a drive, which dashtraj "
-            "perceive reads from its images like a real one. --preview adds "
+            "poses and every vehicle's 3-D box (DIR/drive.json, poses.csv, map.xodr, "
+            "truth.csv): DIR is a drive, which dashtraj perceive reads from its images like a "
+            "real one; --depth adds each frame's depth image as CARLA's depth camera encodes "
+            "it (DIR/<observer>/<frame>.depth.png), which tightens the drive's truth boxes "
+            "to the vehicles' pixels. --preview adds "
             "DIR/preview/ PNGs with boxes and a contact sheet of crops per vehicle."
         ),
     )
@@ -43,6 +46,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="image size (default: the recording's camera)")
     p.add_argument("--png", action="store_true",
                    help="write the frames as PNG (lossless) instead of JPEG")
+    p.add_argument("--depth", action="store_true",
+                   help="also write each frame's depth (DIR/<observer>/<frame>.depth.png, "
+                        "CARLA's depth camera encoding)")
     p.add_argument("--preview", action="store_true",
                    help="also write preview pictures, and preview/look_sheet.png: frames before "
                         "and after the realistic look (and a randomized one)")
@@ -187,7 +193,8 @@ def run_render(args: argparse.Namespace) -> int:
             s = export_frames(rec, tmp, args.every, size, args.observer, args.preview,
                               progress=bar.update if bar is not None else None,
                               compare_dir=args.compare,
-                              image_format="png" if args.png else "jpg")
+                              image_format="png" if args.png else "jpg",
+                              depth=args.depth)
     finally:
         if bar is not None:
             bar.close()

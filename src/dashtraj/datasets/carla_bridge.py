@@ -10,9 +10,12 @@ server works), and in synchronous mode with a fixed step (``every_s``):
   *target*), at spawn points drawn with ``seed``, all driven by CARLA's Traffic Manager
   (seeded too);
 - every step saves each camera's image as ``<observer_id>/<frame:06d>.jpg`` with the
-  camera's world transform at capture (``image.transform``) in ``poses.csv``, and the
-  truth of every vehicle in ``truth.csv`` (vehicle_id, role, type_id, t, x, y, z, yaw,
-  half length, width, height: evaluation only);
+  camera's world transform at capture (``image.transform``) in ``poses.csv``, a depth
+  camera's image at the same mount as ``<frame:06d>.depth.png`` (CARLA's own 24-bit
+  encoding; ``depth``, on by default: it tightens the truth boxes), and the
+  truth of every vehicle in ``truth.csv`` (`dashtraj.datasets.drive_truth`: its box's
+  footprint, yaw and half extents, class from the blueprint: evaluation only, it fills
+  the database's truth columns and lets ``--detector oracle`` run on the drive);
 - writes ``drive.json`` (the camera, the map as ``map.xodr`` from
   ``world.get_map().to_opendrive()``) and the target's route as ``target_route.csv``
   (dashtraj's trajectory CSV: ``dashtraj score`` takes it);
@@ -31,7 +34,6 @@ it writes are, with the ``carla`` client's own types and `write_drive`.
 
 from __future__ import annotations
 
-import csv
 import math
 import queue
 import random
@@ -42,11 +44,9 @@ from pathlib import Path
 import numpy as np
 
 from dashtraj.datasets.drive import DrivePose, write_drive
+from dashtraj.datasets.drive_truth import write_truth
 from dashtraj.datasets.frames import DatasetError
 from dashtraj.world.camera import CameraSpec
-
-TRUTH_COLUMNS = ("vehicle_id", "role", "type_id", "t", "x", "y", "z", "yaw", "half_length",
-                 "half_width", "half_height")
 
 
 class CarlaBridgeError(DatasetError):
@@ -66,6 +66,7 @@ class CarlaDriveConfig:
     seed: int = 0
     jpeg_quality: int = 95
     tm_port: int = 8000
+    depth: bool = True
 
 
 @dataclass(frozen=True)
@@ -127,13 +128,35 @@ def connect(host: str, port: int, timeout_s: float):
     return client
 
 
-def _truth_row(actor, role: str, t: float) -> list:
-    tr = actor.get_transform()
-    ext = actor.bounding_box.extent
-    return [actor.id, role, actor.type_id, repr(t), repr(float(tr.location.x)),
-            repr(float(tr.location.y)), repr(float(tr.location.z)),
-            repr(float(tr.rotation.yaw)), repr(float(ext.x)), repr(float(ext.y)),
-            repr(float(ext.z))]
+_BICYCLES = ("crossbike", "century", "omafiets")
+
+
+def vehicle_class_of(type_id: str, attributes: dict) -> str:
+    """dashtraj's class of a CARLA vehicle blueprint: its ``base_type`` attribute (CARLA
+    0.9.14+: car, truck, van, bus, motorcycle, bicycle; van counts as car), else by its
+    wheels (two: a bicycle when the blueprint is one of CARLA's bicycles, else a
+    motorcycle) and otherwise car."""
+    base = str(attributes.get("base_type", "")).strip().lower()
+    base = {"van": "car"}.get(base, base)
+    if base in ("car", "truck", "bus", "motorcycle", "bicycle"):
+        return base
+    if str(attributes.get("number_of_wheels", "4")) == "2":
+        return "bicycle" if any(b in type_id for b in _BICYCLES) else "motorcycle"
+    return "car"
+
+
+def truth_row(vehicle_id: int, role: str, type_id: str, vehicle_class: str, t: float,
+              transform, bounding_box) -> tuple:
+    """One ``truth.csv`` row (`dashtraj.datasets.drive_truth`) of a CARLA vehicle: the
+    centre of its bounding box's bottom face in the world (the box is offset from the
+    actor's origin by ``bounding_box.location``), its yaw and half extents."""
+    import carla
+
+    bb, ext = bounding_box.location, bounding_box.extent
+    foot = transform.transform(carla.Location(x=bb.x, y=bb.y, z=bb.z - ext.z))
+    return (t, int(vehicle_id), role, type_id, vehicle_class, float(foot.x), float(foot.y),
+            float(foot.z), float(transform.rotation.yaw), float(ext.x), float(ext.y),
+            float(ext.z))
 
 
 def record_drive(client, out_dir: str | Path, config: CarlaDriveConfig,
@@ -197,43 +220,58 @@ def record_drive(client, out_dir: str | Path, config: CarlaDriveConfig,
                                 carla.Rotation(pitch=cam.pitch_deg))
         observers = [a for a in actors if roles[a.id] == "observer"]
         queues: dict[int, queue.Queue] = {}
+        depth_queues: dict[int, queue.Queue] = {}
+        dbp = None
+        if config.depth:  # the same camera's depth, for the truth boxes
+            dbp = world.get_blueprint_library().find("sensor.camera.depth")
+            for k, v in (("image_size_x", cam.width_px), ("image_size_y", cam.height_px),
+                         ("fov", cam.fov_deg)):
+                dbp.set_attribute(k, str(v))
         for a in observers:
-            c = world.spawn_actor(cbp, mount, attach_to=a)
-            q: queue.Queue = queue.Queue()
-            c.listen(q.put)
-            cameras.append(c)
-            queues[a.id] = q
+            for bp, qs in ((cbp, queues), (dbp, depth_queues)):
+                if bp is None:
+                    continue
+                c = world.spawn_actor(bp, mount, attach_to=a)
+                q: queue.Queue = queue.Queue()
+                c.listen(q.put)
+                cameras.append(c)
+                qs[a.id] = q
         target = next(a for a in actors if roles[a.id] == "target")
         poses: list[DrivePose] = []
         route: list[tuple[float, float, float]] = []
         t0 = None
         n_steps = math.floor(config.duration_s / config.every_s + 1e-9) + 1
-        with open(out / "truth.csv", "w", newline="", encoding="utf-8") as fh:
-            truth = csv.writer(fh)
-            truth.writerow(TRUTH_COLUMNS)
-            world.tick()  # the first step places the vehicles; images from the next
-            for frame in range(n_steps):
-                frame_id = world.tick()
-                snap_t = world.get_snapshot().timestamp.elapsed_seconds
-                t0 = snap_t if t0 is None else t0
-                t = snap_t - t0
-                for a in observers:
-                    img = image_of_frame(queues[a.id], frame_id)
-                    x, y, z, yaw, pitch = camera_pose(img.transform)
-                    poses.append(DrivePose(a.id, frame, t, x, y, z, yaw, pitch))
-                    p = out / str(a.id) / f"{frame:06d}.jpg"
-                    p.parent.mkdir(parents=True, exist_ok=True)
-                    Image.fromarray(image_rgb(img.raw_data, img.width, img.height)).save(
-                        p, format="JPEG", quality=config.jpeg_quality)
-                for a in actors:
-                    truth.writerow(_truth_row(a, roles[a.id], t))
-                loc = target.get_transform().location
-                route.append((t, float(loc.x), float(loc.y)))
-                if progress is not None:
-                    progress(1)
+        classes = {a.id: vehicle_class_of(a.type_id, dict(a.attributes)) for a in actors}
+        truth: list[tuple] = []
+        world.tick()  # the first step places the vehicles; images from the next
+        for frame in range(n_steps):
+            frame_id = world.tick()
+            snap_t = world.get_snapshot().timestamp.elapsed_seconds
+            t0 = snap_t if t0 is None else t0
+            t = snap_t - t0
+            for a in observers:
+                img = image_of_frame(queues[a.id], frame_id)
+                x, y, z, yaw, pitch = camera_pose(img.transform)
+                poses.append(DrivePose(a.id, frame, t, x, y, z, yaw, pitch))
+                p = out / str(a.id) / f"{frame:06d}.jpg"
+                p.parent.mkdir(parents=True, exist_ok=True)
+                Image.fromarray(image_rgb(img.raw_data, img.width, img.height)).save(
+                    p, format="JPEG", quality=config.jpeg_quality)
+                if config.depth:  # raw: CARLA's 24-bit depth encoding, as a PNG
+                    d = image_of_frame(depth_queues[a.id], frame_id)
+                    Image.fromarray(image_rgb(d.raw_data, d.width, d.height)).save(
+                        p.with_suffix(".depth.png"), format="PNG")
+            for a in actors:
+                truth.append(truth_row(a.id, roles[a.id], a.type_id, classes[a.id], t,
+                                       a.get_transform(), a.bounding_box))
+            loc = target.get_transform().location
+            route.append((t, float(loc.x), float(loc.y)))
+            if progress is not None:
+                progress(1)
         xodr = out / "map.xodr.tmp"
         xodr.write_text(world.get_map().to_opendrive(), encoding="utf-8")
         write_drive(out, xodr, cam, poses, {str(a.id): "observer" for a in observers})
+        write_truth(out / "truth.csv", truth)
         xodr.unlink()
         arr = np.array(route)
         write_trajectory(out / "target_route.csv", Trajectory(arr[:, 1:], arr[:, 0]))

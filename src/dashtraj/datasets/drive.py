@@ -12,6 +12,8 @@ A drive is a folder::
                              "observer_roles": {"3": "oncoming"}}   # optional
     poses.csv               observer_id,frame,t,cam_x,cam_y,cam_z,cam_yaw,cam_pitch
     <observer_id>/<frame:06d>.jpg   (or .png): one image per row of poses.csv
+    truth.csv                       optional: every vehicle's 3-D box over time
+    <observer_id>/<frame:06d>.depth.png   optional, with truth.csv: the frame's depth
 
 ``camera`` is the dashcam (`dashtraj.world.camera.CameraSpec`): the image size and
 horizontal FOV give the intrinsics (CARLA's ideal camera: f = W / (2 tan(FOV/2)),
@@ -26,8 +28,13 @@ seconds; frame is any integer that orders an observer's frames and names its ima
 
 This is the layout ``dashtraj render RUN -o DIR`` writes beside its labels (the
 images are ``DIR/<observer>/<frame>.jpg``), so a simulated recording can be perceived
-from its images like a real drive. A drive has no ground truth: its database's truth
-columns are empty, and the ``oracle`` detector cannot run on it.
+from its images like a real drive. A drive without ground truth gives a database whose
+truth columns are empty, and the ``oracle`` detector cannot run on it. An optional
+``truth.csv`` (`dashtraj.datasets.drive_truth`: every vehicle's 3-D box over time, which
+``render`` and ``carla-record`` write) gives its frames truth boxes, so the truth
+columns are filled and ``--detector oracle`` runs; a frame's depth image (CARLA's depth
+camera encoding; ``render --depth``, ``carla-record``) makes them hug the vehicles'
+pixels and lets scenery hide a vehicle.
 """
 
 from __future__ import annotations
@@ -81,11 +88,13 @@ class _DriveConfig:
 @dataclass(frozen=True)
 class DriveImage:
     """The parts of a rendered ``Frame`` a drive has: the image and its camera pose
-    (x, y, z, yaw, pitch, roll); no instance image, depth or labels."""
+    (x, y, z, yaw, pitch, roll); the instance image and labels of its truth boxes when
+    the drive has a ``truth.csv`` (`dashtraj.datasets.drive_truth.truth_frame`), else
+    None and none; never a depth image."""
 
     rgb: np.ndarray
     camera_pose: tuple
-    instance: None = None
+    instance: np.ndarray | None = None
     depth: None = None
     labels: tuple = ()
 
@@ -97,12 +106,13 @@ class Drive:
     ``vehicles`` (the observers)."""
 
     def __init__(self, path: Path, meta: dict, camera, map_path: Path,
-                 poses: dict[int, list[DrivePose]]):
+                 poses: dict[int, list[DrivePose]], truth=None):
         self.path = path
         self.meta = meta
         self.config = _DriveConfig(camera)
         self.map_path = map_path
         self.poses = poses
+        self.truth = truth  # a `DriveTruth`, or None
 
     @property
     def vehicles(self) -> list[dict]:
@@ -114,7 +124,8 @@ class Drive:
 
     @classmethod
     def open(cls, path: str | Path) -> Drive:
-        """Read and check ``drive.json`` and ``poses.csv`` and that every image exists.
+        """Read and check ``drive.json``, ``poses.csv``, ``truth.csv`` when there is one,
+        and that every image exists.
 
         Raises DriveError naming the file, line or field."""
         from dashtraj.errors import read_utf8
@@ -163,10 +174,15 @@ class Drive:
                 _check_image(root, o, r.frame, camera)
         import hashlib
 
+        truth = None
+        if (root / "truth.csv").is_file():
+            from dashtraj.datasets.drive_truth import read_truth
+
+            truth = read_truth(root / "truth.csv")
         meta = {**meta, "map": {"source": str(source),
                                 "sha256": hashlib.sha256(map_path.read_bytes()).hexdigest()},
                 "observer_roles": {str(k): v for k, v in roles.items()}}
-        return cls(root, meta, camera, map_path, poses)
+        return cls(root, meta, camera, map_path, poses, truth)
 
     def frame_poses(self, observer_id: int, every_s: float | None = None) -> list[DrivePose]:
         """The observer's frames in time order; with ``every_s``, the first frame of each
@@ -185,13 +201,28 @@ class Drive:
 
     def frames(self, observer_id: int, every_s: float | None = None):
         """`RecordingFrame`s of the observer's images (read from disk, RGB uint8), in
-        time order. Raises DriveError for an image that does not decode or has
-        another size than the camera's."""
+        time order, with the truth's labels when the drive has them. Raises DriveError
+        for an image that does not decode or has another size than the camera's."""
         for r in self.frame_poses(observer_id, every_s):
             rgb = _open_image(_image(self.path, observer_id, r.frame), self.config.camera,
                               decode=True)
             pose = (r.cam_x, r.cam_y, r.cam_z, r.cam_yaw, r.cam_pitch, 0.0)
-            yield RecordingFrame(observer_id, r.t, r.frame, DriveImage(rgb, pose), (), ())
+            if self.truth is None:
+                yield RecordingFrame(observer_id, r.t, r.frame, DriveImage(rgb, pose), (), ())
+                continue
+            from dashtraj.datasets.drive_truth import truth_frame
+
+            dp = self.path / str(observer_id) / f"{r.frame:06d}.depth.png"
+            depth = None
+            if dp.is_file():
+                from dashtraj.datasets.drive_truth import decode_depth
+
+                depth = decode_depth(_open_image(dp, self.config.camera, decode=True))
+            inst, labels, vids = truth_frame(self.config.camera, pose, self.truth.at(r.t),
+                                             exclude=observer_id, depth=depth)
+            yield RecordingFrame(observer_id, r.t, r.frame,
+                                 DriveImage(rgb, pose, inst, None, tuple(labels)), vids,
+                                 (-1,) * len(vids))
 
 
 def _check_image(root: Path, observer_id: int, frame: int, spec) -> None:

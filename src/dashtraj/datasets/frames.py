@@ -238,6 +238,29 @@ def recording_frames(recording, every_s: float = 0.5, size: tuple[int, int] | No
             renderer.release()
 
 
+def source_frames(source, every_s: float, size: tuple[int, int] | None = None,
+                  observers: Iterable[int] | None = None, msaa: int = 4
+                  ) -> Iterator[RecordingFrame]:
+    """The observer frames of a recording (rendered: `recording_frames`) or of a drive
+    (its images read, with the truth's labels when it has a ``truth.csv``:
+    `dashtraj.datasets.drive.Drive.frames`), observer by observer, time ascending.
+    DatasetError for ``size`` on a drive (its images are what they are) or an unknown
+    observer."""
+    from dashtraj.datasets.drive import Drive
+
+    if not isinstance(source, Drive):
+        return recording_frames(source, every_s, size, observers, msaa=msaa)
+    if size is not None:
+        raise DatasetError(f"{source.path} is a drive: its images are used at their own size "
+                           "(no --size)")
+    obs = source.observer_ids if observers is None else [int(o) for o in observers]
+    bad = [o for o in obs if o not in source.poses]
+    if bad:
+        raise DatasetError(f"{source.path / 'poses.csv'}: no observer {bad[0]}; observers are "
+                           f"{source.observer_ids}")
+    return (rf for o in obs for rf in source.frames(o, every_s))
+
+
 class RenderAhead:
     """A recording's observer frames rendered in a background thread, up to ``depth``
     frames ahead of their use, so that the caller's work on one frame (detection,
@@ -419,14 +442,42 @@ class ExportSummary:
     preview_dir: Path | None
 
 
+def write_recording_truth(recording, path, times) -> None:
+    """Write a recording's vehicles at ``times`` (seconds, steps of the recording) as a
+    drive's ``truth.csv`` (`dashtraj.datasets.drive_truth`): footprint centre, yaw and
+    the catalog model's half extents of every vehicle with a state then."""
+    from dashtraj.datasets.drive_truth import write_truth
+
+    step = float(recording.meta.get("step_s", recording.config.traffic.step_s))
+    want = np.round(np.asarray(times, np.float64) / step).astype(np.int64)
+    st = recording.states
+    k = np.round(st.column("t").to_numpy() / step).astype(np.int64)
+    keep = np.isin(k, want)
+    cols = {c: st.column(c).to_numpy()[keep] for c in ("vehicle_id", "x", "y", "z", "yaw")}
+    where = str(recording.path / "vehicles.csv")
+    info = {}
+    for v in recording.vehicles:
+        model = vehicle_identity(v, where).model
+        info[int(v["vehicle_id"])] = (v.get("role", ""), model.blueprint_id, model.vehicle_class,
+                                      model.length_m / 2, model.width_m / 2, model.height_m / 2)
+    rows = []
+    for kk, vid, x, y, z, yaw in zip(k[keep], cols["vehicle_id"], cols["x"], cols["y"],
+                                     cols["z"], cols["yaw"], strict=True):
+        role, bp, cls, hl, hw, hh = info[int(vid)]
+        rows.append((round(int(kk) * step, 9), int(vid), role, bp, cls, x, y, z, yaw, hl, hw, hh))
+    write_truth(path, rows)
+
+
 def export_frames(recording, out_dir, every_s: float = 0.5, size: tuple[int, int] | None = None,
                   observers: Iterable[int] | None = None, preview: bool = False,
-                  progress=None, compare_dir=None, image_format: str = "jpg") -> ExportSummary:
+                  progress=None, compare_dir=None, image_format: str = "jpg",
+                  depth: bool = False) -> ExportSummary:
     """Write a recording's observer frames as JPEGs (or PNGs) and their labels as Parquet.
 
     Files: ``out_dir/<observer_id>/<frame:06d>.jpg`` (``.png`` with ``image_format``
     "png": lossless), ``out_dir/labels.parquet`` (``LABEL_COLUMNS``), and the drive files
-    (``drive.json``, ``poses.csv``, ``map.xodr``: `dashtraj.datasets.drive`), so the
+    (``drive.json``, ``poses.csv``, ``map.xodr``, ``truth.csv``, ``target_route.csv``:
+    `dashtraj.datasets.drive`, `dashtraj.datasets.drive_truth`), so the
     folder is a drive that ``dashtraj perceive`` reads like a real one; with ``preview``
     also ``out_dir/preview/<observer>/<frame>.png``
     (boxes drawn), ``out_dir/preview/contact_sheet.jpg`` (crops per vehicle) and
@@ -436,6 +487,8 @@ def export_frames(recording, out_dir, every_s: float = 0.5, size: tuple[int, int
 
     Args:
         progress: called with no argument after each frame, or None.
+        depth: also write ``out_dir/<observer_id>/<frame:06d>.depth.png``, the frame's
+            depth in CARLA's depth camera encoding (`dashtraj.datasets.drive_truth`).
         compare_dir: folder of reference frames (e.g. CARLA's) for the look sheet.
     """
     import pyarrow as pa
@@ -463,6 +516,13 @@ def export_frames(recording, out_dir, every_s: float = 0.5, size: tuple[int, int
             Image.fromarray(rf.frame_data.rgb).save(p, format="PNG")
         else:
             p.write_bytes(encode_jpeg(rf.frame_data.rgb))
+        if depth:
+            from PIL import Image
+
+            from dashtraj.datasets.drive_truth import encode_depth
+
+            Image.fromarray(encode_depth(rf.frame_data.depth)).save(
+                out / f"{rf.observer_id}/{rf.frame:06d}.depth.png", format="PNG")
         cx, cy, cz, cyaw, cpitch, _ = rf.frame_data.camera_pose
         poses.append(DrivePose(rf.observer_id, rf.frame, rf.t, cx, cy, cz, cyaw, cpitch))
         rows.extend(label_rows(rf, rel))
@@ -483,6 +543,12 @@ def export_frames(recording, out_dir, every_s: float = 0.5, size: tuple[int, int
     pq.write_table(table, labels_path)
     write_drive(out, recording.map_path, image_camera(recording, size), poses,
                 recording.meta.get("observer_roles", {}))
+    write_recording_truth(recording, out / "truth.csv", sorted({p.t for p in poses}))
+    route = recording.path / "target_route.csv"
+    if route.is_file():  # the target's true route, as carla-record writes it
+        import shutil
+
+        shutil.copyfile(route, out / "target_route.csv")
     preview_dir = None
     if preview:
         preview_dir = out / "preview"

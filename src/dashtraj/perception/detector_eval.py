@@ -1,4 +1,5 @@
-"""Evaluate a detector on recordings' rendered frames against the renderer's exact boxes.
+"""Evaluate a detector on recordings' rendered frames against the renderer's exact boxes
+(or on a drive's images against its truth boxes: `dashtraj.datasets.drive_truth`).
 
 Ground truth per frame: every vehicle with visible pixels, its *visible* box
 (``VehicleLabel.visible_box``, frame pixels) and detection class. Vehicles the detection
@@ -52,7 +53,7 @@ def evaluate_recordings(recordings, detector, config: EvalConfig = EvalConfig(),
     ground truths per class)."""
     from dataclasses import asdict
 
-    from dashtraj.datasets.frames import recording_frames
+    from dashtraj.datasets.frames import source_frames
     from dashtraj.perception.detmetrics import evaluate_detections
 
     preds, gts = [], []
@@ -68,7 +69,7 @@ def evaluate_recordings(recordings, detector, config: EvalConfig = EvalConfig(),
             buf_rgb.clear()
             buf_gt.clear()
 
-        for rf in recording_frames(rec, config.every_s, config.size):
+        for rf in source_frames(rec, config.every_s, config.size):
             buf_rgb.append(rf.frame_data.rgb)
             buf_gt.append(frame_ground_truth(rf.frame_data.labels, config.min_box_height_px,
                                              config.max_occlusion))

@@ -1,4 +1,5 @@
-"""Evaluations of the perception stages against the renderer's truth.
+"""Evaluations of the perception stages against the renderer's truth (or a drive's
+``truth.csv``: its truth boxes are 3-D boxes' outlines, `dashtraj.datasets.drive_truth`).
 
 - `tracker_eval`: every tracker (ours and the BoxMOT peers that can run) is fed the same
   detections of every observer's frames, in one pass over the rendered frames; scored
@@ -18,9 +19,11 @@ import time
 import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
+from dashtraj.errors import DashtrajError
 from dashtraj.perception.detect import DEFAULT_MIN_SCORE
 from dashtraj.perception.detections import (
     AGNOSTIC_NMS_IOU,
@@ -62,25 +65,40 @@ def eval_frames(recording, detector: str = "oracle", every_s: float = 0.1, size=
                 observers=None, keep_rgb: bool = False,
                 agnostic_iou: float | None = AGNOSTIC_NMS_IOU,
                 min_score: float = DEFAULT_MIN_SCORE) -> Iterator[EvalFrame]:
-    """Render each observer's frames; yield detections and truth (observer by observer).
+    """Render each observer's frames (a drive's: read, with its truth); yield detections
+    and truth (observer by observer).
     ``agnostic_iou``, ``min_score``: a detector model's class-agnostic NMS and smallest kept
     score (`build_detector`)."""
-    from dashtraj.datasets.frames import recording_frames
+    from dashtraj.datasets.frames import source_frames
 
     spec = image_camera(recording, size)
     det = build_detector(detector, agnostic_iou=agnostic_iou, min_score=min_score)
     floor_px = OracleDetector.min_height_px  # the scored truth is a subset of the truth
     floor_vis = OracleDetector.min_visible_fraction
-    for rf in recording_frames(recording, every_s, size, observers, msaa=0):
+    for rf in source_frames(recording, every_s, size, observers, msaa=0):
         yield EvalFrame(rf.observer_id, rf.frame, rf.t, camera_pose_of(rf, spec), det.detect(rf),
                         truth_of(rf), rf.frame_data.rgb if keep_rgb else None,
                         truth_of(rf, max(IGNORE_BELOW_PX * spec.height_px / 720.0, floor_px),
                                  max(IGNORE_BELOW_VISIBLE, floor_vis)))
 
 
+class EvalError(DashtrajError):
+    """What is to be evaluated has no truth to score against."""
+
+
 def open_recording(path):
+    """A simulated recording (its frames rendered), or a drive with a ``truth.csv``
+    (its images read, its truth boxes projected: `dashtraj.datasets.drive_truth`).
+    EvalError for a drive without truth."""
+    from dashtraj.datasets.drive import Drive, is_drive
     from dashtraj.world.recording import Recording
 
+    if is_drive(path) and not (Path(path) / "meta.json").is_file():
+        drive = Drive.open(path)
+        if drive.truth is None:
+            raise EvalError(f"{path} is a drive without truth.csv: nothing to score "
+                            "against (see dashtraj.datasets.drive_truth)")
+        return drive
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return Recording.open(path)
@@ -189,6 +207,27 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
     return out
 
 
+def truth_positions(rec):
+    """``where(ef, vehicle_ids) -> (x, y)``: the true footprint centres of vehicles in an
+    `EvalFrame` (a recording's state at the frame's step; a drive's truth at its time)."""
+    from dashtraj.datasets.drive import Drive
+
+    if isinstance(rec, Drive):
+        def where(ef, vids):
+            m = rec.truth.at(ef.t)
+            j = np.searchsorted(m.vehicle_ids, vids)
+            return m.x[j], m.y[j]
+
+        return where
+    keys, xs, ys, n_v = _truth_positions(rec)
+
+    def where(ef, vids):
+        j = np.searchsorted(keys, ef.frame * n_v + vids)
+        return xs[j], ys[j]
+
+    return where
+
+
 def _truth_positions(rec):
     st = rec.states
     step = float(rec.meta.get("step_s", rec.config.traffic.step_s))
@@ -247,7 +286,7 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
 
     for rec in recordings:
         spec = image_camera(rec, size)
-        keys, xs, ys, n_v = _truth_positions(rec)
+        where = truth_positions(rec)
         if NEEDS_MAP & set(localizers):
             from dashtraj.roads import RoadMap
 
@@ -269,9 +308,7 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
             k = ef.t / every_s
             if not m.any() or abs(k - round(k)) > 1e-6:
                 continue
-            q = ef.frame * n_v + d.truth_ids[m]
-            j = np.searchsorted(keys, q)
-            tx, ty = xs[j], ys[j]
+            tx, ty = where(ef, d.truth_ids[m])
             true_d.append(np.hypot(tx - ef.pose.x, ty - ef.pose.y))
             on_scored.append(np.isin(d.truth_ids[m], ef.scored.truth_ids))
             scored.append((index - 1, m, tx, ty))

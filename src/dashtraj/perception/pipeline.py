@@ -359,11 +359,12 @@ def open_source(path: str | Path):
         return Recording.open(path)
 
 
-def check_drive_config(config: PerceiveConfig) -> None:
+def check_drive_config(config: PerceiveConfig, drive: Drive) -> None:
     """Refuse the settings that need a renderer (PerceiveError naming the option): a
-    drive's images are what they are."""
-    if config.detector == "oracle":
-        raise PerceiveError("a drive has no ground truth for --detector oracle; give a "
+    drive's images are what they are; and the ``oracle`` detector on a drive without
+    ``truth.csv``."""
+    if config.detector == "oracle" and drive.truth is None:
+        raise PerceiveError(f"{drive.path} has no truth.csv for --detector oracle; give a "
                             "detector model (--detector M.onnx, e.g. the shipped "
                             "src/dashtraj/data/detector/detector.onnx)")
     for name, value, default in (("size", config.size, None), ("msaa", config.msaa, 0),
@@ -435,7 +436,7 @@ def perceive(recording, db_path: str | Path, config: PerceiveConfig = PerceiveCo
     from dashtraj.roads import RoadMap
 
     if isinstance(recording, Drive):
-        check_drive_config(config)
+        check_drive_config(config, recording)
     build_detector(config.detector)  # fail early on a bad name
     if config.look is not None:
         from dashtraj.render.look import preset

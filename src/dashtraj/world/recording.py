@@ -573,9 +573,10 @@ class Recording:
         if not root.is_dir():
             raise RecordingError(f"recording {root} is not a directory")
         if (root / "drive.json").is_file() and not (root / "meta.json").is_file():
-            raise RecordingError(f"{root} is a drive (images and camera poses, no ground "
-                                 "truth), not a simulated recording: this command needs a "
-                                 "recording (dashtraj perceive reads drives)")
+            raise RecordingError(f"{root} is a drive (images and camera poses), not a "
+                                 "simulated recording: this command needs a recording "
+                                 "(dashtraj perceive reads drives; tracker, localization "
+                                 "and detector eval drives with truth.csv)")
 
         def need(name: str) -> Path:
             p = root / name
