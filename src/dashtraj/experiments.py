@@ -118,6 +118,13 @@ class ExperimentConfig:
             one of its boxes scored at least this much (`PerceiveConfig.confirm_score`).
         localizer: ``detections``/``vision``: perceive's localizer
             (`dashtraj.perception.localize.LOCALIZERS`).
+        drive: a drive folder (`dashtraj.datasets.drive`) to run instead of simulating
+            (``vision`` only): its images are perceived, its ``truth.csv`` names the
+            target (role ``target``) and scores the re-identification, its
+            ``target_route.csv`` is the true route (``carla-record`` writes all three;
+            ``render`` too). observers, agents, duration_s, twins, image_size and look
+            do not apply; ``experiments --drives`` sets town to the drive's map and
+            seed to 0.
     """
 
     town: str = "town10"
@@ -143,8 +150,12 @@ class ExperimentConfig:
     min_score: float = DEFAULT_MIN_SCORE
     confirm_score: float = CONFIRM_SCORE
     localizer: str = "smoothed"
+    drive: str | None = None
 
     def __post_init__(self) -> None:
+        if self.drive is not None and self.sightings != "vision":
+            raise ExperimentError(f"a drive is perceived from its images: sightings "
+                                  f"{self.sightings!r} needs a simulated recording")
         if self.reid not in REID_MODES:
             raise ExperimentError(f"unknown reid mode {self.reid!r}; valid: "
                                   f"{', '.join(REID_MODES)}")
@@ -260,12 +271,13 @@ def run_experiment(config: ExperimentConfig, out: str | Path,
     as each later stage starts.
     """
     from dashtraj.roads import RoadMap
-    from dashtraj.trajectory.io import write_sightings, write_trajectory
     from dashtraj.world.recording import Recording, RunConfig, simulate
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     stages = Stages(say)
+    if config.drive is not None:
+        return _run_drive_experiment(config, out, stages)
     run_config = RunConfig(map=config.town, seed=config.seed, duration_s=config.duration_s,
                            n_observers=config.observers, n_agents=config.agents,
                            n_twins=config.twins, until_target_arrives=True)
@@ -277,22 +289,61 @@ def run_experiment(config: ExperimentConfig, out: str | Path,
     stages.note(f"simulate: done, {run.simulated_to_t:.1f} s simulated, {run.vehicles} "
                 "vehicles")
     sightings, reid = target_sightings(config, rec, out, road_map, stages)
+    return _finish(config, out, stages, road_map, rec.target_route, sightings, reid,
+                   {"simulated_s": run.simulated_to_t, "target_arrived_t": run.target_arrived_t,
+                    "vehicles": run.vehicles})
+
+
+def _run_drive_experiment(config: ExperimentConfig, out: Path, stages: Stages
+                          ) -> ExperimentResult:
+    """`run_experiment` on a drive (`ExperimentConfig.drive`): perceive its images, find
+    its target (role ``target`` in ``truth.csv``) by appearance, score against its
+    ``target_route.csv``."""
+    from dashtraj.datasets.drive import Drive
+    from dashtraj.roads import RoadMap
+    from dashtraj.trajectory.io import read_trajectory
+
+    rec = Drive.open(config.drive)
+    if rec.truth is None:
+        raise ExperimentError(f"{rec.path} has no truth.csv: an experiment scores the "
+                              "re-identification against it")
+    targets = [v for v in rec.truth.vehicle_ids if rec.truth.role(v) == "target"]
+    if len(targets) != 1:
+        raise ExperimentError(f"{rec.truth.path}: {len(targets)} vehicles have role "
+                              "'target'; an experiment needs exactly one")
+    route = rec.path / "target_route.csv"
+    if not route.is_file():
+        raise ExperimentError(f"{route} is missing: an experiment scores the route "
+                              "against the target's true one")
+    truth = read_trajectory(route)
+    stages.start("drive", f"drive: {rec.path}, {len(rec.observer_ids)} observers, target "
+                          f"{targets[0]}")
+    road_map = RoadMap.from_file(rec.map_path)
+    sightings, reid = vision_sightings(config, rec, out, road_map, stages=stages,
+                                       target=targets[0])
+    return _finish(config, out, stages, road_map, truth, sightings, reid,
+                   {"simulated_s": max(p.t for rows in rec.poses.values() for p in rows),
+                    "target_arrived_t": None, "vehicles": len(rec.truth.vehicle_ids)})
+
+
+def _finish(config: ExperimentConfig, out: Path, stages: Stages, road_map, truth,
+            sightings: list, reid: dict, run: dict) -> ExperimentResult:
+    """Reconstruct and score the target's sightings; write the run's files and summary."""
+    from dashtraj.trajectory.io import write_sightings, write_trajectory
+
     true_match = reid.pop("_true_match")
     stages.start("reconstruct", f"reconstruct ({', '.join(config.methods)}) from "
                                 f"{len(sightings)} sightings in "
                                 f"{len({(s.observer_id, s.track_id) for s in sightings})} "
                                 "tracks, and score")
     write_sightings(out / "sightings.csv", sightings)
-    truth = rec.target_route
     write_trajectory(out / "truth.csv", truth)
 
     results, estimates, seen = reconstruct_and_score(road_map, truth, sightings,
                                                      config.methods, out)
     summary = {
         "config": config.to_dict(),
-        "simulated_s": run.simulated_to_t,
-        "target_arrived_t": run.target_arrived_t,
-        "vehicles": run.vehicles,
+        **run,
         "sightings": len(sightings),
         "observers_that_saw_target": len({s.observer_id for s in sightings}),
         "target_tracks": len({(s.observer_id, s.track_id) for s in sightings}),
@@ -394,12 +445,17 @@ def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
     (`config.workers` processes), saying how many frames are done as batches land."""
     import math
 
+    from dashtraj.datasets.drive import Drive
     from dashtraj.perception.pipeline import PerceiveConfig, perceive
 
     stages = stages or Stages()
-    n_obs = len(rec.meta.get("observer_ids", [])) or config.observers
-    total = n_obs * (math.floor(float(rec.meta.get("simulated_to_t", config.duration_s))
-                                / config.every_s + 1e-9) + 1)
+    if isinstance(rec, Drive):
+        n_obs = len(rec.observer_ids)
+        total = sum(len(rec.frame_poses(o, config.every_s)) for o in rec.observer_ids)
+    else:
+        n_obs = len(rec.meta.get("observer_ids", [])) or config.observers
+        total = n_obs * (math.floor(float(rec.meta.get("simulated_to_t", config.duration_s))
+                                    / config.every_s + 1e-9) + 1)
     stages.start(f"perceive ({detector})",
                  f"perceive: {n_obs} observers × {total // max(n_obs, 1)} frames "
                  f"({config.image_size[0] if config.image_size else '?'}×"
@@ -426,23 +482,28 @@ def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
 
 
 def vision_sightings(config: ExperimentConfig, rec, out: Path, road_map,
-                     model=None, stages: Stages | None = None) -> tuple[list, dict]:
+                     model=None, stages: Stages | None = None,
+                     target: int | None = None) -> tuple[list, dict]:
     """``vision``: perceive into ``out/sightings.db``, then re-identify the target
     (`dashtraj.reidentify.vision.target_from_db`). `model`: (embedder, Threshold), or
-    None to load `reid_model_of(config)`."""
+    None to load `reid_model_of(config)`. `target`: its vehicle id (None: the
+    recording's). A drive is perceived without a look: its images are what they are."""
+    from dashtraj.datasets.drive import Drive
     from dashtraj.reidentify.vision import StageSwitches, target_from_db
 
     stages = stages or Stages()
     db_path = out / "sightings.db"
-    target = int(rec.meta.get("target_vehicle_id", 0))
+    if target is None:
+        target = int(rec.meta.get("target_vehicle_id", 0))
     if config.reid == "identity":
-        perceive_run(config, rec, db_path, config.detector, config.look, stages)
+        perceive_run(config, rec, db_path, config.detector,
+                     None if isinstance(rec, Drive) else config.look, stages)
         stages.start("re-identify", "re-identify: the target's tracks by true identity")
         tt = target_from_db(db_path, road_map, target, switches=StageSwitches(reid="identity"),
                             max_distance_m=config.max_distance_m, sample_s=SAMPLE_S)
         return tt.sightings, {**tt.summary, "look": config.look, "_true_match": tt.true_match}
     embedder, th = model if model is not None else reid_model_of(config)
-    look = look_of(config, th)
+    look = None if isinstance(rec, Drive) else look_of(config, th)
     perceive_run(config, rec, db_path, config.detector, look, stages)
     tt = target_from_db(db_path, road_map, target, embedder=embedder,
                         threshold=th.calibration.threshold, recipe=th.calibration.recipe,
@@ -583,7 +644,8 @@ def plot_experiment(result: ExperimentResult, path: str | Path) -> Path:
                            label=f"sightings, {label} ({len(pts)}; estimated positions)")
     ax.legend(loc="upper right", fontsize=8)
     c = result.config
-    ax.set_title(f"{c.town}, seed {c.seed}: {len(first)} observers saw the target")
+    where = f"drive {Path(c.drive).name}" if c.drive else f"{c.town}, seed {c.seed}"
+    ax.set_title(f"{where}: {len(first)} observers saw the target")
     return save(fig, path)
 
 

@@ -227,3 +227,52 @@ def test_commands_that_need_a_recording_say_a_drive_is_not_one(tmp_path, capsys)
         assert "is a drive without truth.csv: nothing to score against" in err
         assert err.count("\n") == 1
 
+
+def test_a_drive_is_an_experiment_from_its_own_images(rendered_drive, tmp_path, capsys):
+    """`experiments --drives`: the paper's experiment on a recorded drive (what
+    carla-record writes): perceive its images, find its truth's target by appearance,
+    score the route against its target_route.csv."""
+    out = tmp_path / "exp"
+    assert main(["experiments", "--drives", str(rendered_drive), "--detector", "oracle",
+                 "-o", str(out), "--json", "-q"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    (e,) = res["experiments"]
+    run = out / rendered_drive.name
+    for name in ("sightings.db", "sightings.csv", "truth.csv", "estimate_hmm.csv",
+                 "estimate_shortest-path.csv", "summary.json"):
+        assert (run / name).is_file(), name
+    assert not (run / "recording").exists()
+    s = json.loads((run / "summary.json").read_text())
+    assert s["config"]["drive"] == str(rendered_drive) and s["config"]["image_size"] is None
+    assert s["reid_true_matches"] >= 1 and s["reid_precision"] == 1.0
+    assert e["experiment"] == rendered_drive.name
+    assert s["methods"]["hmm"]["sspd_seen_m"] == e["methods"]["hmm"]["sspd_seen_m"] < 5.0
+    # the route it is scored against is the recording's
+    assert (run / "truth.csv").read_text() == (rendered_drive / "target_route.csv").read_text()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--seeds", "0-2"], "--seeds does not apply to --drives"),
+    (["--size", "64x48"], "--size does not apply to --drives"),
+    (["--ablation"], "--drives with --ablation"),
+    (["--sightings", "oracle"], "--drives runs from pixels"),
+])
+def test_experiments_on_drives_refuse_what_needs_a_simulation(tmp_path, capsys, args,
+                                                             message):
+    root = _tiny_drive(tmp_path / "d")
+    out = tmp_path / "exp"
+    assert main(["experiments", "--drives", str(root), "-o", str(out), *args]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1 and not out.exists()
+
+
+def test_an_experiment_needs_a_drive_with_truth_and_a_route(tmp_path, capsys):
+    from dashtraj.datasets.drive_truth import write_truth
+
+    root = _tiny_drive(tmp_path / "d")
+    out = tmp_path / "exp"
+    assert main(["experiments", "--drives", str(root), "-o", str(out)]) == 2
+    assert "no truth.csv" in capsys.readouterr().err
+    write_truth(root / "truth.csv", [(0.0, 1, "target", "x", "car", 1, 1, 0, 0, 2, 1, 1)])
+    assert main(["experiments", "--drives", str(root), "-o", str(out)]) == 2
+    assert "no target_route.csv" in capsys.readouterr().err and not out.exists()

@@ -46,8 +46,14 @@ sightings are taken with stages turned real one at a time (detection, tracking,
 localization, ReID); it prints the mean SSPD each real stage adds and writes
 OUT/ablation.json.
 
+--drives DRIVE... runs each recorded drive as an experiment instead of simulating (what
+dashtraj carla-record writes from a CARLA server, or dashtraj render --png --depth from a
+recording): its images are perceived as they are, its truth.csv names the target (role
+'target') and scores the re-identification, its target_route.csv scores the route.
+
 Writes OUT/<town>_seed<N>/ (recording/, sightings.csv, truth.csv, estimate_<method>.csv,
-summary.json) and OUT/summary.json (every experiment and the means)."""
+summary.json; OUT/<drive folder name>/ with --drives, no recording/) and OUT/summary.json
+(every experiment and the means)."""
 
 
 def register(sub) -> None:
@@ -55,10 +61,11 @@ def register(sub) -> None:
                        help="run the paper's ten driving experiments (5 × town01, 5 × town10)",
                        description=DESCRIPTION,
                        formatter_class=HelpFormatter)
-    p.add_argument("--towns", nargs="+", default=["town01", "town10"],
-                   help="towns (built-in names or .xodr paths)")
-    p.add_argument("--seeds", type=seed_list, default="0-4",
-                   help="seeds per town: a range A-B, a list a,b,c, or a count N (0..N-1)")
+    p.add_argument("--towns", nargs="+", default=None,
+                   help="towns (built-in names or .xodr paths; default town01 town10)")
+    p.add_argument("--seeds", type=seed_list, default=None,
+                   help="seeds per town: a range A-B, a list a,b,c, or a count N (0..N-1; "
+                        "default 0-4)")
     p.add_argument("--noise", choices=("paper", "none"), default="paper",
                    help="localization noise of the oracle sightings")
     add_vision_args(p, default_sightings=None)
@@ -71,6 +78,11 @@ def register(sub) -> None:
     p.add_argument("--gate", action=argparse.BooleanOptionalAction, default=True,
                    help="with --reid look-alike or appearance: the spatio-temporal gate "
                         "(default on)")
+    p.add_argument("--drives", nargs="+", default=None, metavar="DRIVE",
+                   help="run each drive (images, camera poses, truth.csv with one role "
+                        "'target', target_route.csv: what carla-record writes, or render) "
+                        "as an experiment instead of simulating: from pixels, its images "
+                        "as they are (no --towns/--seeds/--twins/--size/--look)")
     p.add_argument("--ablation", action="store_true",
                    help="the error budget: each stage oracle vs real, the SSPD each adds")
     p.add_argument("-o", "--output", default="runs/experiments", help="output folder")
@@ -80,6 +92,40 @@ def register(sub) -> None:
     p.add_argument("-q", "--quiet", action="store_true",
                    help="no progress lines on stderr")
     p.set_defaults(func=run)
+
+
+def drive_runs(args, base) -> list:
+    """(config, name) of each ``--drives`` folder, checked before any work: a drive
+    (`Drive.open`), with truth and a target route; options that need a simulation are
+    refused."""
+    from dashtraj.cli._args import ArgumentError
+    from dashtraj.datasets.drive import Drive
+
+    if base.sightings != "vision":
+        raise ArgumentError("--drives runs from pixels: leave --sightings out")
+    if base.reid == "look-alike":
+        raise ArgumentError("--drives with --reid look-alike: a drive has no twins to tell")
+    for flag, given in (("--towns", args.towns is not None),
+                        ("--seeds", args.seeds is not None), ("--twins", args.twins),
+                        ("--size", args.size is not None), ("--look", args.look is not None)):
+        if given:
+            raise ArgumentError(f"{flag} does not apply to --drives (their images are what "
+                                "they are)")
+    runs, seen = [], set()
+    for d in args.drives:
+        drive = Drive.open(d)
+        if drive.truth is None:
+            raise ArgumentError(f"--drives {d}: no truth.csv (the experiment scores the "
+                                "re-identification against it)")
+        if not (drive.path / "target_route.csv").is_file():
+            raise ArgumentError(f"--drives {d}: no target_route.csv (the true route)")
+        name = Path(d).resolve().name
+        if name in seen:
+            raise ArgumentError(f"--drives {d}: two drives named {name!r}")
+        seen.add(name)
+        runs.append((replace(base, drive=str(drive.path), town=str(drive.map_path), seed=0,
+                             image_size=None, look=None), name))
+    return runs
 
 
 def town_label(town: str) -> str:
@@ -108,6 +154,12 @@ def run(args) -> int:
     from dashtraj.world.towns import UnknownTownError, resolve_map
 
     out = check_output(args.output, overwrite=args.overwrite, kind="dir")
+    if args.drives is None:  # the paper's ten
+        args.towns = args.towns or ["town01", "town10"]
+        args.seeds = args.seeds or seed_list("0-4")
+    elif args.ablation:
+        raise ArgumentError("--drives with --ablation: the error budget needs the "
+                            "renderer's exact boxes (a simulated recording)")
     if args.sightings is None:  # from pixels, except the look-alike test (oracle tracks)
         args.sightings = "oracle" if args.reid == "look-alike" else "vision"
     vision = vision_settings(args)
@@ -123,7 +175,7 @@ def run(args) -> int:
                             **{**vision, "image_size": vision["image_size"]
                                or (VISION_SIZE if args.ablation else None)})
     check_reid_model(base)
-    for town in args.towns:  # every town named must exist before hours of work start
+    for town in args.towns or ():  # every town named must exist before hours of work start
         try:
             resolve_map(town)
         except UnknownTownError as exc:
@@ -133,39 +185,41 @@ def run(args) -> int:
         return run_ablation_suite(args, base, out)
     from dashtraj.cli.cmd_demo import stage_printer
 
+    if args.drives is not None:
+        runs = drive_runs(args, base)
+    else:
+        runs = [(replace(base, town=town, seed=seed), f"{town_label(town)}_seed{seed}")
+                for town in args.towns for seed in args.seeds]
     summaries = []
     names = []
     header = False
     total = {"wall_s": 0.0, "cpu_s": 0.0}
-    n_runs = len(args.towns) * len(args.seeds)
+    n_runs = len(runs)
     with atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:
-        for town in args.towns:
-            for seed in args.seeds:
-                cfg = replace(base, town=town, seed=seed)
-                name = f"{town_label(town)}_seed{seed}"
-                say = None if args.quiet else stage_printer(
-                    f"{name} {len(names) + 1}/{n_runs}")
-                res = run_experiment(cfg, tmp / name, say=say)
-                if args.plots:
-                    plot_experiment(res, tmp / name / "trajectory.png")
-                for k in total:
-                    total[k] += sum(v[k] for v in res.timing.values())
-                summaries.append(res.summary)
-                names.append(name)
-                if args.json:
-                    continue
-                m = res.summary["methods"]
-                if not header:
-                    print(f"{'experiment':16s} {'sightings':>9s} {'observers':>9s}   "
-                          + "  ".join(f"{k + ' SSPD whole / seen':>34s}" for k in cfg.methods))
-                    header = True
-                row = "  ".join(f"{m[k]['sspd_m']:24.2f} / {m[k]['seen_sspd_m']:5.2f} m"
-                                if k in m else f"{'(no sightings)':>34s}" for k in cfg.methods)
-                wall = sum(v["wall_s"] for v in res.timing.values())
-                cpu = sum(v["cpu_s"] for v in res.timing.values())
-                print(f"{name:16s} {res.summary['sightings']:9d} "
-                      f"{res.summary['observers_that_saw_target']:9d}   {row}   "
-                      f"({wall:.0f} s, CPU {cpu:.0f} s)", flush=True)
+        for cfg, name in runs:
+            say = None if args.quiet else stage_printer(
+                f"{name} {len(names) + 1}/{n_runs}")
+            res = run_experiment(cfg, tmp / name, say=say)
+            if args.plots:
+                plot_experiment(res, tmp / name / "trajectory.png")
+            for k in total:
+                total[k] += sum(v[k] for v in res.timing.values())
+            summaries.append(res.summary)
+            names.append(name)
+            if args.json:
+                continue
+            m = res.summary["methods"]
+            if not header:
+                print(f"{'experiment':16s} {'sightings':>9s} {'observers':>9s}   "
+                      + "  ".join(f"{k + ' SSPD whole / seen':>34s}" for k in cfg.methods))
+                header = True
+            row = "  ".join(f"{m[k]['sspd_m']:24.2f} / {m[k]['seen_sspd_m']:5.2f} m"
+                            if k in m else f"{'(no sightings)':>34s}" for k in cfg.methods)
+            wall = sum(v["wall_s"] for v in res.timing.values())
+            cpu = sum(v["cpu_s"] for v in res.timing.values())
+            print(f"{name:16s} {res.summary['sightings']:9d} "
+                  f"{res.summary['observers_that_saw_target']:9d}   {row}   "
+                  f"({wall:.0f} s, CPU {cpu:.0f} s)", flush=True)
         agg = aggregate(summaries)
         reid = aggregate_reid(summaries)
         (tmp / "summary.json").write_text(
