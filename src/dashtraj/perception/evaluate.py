@@ -1,5 +1,6 @@
 """Evaluations of the perception stages against the renderer's truth (or a drive's
-``truth.csv``: its truth boxes are 3-D boxes' outlines, `dashtraj.datasets.drive_truth`).
+``truth.csv``: its vehicles' 3-D boxes projected into each frame, hugging the vehicles'
+pixels where the frame has a depth image; `dashtraj.datasets.drive_truth`).
 
 - `tracker_eval`: every tracker (ours and the BoxMOT peers that can run) is fed the same
   detections of every observer's frames, in one pass over the rendered frames; scored
