@@ -193,3 +193,13 @@ def test_with_depth_a_car_is_its_pixels_and_a_wall_hides_it():
     # a wall 10 m ahead hides it whole: no pixel is the car's, its silhouette is hidden
     _, (hid,), _ = truth_frame(CAM, pose, m, depth=_depth_of(CAM, pose, wall_m=10.0))
     assert hid.visible_box is None and hid.visible_fraction == 0.0 and hid.silhouette_pixels
+
+
+def test_a_drive_gets_no_randomized_look_in_a_detection_set(tmp_path, capsys):
+    root = _tiny_drive(tmp_path / "d")
+    write_truth(root / "truth.csv", [ROW])
+    out = tmp_path / "set"
+    assert main(["detection-dataset", str(root), "-o", str(out), "--randomize", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "is a drive: its images are what they are" in err and err.count("\n") == 1
+    assert not out.exists()

@@ -226,6 +226,11 @@ def test_commands_that_need_a_recording_say_a_drive_is_not_one(tmp_path, capsys)
         err = capsys.readouterr().err
         assert "is a drive without truth.csv: nothing to score against" in err
         assert err.count("\n") == 1
+    out = tmp_path / "set"
+    assert main(["detection-dataset", str(root), "-o", str(out), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "is a drive without truth.csv: no labels for a detection set" in err
+    assert err.count("\n") == 1 and not out.exists()
 
 
 def test_a_drive_is_an_experiment_from_its_own_images(rendered_drive, tmp_path, capsys):
@@ -276,3 +281,30 @@ def test_an_experiment_needs_a_drive_with_truth_and_a_route(tmp_path, capsys):
     write_truth(root / "truth.csv", [(0.0, 1, "target", "x", "car", 1, 1, 0, 0, 2, 1, 1)])
     assert main(["experiments", "--drives", str(root), "-o", str(out)]) == 2
     assert "no target_route.csv" in capsys.readouterr().err and not out.exists()
+
+
+def test_a_drive_with_truth_is_a_detection_set_like_its_recording(small_run, rendered_drive,
+                                                                  tmp_path):
+    """`detection-dataset DRIVE`: a drive's own images (CARLA's, from carla-record) with
+    labels from its truth; rendered from a recording, the same images and labels to a
+    pixel."""
+    sets = {}
+    for name, src in (("rec", small_run.path), ("drive", rendered_drive)):
+        out = tmp_path / name
+        assert main(["detection-dataset", str(src), "-o", str(out), "--size", "320x180",
+                     "--every", "0.5", "-q"]) == 0
+        imgs = sorted(out.glob("images/*/*.jpg"))
+        sets[name] = ([p.read_bytes() for p in imgs],
+                      [[ln.split() for ln in p.with_suffix(".txt").read_text().splitlines()]
+                       for p in (out / "labels" / q.parent.name / q.name for q in imgs)])
+    (img_a, lab_a), (img_b, lab_b) = sets["rec"], sets["drive"]
+    assert len(img_a) == 153 and img_a == img_b
+    n = 0
+    for a, b in zip(lab_a, lab_b, strict=True):  # the same boxes, perhaps in another order
+        assert sorted(r[0] for r in a) == sorted(r[0] for r in b)
+        for ra in a:
+            n += 1
+            px = min((np.abs(np.array(ra[1:], float) - np.array(rb[1:], float))
+                      * [320, 180, 320, 180]).max() for rb in b if rb[0] == ra[0])
+            assert px <= 1.5, (ra, b)
+    assert n > 30

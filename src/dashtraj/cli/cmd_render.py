@@ -67,10 +67,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "YOLO set: images/{train,val}, labels/{train,val} (class cx cy w h of visible "
             "boxes, normalised), data.yaml, dataset.json. Split by recording (by observer "
             "with one recording). Vehicles lower than --min-box-height or more occluded "
-            "than --max-occlusion stay unlabelled in the image (YOLO sees background)."
+            "than --max-occlusion stay unlabelled in the image (YOLO sees background). A "
+            "drive with truth.csv (CARLA's frames from carla-record: labels from the "
+            "vehicles' boxes and the depth camera) gives its own images, scaled to --size."
         ),
     )
-    d.add_argument("recordings", nargs="+", metavar="RUN", help="recording directories")
+    d.add_argument("recordings", nargs="+", metavar="RUN",
+                   help="recording directories, or drives with truth.csv")
     d.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
     d.add_argument("--every", type=positive_float, default=0.5, metavar="S",
                    help="sampling period, seconds (default 0.5)")
@@ -152,12 +155,16 @@ def _bar(args, total: int, unit: str):
 
 
 def _frame_total(recordings, every_s: float, observers=None) -> int:
+    from dashtraj.datasets.drive import Drive
     from dashtraj.datasets.frames import observer_ids, sample_steps
 
     n = 0
     for rec in recordings:
         obs = observers or observer_ids(rec)
-        n += len(sample_steps(rec, every_s)) * len(obs)
+        if isinstance(rec, Drive):
+            n += sum(len(rec.frame_poses(o, every_s)) for o in obs)
+        else:
+            n += len(sample_steps(rec, every_s)) * len(obs)
     return n
 
 
@@ -225,10 +232,10 @@ def run_detection(args: argparse.Namespace) -> int:
         DetectionConfig,
         build_detection_dataset,
         data_yaml,
+        open_recording_or_drive,
     )
     from dashtraj.datasets.frames import parse_size
     from dashtraj.outputs import atomic_output, check_output
-    from dashtraj.world.recording import Recording
 
     out = check_output(args.output, overwrite=args.overwrite, kind="dir")
     cfg = DetectionConfig(every_s=args.every, size=parse_size(args.size),
@@ -245,7 +252,7 @@ def run_detection(args: argparse.Namespace) -> int:
             raise ArgumentError(f"recording {p} is given twice (also as {seen[key]}); "
                                 "each recording once, or its frames leak between train and val")
         seen[key] = p
-    recs = [Recording.open(p) for p in args.recordings]
+    recs = [open_recording_or_drive(p) for p in args.recordings]
     parallel = args.workers > 1 and len(recs) > 1
     bar = _bar(args, len(recs) if parallel else _frame_total(recs, args.every),
                "recording" if parallel else "frame")

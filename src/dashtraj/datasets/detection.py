@@ -1,4 +1,7 @@
-"""A YOLO detection set (15 classes: class × orientation) rendered from recordings.
+"""A YOLO detection set (15 classes: class × orientation) rendered from recordings, or
+read from drives with ground truth (`dashtraj.datasets.drive_truth`: CARLA's own frames
+from ``carla-record``, their labels from the vehicles' boxes and the depth camera; the
+images scaled to the set's size).
 
 Layout (Ultralytics/YOLOv5-7 format)::
 
@@ -36,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dashtraj.datasets.frames import DatasetError, encode_jpeg, recording_frames
+from dashtraj.datasets.frames import DatasetError, encode_jpeg, recording_frames, source_frames
 
 
 @dataclass(frozen=True)
@@ -142,11 +145,16 @@ def build_detection_dataset(recordings, out_dir, config: DetectionConfig = Detec
     Raises:
         DatasetError: no recording given, or a recording without observers.
     """
+    from dashtraj.datasets.drive import Drive
     from dashtraj.datasets.frames import observer_ids
 
     recs = list(recordings)
     if not recs:
         raise DatasetError("no recording given")
+    if config.randomize and any(isinstance(r, Drive) for r in recs):
+        d = next(r for r in recs if isinstance(r, Drive))
+        raise DatasetError(f"{d.path} is a drive: its images are what they are (no "
+                           "randomized look)")
     out = Path(out_dir)
     for split in ("train", "val"):
         (out / "images" / split).mkdir(parents=True, exist_ok=True)
@@ -208,6 +216,21 @@ def build_detection_dataset(recordings, out_dir, config: DetectionConfig = Detec
     return info
 
 
+def open_recording_or_drive(path):
+    """A recording (`Recording.open`), or a drive with truth (`Drive.open`): a drive
+    without ``truth.csv`` has no labels to give (DatasetError)."""
+    from dashtraj.datasets.drive import Drive, is_drive
+    from dashtraj.world.recording import Recording
+
+    if is_drive(path) and not (Path(path) / "meta.json").is_file():
+        drive = Drive.open(path)
+        if drive.truth is None:
+            raise DatasetError(f"{path} is a drive without truth.csv: no labels for a "
+                               "detection set (see dashtraj.datasets.drive_truth)")
+        return drive
+    return Recording.open(path)
+
+
 def _render_job(job: tuple) -> dict:
     """A worker process's `_render_recording` (opens the recording by path)."""
     return _render_recording(*job)
@@ -217,10 +240,10 @@ def _render_recording(ri: int, rec_path: str, val, out_dir: str, config: Detecti
                       rec=None, progress=None) -> dict:
     """Write the images and labels of recording ``ri``; ``val`` is its split (bool) or,
     split by observer, {observer id: bool}. Returns its counts, class counts and look rows."""
-    if rec is None:
-        from dashtraj.world.recording import Recording
+    from dashtraj.datasets.drive import Drive
 
-        rec = Recording.open(rec_path)
+    if rec is None:
+        rec = open_recording_or_drive(rec_path)
     out = Path(out_dir)
     w, h = config.size
     counts = {s: {"images": 0, "labels": 0, "background": 0} for s in ("train", "val")}
@@ -232,13 +255,24 @@ def _render_recording(ri: int, rec_path: str, val, out_dir: str, config: Detecti
 
         def look_for(o, k):
             return random_look(frame_rng(config.randomize_seed, ri, o, k))
-    for rf in recording_frames(rec, config.every_s, (w, h), look_for=look_for):
+    if isinstance(rec, Drive):  # its images and truth boxes, scaled to the set's size
+        frames = source_frames(rec, config.every_s)
+        fw, fh = rec.config.camera.width_px, rec.config.camera.height_px
+    else:
+        frames = recording_frames(rec, config.every_s, (w, h), look_for=look_for)
+        fw, fh = w, h
+    for rf in frames:
         is_val = val[rf.observer_id] if isinstance(val, dict) else val
         split = "val" if is_val else "train"
         stem = f"r{ri:02d}_{rec.path.name}_o{rf.observer_id}_{rf.frame:06d}"
-        lines = yolo_lines(rf.frame_data.labels, w, h, config.min_box_height_px,
+        lines = yolo_lines(rf.frame_data.labels, fw, fh, config.min_box_height_px * fh / h,
                            config.max_occlusion)
-        (out / "images" / split / f"{stem}.jpg").write_bytes(encode_jpeg(rf.frame_data.rgb))
+        rgb = rf.frame_data.rgb
+        if (fw, fh) != (w, h):
+            from PIL import Image
+
+            rgb = np.asarray(Image.fromarray(rgb).resize((w, h), Image.Resampling.BOX))
+        (out / "images" / split / f"{stem}.jpg").write_bytes(encode_jpeg(rgb))
         (out / "labels" / split / f"{stem}.txt").write_text(
             "".join(f"{ln}\n" for ln in lines), encoding="utf-8")
         if config.randomize:
