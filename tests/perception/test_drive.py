@@ -231,6 +231,10 @@ def test_commands_that_need_a_recording_say_a_drive_is_not_one(tmp_path, capsys)
     err = capsys.readouterr().err
     assert "is a drive without truth.csv: no labels for a detection set" in err
     assert err.count("\n") == 1 and not out.exists()
+    assert main(["reid", "drive-set", str(root), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "is a drive without truth.csv" in err and err.count("\n") == 1
+    assert not out.exists()
 
 
 def test_a_drive_is_an_experiment_from_its_own_images(rendered_drive, tmp_path, capsys):
@@ -308,3 +312,40 @@ def test_a_drive_with_truth_is_a_detection_set_like_its_recording(small_run, ren
                       * [320, 180, 320, 180]).max() for rb in b if rb[0] == ra[0])
             assert px <= 1.5, (ra, b)
     assert n > 30
+
+
+def test_a_drive_with_truth_is_a_reid_set_in_the_veri_layout(rendered_drive, tmp_path,
+                                                             capsys):
+    """`reid drive-set`: every vehicle an identity, every observer a camera; train and test
+    identities apart; queries from cameras that are not their gallery's; `reid eval`
+    reads it."""
+    import re
+
+    from dashtraj.datasets.reid import NAME_PATTERN
+
+    out = tmp_path / "set"
+    assert main(["reid", "drive-set", str(rendered_drive), "-o", str(out), "--min-box-height",
+                 "16", "--json"]) == 0
+    counts = json.loads(capsys.readouterr().out)
+    info = json.loads((out / "reid.json").read_text())
+    assert [c["observer_id"] for c in info["cameras"]] == [1, 2, 3]
+    ids = {s: set() for s in ("train", "query", "test")}
+    cams = {s: {} for s in ("query", "test")}
+    for s in ids:
+        names = (out / f"name_{s}.txt").read_text().split()
+        assert sorted(p.name for p in (out / f"image_{s}").iterdir()) == names
+        assert len(names) == counts[s]["images"]
+        for n in names:
+            assert re.match(NAME_PATTERN, n), n
+            ids[s].add(int(n[:4]))
+            if s in cams:
+                cams[s].setdefault(int(n[:4]), set()).add(int(n[6:9]))
+    assert ids["train"] and ids["query"] and not ids["train"] & (ids["query"] | ids["test"])
+    assert ids["query"] <= ids["test"]
+    for vid, qc in cams["query"].items():  # a query's camera holds none of its gallery
+        assert not qc & cams["test"][vid]
+    by_id = {i["id"]: i for i in info["identities"]}
+    assert {by_id[i]["split"] for i in ids["train"]} == {"train"}
+    assert main(["reid", "eval", "--data", str(out), "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["queries"] == counts["query"]["images"] and 0.0 <= res["rank1"] <= 1.0

@@ -1,4 +1,4 @@
-"""`dashtraj reid train|eval|export|moving-queries|moving-train|embed|query`: vehicle
+"""`dashtraj reid train|eval|export|moving-queries|moving-train|drive-set|embed|query`: vehicle
 re-identification (``embed`` and ``query`` on a sightings database run in
 `dashtraj.cli.reid_db`)."""
 
@@ -112,6 +112,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "cameras and recordings under \"train_moving\". Test identities in the "
                     "recordings are skipped and counted.")
     _moving_arguments(mt, "train")
+
+    ds = sub.add_parser(
+        "drive-set",
+        help="a VeRi-layout ReID set from drives with truth.csv (CARLA's own frames)",
+        description="Every vehicle of the drives (carla-record's, or render's) is an "
+                    "identity, every observer a camera: crops of their truth boxes (mostly "
+                    "visible, tall enough) become image_train/ or, for --test-fraction of "
+                    "the identities, image_query/ and image_test/ (about a tenth of each test "
+                    "id's cameras as queries), with name_*.txt and reid.json; 'dashtraj reid "
+                    "eval --data OUT' scores a model on CARLA's images, 'reid train' learns "
+                    "from them.")
+    ds.add_argument("drives", nargs="+", metavar="DRIVE", help="drive folders with truth.csv")
+    ds.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
+    _drive_set_arguments(ds)
+    from dashtraj.outputs import add_output_args
+
+    add_output_args(ds)
+    ds.set_defaults(func=run_drive_set)
 
     x = sub.add_parser(
         "export", help="export a checkpoint (best.pt) to ONNX (needs the .[train] extra)",
@@ -239,6 +257,62 @@ def run_export(args: argparse.Namespace) -> int:
     else:
         print(f"{args.output}: {meta['model']} {meta['input_height']}x{meta['input_width']}, "
               f"{len(data) / 1e6:.2f} MB, sha256 {info['sha256'][:16]}...")
+    return 0
+
+
+def _drive_set_arguments(p: argparse.ArgumentParser) -> None:
+    from dashtraj.cli._args import (
+        fraction,
+        int_at_least,
+        non_negative_float,
+        positive_float,
+        seed,
+    )
+    from dashtraj.datasets.reid import DriveReidConfig
+
+    c = DriveReidConfig()
+    p.add_argument("--every", type=positive_float, default=c.every_s, metavar="S",
+                   help=f"sampling period, seconds (default {c.every_s:g})")
+    p.add_argument("--size", type=int_at_least(16), default=c.size, metavar="PX",
+                   help=f"crop long side (default {c.size})")
+    p.add_argument("--min-box-height", type=non_negative_float, default=c.min_box_height_px,
+                   metavar="PX", help=f"smallest box kept (default {c.min_box_height_px:g})")
+    p.add_argument("--min-visible", type=fraction, default=c.min_visible_fraction,
+                   help=f"smallest visible fraction kept (default {c.min_visible_fraction:g})")
+    p.add_argument("--test-fraction", type=fraction, default=c.test_fraction,
+                   help=f"share of identities held out (default {c.test_fraction:g})")
+    p.add_argument("--seed", type=seed, default=c.seed, help="split seed (default 0)")
+    p.add_argument("--json", action="store_true", help="print the counts as JSON")
+
+
+def run_drive_set(args: argparse.Namespace) -> int:
+    """Write a VeRi-layout set from drives with truth; prints the counts; returns 0."""
+    from dashtraj.datasets.detection import open_recording_or_drive
+    from dashtraj.datasets.drive import Drive
+    from dashtraj.datasets.frames import DatasetError
+    from dashtraj.datasets.reid import DriveReidConfig, drive_reid_set
+    from dashtraj.outputs import atomic_output, check_output
+
+    out = check_output(args.output, overwrite=args.overwrite, kind="dir")
+    drives = []
+    for p in args.drives:
+        d = open_recording_or_drive(p)
+        if not isinstance(d, Drive):
+            raise DatasetError(f"{p} is a simulated recording, not a drive (reid-dataset "
+                               "builds sets from recordings)")
+        drives.append(d)
+    cfg = DriveReidConfig(every_s=args.every, size=args.size, margin=0.1,
+                          min_visible_fraction=args.min_visible,
+                          min_box_height_px=args.min_box_height,
+                          test_fraction=args.test_fraction, seed=args.seed)
+    with atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:
+        info = drive_reid_set(drives, tmp, cfg)
+    if args.json:
+        print(json.dumps(info["counts"]))
+    else:
+        c = info["counts"]
+        print(f"{out}: {len(info['identities'])} identities, {len(info['cameras'])} cameras; "
+              + ", ".join(f"{s} {c[s]['images']} images of {c[s]['ids']} ids" for s in c))
     return 0
 
 

@@ -52,6 +52,7 @@ folder, sorted. Output bytes do not depend on the number of worker processes.
 
 from __future__ import annotations
 
+import io
 import json
 import math
 from dataclasses import asdict, dataclass, field
@@ -565,3 +566,107 @@ def moving_crops(recordings, out_dir, config: ReidConfig, split: str = "test", *
                                                   encoding="utf-8")
     return {"counts": {"images": len(names), "ids": len({n[:4] for n in names}),
                        f"skipped_not_{split}": skipped}, "cameras": cams}
+
+
+@dataclass(frozen=True)
+class DriveReidConfig:
+    """A VeRi-layout set from drives with truth (`drive_reid_set`).
+
+    Attributes:
+        every_s: frames sampled, seconds. size: crop long side, pixels. margin: crop
+        margin, fraction of the box. min_visible_fraction, min_box_height_px: the crops
+        kept (a vehicle mostly in view and big enough to tell). test_fraction: share of
+        the identities held out for query and gallery. seed: the split's and the query
+        cameras' seed.
+    """
+
+    every_s: float = 0.5
+    size: int = 256
+    margin: float = 0.1
+    min_visible_fraction: float = 0.6
+    min_box_height_px: float = 40.0
+    test_fraction: float = 0.5
+    seed: int = 0
+
+
+def drive_reid_set(drives, out_dir, config: DriveReidConfig = DriveReidConfig()) -> dict:
+    """A VeRi-776-layout ReID set from drives with ground truth (CARLA's own frames from
+    ``carla-record``): every vehicle of every drive is an identity (ids 1… in the order
+    (drive, vehicle id)), every drive's observer a camera (1…), every crop of a truth box
+    kept by the config's filters an image ``<id>_c<cam>_<frame>_<drive index>.jpg``.
+    ``test_fraction`` of the identities (drawn with ``seed``) go to ``image_query`` and
+    ``image_test`` — of each test id seen by two cameras or more, the crops of about a
+    tenth of its cameras (at least one, never all: `QUERY_FRACTION`) are queries, the rest
+    gallery; one seen by one camera is gallery only — the others to ``image_train``.
+    Writes the folders, ``name_*.txt`` and ``reid.json`` (config, counts, cameras,
+    identities). Raises DatasetError for a drive without truth."""
+    from dashtraj.datasets.frames import observer_ids
+
+    drives = list(drives)
+    for d in drives:
+        if getattr(d, "truth", None) is None:
+            raise DatasetError(f"{d.path} is a drive without truth.csv: no identities for a "
+                               "ReID set")
+    out = Path(out_dir)
+    cams, cam_of = [], {}
+    for di, d in enumerate(drives):
+        for o in observer_ids(d):
+            cam_of[(di, o)] = len(cams) + 1
+            cams.append({"cam": len(cams) + 1, "drive": str(d.path), "observer_id": o})
+    if len(cams) > 999:
+        raise DatasetError(f"{len(cams)} observers exceed the 999 camera ids of the VeRi names")
+    crops: dict[tuple[int, int], dict[int, list]] = {}  # (drive, vehicle) -> cam -> crops
+    for di, d in enumerate(drives):
+        for o in observer_ids(d):
+            for rf in d.frames(o, config.every_s):
+                for lab, vehicle_id in zip(rf.frame_data.labels, rf.vehicle_ids, strict=True):
+                    b = lab.visible_box
+                    if (b is None or lab.visible_fraction < config.min_visible_fraction
+                            or b[3] - b[1] < config.min_box_height_px):
+                        continue
+                    buf = io.BytesIO()  # kept as JPEG bytes: the split needs every crop
+                    crop_vehicle(rf.frame_data.rgb, b, config.margin, config.size).save(
+                        buf, format="JPEG", quality=JPEG_QUALITY)
+                    crops.setdefault((di, int(vehicle_id)), {}).setdefault(
+                        cam_of[(di, o)], []).append((rf.frame, buf.getvalue()))
+    keys = sorted(crops)
+    if len(keys) > 9999:
+        raise DatasetError(f"{len(keys)} identities exceed the 9999 ids of the VeRi names")
+    rng = np.random.default_rng(config.seed)
+    n_test = round(len(keys) * config.test_fraction)
+    if config.test_fraction > 0 and len(keys) >= 2:
+        n_test = min(max(n_test, 1), len(keys) - 1)
+    test = set(rng.permutation(len(keys))[:n_test].tolist()) if len(keys) >= 2 else set()
+    names: dict[str, list[str]] = {s: [] for s in SPLITS}
+    for s in SPLITS:
+        (out / f"image_{s}").mkdir(parents=True, exist_ok=True)
+    identities = []
+    for i, key in enumerate(keys):
+        vid = i + 1
+        by_cam = crops[key]
+        q: set[int] = set()
+        if i in test and len(by_cam) >= 2:
+            r = np.random.default_rng([config.seed, 1, vid])
+            n = min(max(math.floor(QUERY_FRACTION * len(by_cam) + r.uniform()), 1),
+                    len(by_cam) - 1)
+            q = {int(c) for c in r.choice(sorted(by_cam), size=n, replace=False)}
+        for cam, items in by_cam.items():
+            split = "train" if i not in test else ("query" if cam in q else "test")
+            for frame, jpeg in items:
+                name = veri_name(vid, cam, frame, key[0])
+                (out / f"image_{split}" / name).write_bytes(jpeg)
+                names[split].append(name)
+        identities.append({"id": vid, "drive": str(drives[key[0]].path), "vehicle_id": key[1],
+                           "split": "test" if i in test else "train",
+                           "cameras": sorted(by_cam)})
+    for s in SPLITS:
+        (out / f"name_{s}.txt").write_text("".join(f"{n}\n" for n in sorted(names[s])),
+                                           encoding="utf-8")
+    counts = {s: {"images": len(names[s]), "ids": len({n[:4] for n in names[s]})}
+              for s in SPLITS}
+    info = {"format": "veri776", "source": "drives", "config": asdict(config),
+            "drives": [str(d.path) for d in drives], "counts": counts, "cameras": cams,
+            "identities": identities}
+    (out / "reid.json").write_text(json.dumps(info, indent=1, sort_keys=True) + "\n",
+                                   encoding="utf-8")
+    return info
