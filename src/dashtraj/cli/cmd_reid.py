@@ -287,8 +287,7 @@ def _drive_set_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_drive_set(args: argparse.Namespace) -> int:
     """Write a VeRi-layout set from drives with truth; prints the counts; returns 0."""
-    from dashtraj.datasets.detection import open_recording_or_drive
-    from dashtraj.datasets.drive import Drive
+    from dashtraj.datasets.drive import Drive, open_with_truth
     from dashtraj.datasets.frames import DatasetError
     from dashtraj.datasets.reid import DriveReidConfig, drive_reid_set
     from dashtraj.outputs import atomic_output, check_output
@@ -296,7 +295,7 @@ def run_drive_set(args: argparse.Namespace) -> int:
     out = check_output(args.output, overwrite=args.overwrite, kind="dir")
     drives = []
     for p in args.drives:
-        d = open_recording_or_drive(p)
+        d = open_with_truth(p, "no identities for a ReID set", DatasetError)
         if not isinstance(d, Drive):
             raise DatasetError(f"{p} is a simulated recording, not a drive (reid-dataset "
                                "builds sets from recordings)")

@@ -217,18 +217,11 @@ def build_detection_dataset(recordings, out_dir, config: DetectionConfig = Detec
 
 
 def open_recording_or_drive(path):
-    """A recording (`Recording.open`), or a drive with truth (`Drive.open`): a drive
-    without ``truth.csv`` has no labels to give (DatasetError)."""
-    from dashtraj.datasets.drive import Drive, is_drive
-    from dashtraj.world.recording import Recording
+    """A recording, or a drive with truth (`dashtraj.datasets.drive.open_with_truth`):
+    a drive without ``truth.csv`` has no labels to give (DatasetError)."""
+    from dashtraj.datasets.drive import open_with_truth
 
-    if is_drive(path) and not (Path(path) / "meta.json").is_file():
-        drive = Drive.open(path)
-        if drive.truth is None:
-            raise DatasetError(f"{path} is a drive without truth.csv: no labels for a "
-                               "detection set (see dashtraj.datasets.drive_truth)")
-        return drive
-    return Recording.open(path)
+    return open_with_truth(path, "no labels for a detection set", DatasetError)
 
 
 def _render_job(job: tuple) -> dict:

@@ -66,6 +66,21 @@ def is_drive(path) -> bool:
     return (Path(path) / "drive.json").is_file()
 
 
+def open_with_truth(path, why: str, error: type[Exception] = DriveError):
+    """A simulated recording (`Recording.open`), or a drive with a ``truth.csv``
+    (`Drive.open`); ``error(f"{path} is a drive without truth.csv: {why}")`` for a drive
+    without one: what evaluations and training sets read."""
+    from dashtraj.world.recording import Recording
+
+    if is_drive(path) and not (Path(path) / "meta.json").is_file():
+        drive = Drive.open(path)
+        if drive.truth is None:
+            raise error(f"{path} is a drive without truth.csv: {why} (see "
+                        "dashtraj.datasets.drive_truth)")
+        return drive
+    return Recording.open(path)
+
+
 @dataclass(frozen=True)
 class DrivePose:
     """One frame of one observer: its camera in CARLA world coordinates."""

@@ -20,7 +20,6 @@ import time
 import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -88,21 +87,14 @@ class EvalError(DashtrajError):
 
 
 def open_recording(path):
-    """A simulated recording (its frames rendered), or a drive with a ``truth.csv``
-    (its images read, its truth boxes projected: `dashtraj.datasets.drive_truth`).
-    EvalError for a drive without truth."""
-    from dashtraj.datasets.drive import Drive, is_drive
-    from dashtraj.world.recording import Recording
+    """A simulated recording (its frames rendered; an interrupted one's warning
+    silenced), or a drive with a ``truth.csv`` (its images read, its truth boxes
+    projected: `dashtraj.datasets.drive_truth`). EvalError for a drive without truth."""
+    from dashtraj.datasets.drive import open_with_truth
 
-    if is_drive(path) and not (Path(path) / "meta.json").is_file():
-        drive = Drive.open(path)
-        if drive.truth is None:
-            raise EvalError(f"{path} is a drive without truth.csv: nothing to score "
-                            "against (see dashtraj.datasets.drive_truth)")
-        return drive
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return Recording.open(path)
+        return open_with_truth(path, "nothing to score against", EvalError)
 
 
 def _score_frame(seq: Sequence, iseq: Sequence, gt, sc, on_ignored: np.ndarray,
