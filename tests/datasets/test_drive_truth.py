@@ -120,8 +120,11 @@ def test_a_lone_car_is_the_projection_of_its_box():
     assert lab.detection_class == "car_back" and lab.visible_fraction == 1.0
     assert lab.truncation == 0.0 and lab.distance_m == pytest.approx(math.hypot(15, 1))
     assert (inst == lab.instance_id).sum() == lab.visible_pixels > 1000
-    # its own camera never sees the observer, and nothing behind the camera is seen
+    # its own camera never sees the observer, by its id or by carrying the camera (1 m
+    # ahead of its centre, whatever id the truth gives it), and nothing behind the camera
     assert truth_frame(CAM, POSE, _moment((4, 15.0, 1.0, 0.0, "car")), exclude=4)[1] == []
+    assert truth_frame(CAM, POSE, _moment((9, -1.0, 0.0, 0.0, "car")))[1] == []
+    assert len(truth_frame(CAM, POSE, _moment((9, 3.0, 2.5, 0.0, "car")))[1]) == 1  # beside
     assert truth_frame(CAM, POSE, _moment((4, -15.0, 1.0, 0.0, "car")))[1] == []
 
 

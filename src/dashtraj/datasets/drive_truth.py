@@ -8,8 +8,9 @@ gives it, one row per vehicle and moment::
 
     t,vehicle_id,role,type_id,vehicle_class,x,y,z,yaw,half_length,half_width,half_height
 
-t in seconds on the clock of ``poses.csv``; vehicle_id an integer (a vehicle that is
-also an observer has its observer id, and is never a truth box of its own camera); role
+t in seconds on the clock of ``poses.csv``; vehicle_id an integer (the vehicle that
+carries a camera is never a truth box of it: the observer's id, or any vehicle whose
+footprint holds the camera, `CARRIER_MARGIN_M`); role
 free text (``target``, ``observer``, ``agent``); type_id free text (a CARLA blueprint
 id); vehicle_class one of car, truck, bus, motorcycle, bicycle (CARLA's ``van`` counts
 as car); x, y, z the centre of the vehicle's footprint on the road (the bottom face of
@@ -71,6 +72,9 @@ GROUND_EPS_M = 0.05
 """Depth points less than this above the box's bottom are the road, not the vehicle."""
 DEPTH_SCALE_M = 1000.0
 """CARLA's depth encoding: (R + 256 G + 65536 B) / (256³ − 1) × 1000 m."""
+CARRIER_MARGIN_M = 0.5
+"""A vehicle whose footprint, grown by this much, holds the camera carries it (never a
+box of its own camera, whatever its id in truth.csv)."""
 MAX_RANGE_M = 1000.0
 """Vehicles farther from the camera than this (ground plane) are left out of a frame."""
 NEAR_M = 0.1
@@ -326,6 +330,13 @@ def truth_frame(spec, camera_pose, moment: TruthMoment, exclude: int | None = No
     keep = np.ones(len(moment), bool)
     if exclude is not None:
         keep &= moment.vehicle_ids != int(exclude)
+    # the vehicle that carries the camera, whatever id the truth gives it: its footprint
+    # (grown by CARRIER_MARGIN_M) holds the camera
+    rad = np.radians(moment.yaw)
+    lx = (cx - moment.x) * np.cos(rad) + (cy - moment.y) * np.sin(rad)
+    ly = -(cx - moment.x) * np.sin(rad) + (cy - moment.y) * np.cos(rad)
+    keep &= ~((np.abs(lx) <= moment.half_length + CARRIER_MARGIN_M)
+              & (np.abs(ly) <= moment.half_width + CARRIER_MARGIN_M))
     dist = np.hypot(moment.x - cx, moment.y - cy)
     keep &= dist <= MAX_RANGE_M
     idx = np.flatnonzero(keep)
