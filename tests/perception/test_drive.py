@@ -349,3 +349,9 @@ def test_a_drive_with_truth_is_a_reid_set_in_the_veri_layout(rendered_drive, tmp
     assert main(["reid", "eval", "--data", str(out), "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["queries"] == counts["query"]["images"] and 0.0 <= res["rank1"] <= 1.0
+    # one drive twice would make each of its vehicles two identities
+    again = tmp_path / "again"
+    assert main(["reid", "drive-set", str(rendered_drive), str(rendered_drive), "-o",
+                 str(again)]) == 2
+    err = capsys.readouterr().err
+    assert "is given twice" in err and err.count("\n") == 1 and not again.exists()

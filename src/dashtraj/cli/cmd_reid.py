@@ -287,14 +287,21 @@ def _drive_set_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_drive_set(args: argparse.Namespace) -> int:
     """Write a VeRi-layout set from drives with truth; prints the counts; returns 0."""
+    from pathlib import Path
+
     from dashtraj.datasets.drive import Drive, open_with_truth
     from dashtraj.datasets.frames import DatasetError
     from dashtraj.datasets.reid import DriveReidConfig, drive_reid_set
     from dashtraj.outputs import atomic_output, check_output
 
     out = check_output(args.output, overwrite=args.overwrite, kind="dir")
-    drives = []
-    for p in args.drives:
+    drives, seen = [], {}
+    for p in args.drives:  # one drive twice would make each of its vehicles two identities
+        key = Path(p).resolve()
+        if key in seen:
+            raise DatasetError(f"drive {p} is given twice (also as {seen[key]}); each drive "
+                               "once, or its vehicles become two identities each")
+        seen[key] = p
         d = open_with_truth(p, "no identities for a ReID set", DatasetError)
         if not isinstance(d, Drive):
             raise DatasetError(f"{p} is a simulated recording, not a drive (reid-dataset "
