@@ -199,11 +199,12 @@ def split_of(vid: int, config: ReidConfig) -> str:
     return "test" if vid > config.n_ids - config.test_ids else "train"
 
 
-def query_cameras(vid: int, cams: list[int], config: ReidConfig) -> set[int]:
-    """The cameras of test id ``vid`` whose images go to query (distinct, ≥ 1, < all)."""
+def query_cameras(vid: int, cams: list[int], seed: int) -> set[int]:
+    """The cameras of test id ``vid`` whose images go to query (distinct, ≥ 1, < all),
+    drawn with ``seed`` (the set's)."""
     if len(cams) < 2:
         return set()
-    rng = np.random.default_rng([config.seed, 1, vid])
+    rng = np.random.default_rng([seed, 1, vid])
     n = math.floor(QUERY_FRACTION * len(cams) + rng.uniform())
     n = min(max(n, 1), len(cams) - 1)
     return {int(c) for c in rng.choice(sorted(cams), size=n, replace=False)}
@@ -348,7 +349,7 @@ class _Stage:
         if split_of(vid, self.config) == "train":
             dest = dict.fromkeys(crops, "train")
         else:
-            q = query_cameras(vid, list(crops), self.config)
+            q = query_cameras(vid, list(crops), self.config.seed)
             dest = {c: ("query" if c in q else "test") for c in crops}
         names: dict[str, list[str]] = {s: [] for s in SPLITS}
         for c in sorted(crops):
@@ -644,12 +645,7 @@ def drive_reid_set(drives, out_dir, config: DriveReidConfig = DriveReidConfig())
     for i, key in enumerate(keys):
         vid = i + 1
         by_cam = crops[key]
-        q: set[int] = set()
-        if i in test and len(by_cam) >= 2:
-            r = np.random.default_rng([config.seed, 1, vid])
-            n = min(max(math.floor(QUERY_FRACTION * len(by_cam) + r.uniform()), 1),
-                    len(by_cam) - 1)
-            q = {int(c) for c in r.choice(sorted(by_cam), size=n, replace=False)}
+        q = query_cameras(vid, list(by_cam), config.seed) if i in test else set()
         for cam, items in by_cam.items():
             split = "train" if i not in test else ("query" if cam in q else "test")
             for frame, jpeg in items:
