@@ -135,19 +135,17 @@ def test_depth_readback_is_optional(pair):
 
 
 def test_visible_falls_back_to_a_full_scan_when_boxes_miss_pixels():
-    """``_visible`` never trusts the boxes blindly: pixels outside them trigger a scan."""
-    from types import SimpleNamespace
-
-    from dashtraj.render.labels import _visible
+    """``visible_in_boxes`` never trusts the boxes blindly: pixels outside them trigger a
+    scan."""
+    from dashtraj.render.labels import visible_in_boxes
 
     inst = np.zeros((20, 30), np.int32)
     inst[2:5, 3:9] = 70
     inst[10:18, 20:29] = 5
-    vs = [SimpleNamespace(instance_id=5), SimpleNamespace(instance_id=70)]
     good = np.array([[20, 10, 29, 18], [3, 2, 9, 5]])
     bad = np.array([[20, 10, 25, 12], [0, 0, 0, 0]])  # too small / empty
     for boxes in (good, bad):
-        counts, vboxes = _visible(inst, vs, boxes)
+        counts, vboxes = visible_in_boxes(inst, [5, 70], boxes)
         assert counts.tolist() == [72, 18]
         assert vboxes == [(20, 10, 29, 18), (3, 2, 9, 5)]
 

@@ -321,7 +321,13 @@ def truth_frame(spec, camera_pose, moment: TruthMoment, exclude: int | None = No
     """
     from PIL import Image, ImageDraw
 
-    from dashtraj.render.labels import VehicleLabel, orientation, relative_yaw, truncation
+    from dashtraj.render.labels import (
+        VehicleLabel,
+        orientation,
+        relative_yaw,
+        truncation,
+        visible_in_boxes,
+    )
     from dashtraj.world.camera import DETECTION_CLASSES, box_corners, project, world_to_camera
 
     w, h = int(spec.width_px), int(spec.height_px)
@@ -380,17 +386,14 @@ def truth_frame(spec, camera_pose, moment: TruthMoment, exclude: int | None = No
         rows, cols = np.flatnonzero(m.any(1)), np.flatnonzero(m.any(0))
         sil[i] = (int(m.sum()), (int(lo[0] + cols[0]), int(lo[1] + rows[0]),
                                  int(lo[0] + cols[-1] + 1), int(lo[1] + rows[-1] + 1)))
+    # a vehicle's own pixels lie in its silhouette's box
+    counts, vboxes = visible_in_boxes(
+        instance, range(1, len(seen) + 1),
+        [sil[i][1] or (0, 0, 0, 0) for i, _, _ in seen])
     labels, vids = [], []
     for k, (i, _, uv) in enumerate(seen):
         ns, sbox = sil[i]
-        vbox, nv = None, 0
-        if sbox is not None:
-            m = instance[sbox[1]:sbox[3], sbox[0]:sbox[2]] == k + 1
-            nv = int(m.sum())
-            if nv:
-                rows, cols = np.flatnonzero(m.any(1)), np.flatnonzero(m.any(0))
-                vbox = (sbox[0] + int(cols[0]), sbox[1] + int(rows[0]),
-                        sbox[0] + int(cols[-1]) + 1, sbox[1] + int(rows[-1]) + 1)
+        vbox, nv = vboxes[k], int(counts[k])
         x, y, yaw = float(moment.x[i]), float(moment.y[i]), float(moment.yaw[i])
         rel = relative_yaw((cx, cy), (x, y), yaw)
         ori = orientation(rel)

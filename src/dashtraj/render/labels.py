@@ -313,16 +313,18 @@ def _hull_projection(world, owner, hull, n, m, k, near, tri):
     return uv, np.searchsorted(own[order], np.arange(n + 1))
 
 
-def _visible(instance: np.ndarray, vehicles, boxes: np.ndarray):
-    """Visible pixel counts and tight boxes per vehicle, scanning only its box."""
-    n = len(vehicles)
+def visible_in_boxes(instance: np.ndarray, ids, boxes):
+    """Visible pixel counts (N,) and tight boxes (a list, None where no pixel shows) of the
+    instance ids ``ids`` (N,) in an instance image, scanning only each id's box ``boxes[i]``
+    (x0, y0, x1, y1; ints, an empty box for none), which must hold all its pixels."""
+    n = len(ids)
     counts = np.zeros(n, np.int64)
     vboxes: list = [None] * n
-    for i, v in enumerate(vehicles):
+    for i, iid in enumerate(ids):
         c0, r0, c1, r1 = (int(c) for c in boxes[i])
         if c1 <= c0 or r1 <= r0:
             continue
-        m = instance[r0:r1, c0:c1] == v.instance_id
+        m = instance[r0:r1, c0:c1] == iid
         rows = np.flatnonzero(m.any(axis=1))
         if len(rows) == 0:
             continue
@@ -337,7 +339,7 @@ def _visible(instance: np.ndarray, vehicles, boxes: np.ndarray):
     if int(counts.sum()) != int(np.count_nonzero(instance)):  # pragma: no cover
         # a pixel outside its vehicle's box would break the containment argument: then
         # scan the whole image (never seen; this keeps the labels exact regardless)
-        ids = np.array([v.instance_id for v in vehicles], np.int64)
+        ids = np.asarray(ids, np.int64)
         order = np.argsort(ids)
         pos = np.minimum(np.searchsorted(ids[order], instance), n - 1)
         compact = np.where(ids[order][pos] == instance, order[pos] + 1, 0).astype(np.int32)
@@ -370,7 +372,8 @@ def compute_labels(
     uv, off, lo, hi, has = proj.uv, proj.offsets, proj.lo, proj.hi, proj.has
     sil_counts, sil_boxes = renderer.silhouette_counts(proj.boxes, ranges, mvp)
     # a vehicle's visible pixels lie in its silhouette: scan only the silhouette box
-    vis_counts, vis_boxes = _visible(frame.instance, vehicles, np.maximum(sil_boxes, 0))
+    vis_counts, vis_boxes = visible_in_boxes(frame.instance, [v.instance_id for v in vehicles],
+                                             np.maximum(sil_boxes, 0))
     pboxes = [
         (float(lo[i, 0]), float(lo[i, 1]), float(hi[i, 0]), float(hi[i, 1])) if has[i] else None
         for i in range(n)
