@@ -151,8 +151,8 @@ def build_detection_dataset(recordings, out_dir, config: DetectionConfig = Detec
     recs = list(recordings)
     if not recs:
         raise DatasetError("no recording given")
-    if config.randomize and any(isinstance(r, Drive) for r in recs):
-        d = next(r for r in recs if isinstance(r, Drive))
+    d = next((r for r in recs if isinstance(r, Drive)), None)
+    if config.randomize and d is not None:
         raise DatasetError(f"{d.path} is a drive: its images are what they are (no "
                            "randomized look)")
     out = Path(out_dir)
