@@ -451,7 +451,7 @@ def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
     stages = stages or Stages()
     if isinstance(rec, Drive):
         n_obs = len(rec.observer_ids)
-        total = sum(len(rec.frame_poses(o, config.every_s)) for o in rec.observer_ids)
+        total = rec.frame_count(config.every_s)
     else:
         n_obs = len(rec.meta.get("observer_ids", [])) or config.observers
         total = n_obs * (math.floor(float(rec.meta.get("simulated_to_t", config.duration_s))

@@ -134,7 +134,7 @@ def run_perceive(args: argparse.Namespace) -> int:
     obs = list(args.observers) if args.observers else observer_ids(rec)
     if isinstance(rec, Drive):
         check_drive_config(cfg, rec)
-        total = sum(len(rec.frame_poses(o, args.every)) for o in obs if o in rec.poses)
+        total = rec.frame_count(args.every, obs)
     else:
         total = len(obs) * len(sample_steps(rec, args.every))
     n_obs = len(obs)

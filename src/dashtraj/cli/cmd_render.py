@@ -162,7 +162,7 @@ def _frame_total(recordings, every_s: float, observers=None) -> int:
     for rec in recordings:
         obs = observers or observer_ids(rec)
         if isinstance(rec, Drive):
-            n += sum(len(rec.frame_poses(o, every_s)) for o in obs)
+            n += rec.frame_count(every_s, obs)
         else:
             n += len(sample_steps(rec, every_s)) * len(obs)
     return n

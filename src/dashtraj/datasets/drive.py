@@ -214,6 +214,12 @@ class Drive:
                 last = b
         return out
 
+    def frame_count(self, every_s: float | None = None, observers=None) -> int:
+        """How many frames `frames` gives for ``observers`` (None: all; ids the drive
+        lacks count none)."""
+        obs = self.observer_ids if observers is None else observers
+        return sum(len(self.frame_poses(o, every_s)) for o in obs if o in self.poses)
+
     def frames(self, observer_id: int, every_s: float | None = None):
         """`RecordingFrame`s of the observer's images (read from disk, RGB uint8), in
         time order, with the truth's labels when the drive has them. Raises DriveError
