@@ -30,7 +30,7 @@ import re
 import shutil
 import socket
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Literal
 
@@ -152,6 +152,19 @@ def _partial_name(path: Path) -> Path:
         n += 1
 
 
+def _keep_or_remove(tmp: Path, p: Path, keep_partial: bool, quiet: bool) -> None:
+    """After a failure: keep a non-empty ``tmp`` as ``<name>.partial-<n>`` (said on stderr
+    unless ``quiet``), or remove it."""
+    if keep_partial and (tmp.exists() and (tmp.is_file() or any(tmp.iterdir()))):
+        kept = _partial_name(p)
+        tmp.rename(kept)
+        if not quiet:
+            print(f"dashtraj: kept the partial output in {kept} ({p} is unchanged)",
+                  file=sys.stderr)
+    else:
+        _remove(tmp)
+
+
 def replace_whole(tmp: Path, path: Path) -> None:
     """Move ``tmp`` to ``path``; an existing ``path`` is replaced whole (never merged), and at
     every instant ``path`` holds either the old output or the new one (see the module)."""
@@ -188,7 +201,8 @@ def replace_together(moves: list[tuple[Path, Path]]) -> None:
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike[str], *, overwrite: bool = False,
                   kind: Kind = "dir", keep_partial: bool = False,
-                  quiet: bool = False) -> Iterator[Path]:
+                  quiet: bool = False,
+                  publish: Callable[[Path, Path], object] | None = None) -> Iterator[Path]:
     """Yield a temporary sibling of ``path`` to write into; move it into place on success.
 
     Args:
@@ -201,6 +215,9 @@ def atomic_output(path: str | os.PathLike[str], *, overwrite: bool = False,
             ``<name>.partial-<n>`` beside the output (and say so on stderr) instead of
             removing it. Used for recordings, which stay readable when interrupted.
         quiet: do not print where a partial output was kept.
+        publish: instead of moving it into place, call ``publish(tmp, path)`` (a sightings
+            run appended to the one at ``path``: `dashtraj.store.append.append_file`); when
+            it raises, ``tmp`` is kept or removed as on any failure.
 
     Raises:
         OutputExistsError, OutputPathError: before anything is written.
@@ -216,14 +233,7 @@ def atomic_output(path: str | os.PathLike[str], *, overwrite: bool = False,
     try:
         yield tmp
     except BaseException as exc:
-        if keep_partial and (tmp.exists() and (tmp.is_file() or any(tmp.iterdir()))):
-            kept = _partial_name(p)
-            tmp.rename(kept)
-            if not quiet:
-                print(f"dashtraj: kept the partial output in {kept} ({p} is unchanged)",
-                      file=sys.stderr)
-        else:
-            _remove(tmp)
+        _keep_or_remove(tmp, p, keep_partial, quiet)
         if isinstance(exc, OSError) and str(tmp) in str(exc.filename or ""):
             # name the output the user gave, not its temporary sibling
             raise OutputPathError(f"output {p}: cannot write there "
@@ -231,6 +241,13 @@ def atomic_output(path: str | os.PathLike[str], *, overwrite: bool = False,
         raise
     if kind == "file" and not tmp.exists():
         raise OutputPathError(f"output {p}: nothing was written")
+    if publish is not None:
+        try:
+            publish(tmp, p)
+        except BaseException:
+            _keep_or_remove(tmp, p, keep_partial, quiet)
+            raise
+        return
     try:
         replace_whole(tmp, p)
     except BaseException:

@@ -37,6 +37,7 @@ def _write(path, observers=(1, 2), frames=range(6)):
     with SightingsDB.create(path) as db:
         db.write_run("runs/x", "town01", "ab" * 32, {"width_px": 1280}, {"tracker": "ego"},
                      [(o, "oncoming") for o in observers])
+        db.set_meta({"source_sha256": "cd" * 32, "detector_sha256": "oracle"})
         for o in observers:
             rows = _rows(o, frames)
             db.add_frames(*rows)
@@ -53,6 +54,8 @@ def test_round_trip_equals_records_written(tmp_path):
         assert db.run_info() == {"recording": "runs/x", "map_name": "town01",
                                  "map_sha256": "ab" * 32, "camera": {"width_px": 1280},
                                  "config": {"tracker": "ego"}, "complete": True}
+        assert db.meta() == {"format": "dashtraj-sightings", "schema_version": "3",
+                             "source_sha256": "cd" * 32, "detector_sha256": "oracle"}
         assert [o["frames"] for o in db.observers()] == [6, 6]
         assert all(o["complete"] for o in db.observers())
         for o, (poses, dets, _crops, _tracks) in written.items():

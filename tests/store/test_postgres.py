@@ -18,7 +18,8 @@ from dashtraj.store.backend import parse_url
 
 def _everything(db) -> dict:
     """Every read of the repository, for comparing two databases."""
-    return {"run": db.run_info(), "observers": db.observers(), "poses": db.poses(),
+    return {"run": db.run_info(), "meta": db.meta(), "observers": db.observers(),
+            "poses": db.poses(),
             "poses_2": db.poses(2), "detections": db.detections(), "tracks": db.tracks(),
             "crops": db.crops(), "some_crops": db.crops([(2, 3, 0), (1, 0, 0), (9, 9, 9)]),
             "counts": [db.count(t) for t in ("poses", "detections", "tracks", "crops",

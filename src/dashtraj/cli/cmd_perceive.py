@@ -45,6 +45,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="database file to write (SQLite), or a PostgreSQL URL "
                         "postgresql://[user@]host[:port]/dbname[?schema=NAME] (one schema per "
                         "run, default dashtraj; needs pip install 'dashtraj[postgres]')")
+    p.add_argument("--append", action="store_true",
+                   help="add these observers to the run at DB (perceived from the same "
+                        "recording or drive, with the same settings and detector; several "
+                        "machines may each append their own observers; default "
+                        "--observers: those the run lacks); the run is created when there is "
+                        "none yet")
     p.add_argument("--detector", default="oracle", metavar="oracle|M.onnx",
                    help="detector (default oracle: the renderer's exact visible boxes, or a "
                         "drive's truth boxes from its truth.csv)")
@@ -86,6 +92,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run_perceive(args: argparse.Namespace) -> int:
     import contextlib
+    import dataclasses
     import time
 
     from dashtraj.cli._args import progress_bar
@@ -116,7 +123,10 @@ def run_perceive(args: argparse.Namespace) -> int:
             ctx.release()
     from dashtraj.store.pg_output import check_db_output, db_output
 
-    check_db_output(args.output, overwrite=args.overwrite)
+    if args.append and args.overwrite:
+        raise DashtrajError("--append adds observers to a run and --overwrite replaces it "
+                            "whole; give one of them")
+    check_db_output(args.output, overwrite=args.overwrite, append=args.append)
     for extra in (args.save_frames, args.mot):
         if extra:
             check_output(extra, overwrite=args.overwrite, kind="dir")
@@ -132,6 +142,9 @@ def run_perceive(args: argparse.Namespace) -> int:
     from dashtraj.datasets.frames import observer_ids, sample_steps
 
     obs = list(args.observers) if args.observers else observer_ids(rec)
+    if args.append:
+        obs = _observers_to_append(args, rec, cfg, obs)
+        cfg = dataclasses.replace(cfg, observers=tuple(obs))
     if isinstance(rec, Drive):
         check_drive_config(cfg, rec)
         total = rec.frame_count(args.every, obs)
@@ -145,23 +158,57 @@ def run_perceive(args: argparse.Namespace) -> int:
                                                         overwrite=args.overwrite))
                       if args.save_frames else None)
         tmp = stack.enter_context(db_output(args.output, overwrite=args.overwrite,
-                                            keep_partial=True))
+                                            keep_partial=True, append=args.append))
         summary = perceive(rec, tmp, cfg, workers=args.workers, progress=progress,
                            frames_dir=frames_tmp)
     wall = time.perf_counter() - t0
     if args.mot:
         with atomic_output(args.mot, overwrite=args.overwrite) as mot_tmp:
             write_mot(args.output, mot_tmp)
-    info = {"db": args.output, "observers": summary.observers, "frames": summary.frames,
-            "detections": summary.detections, "tracks": summary.tracks, "crops": summary.crops,
+    from dashtraj.store.backend import display_name
+
+    info = {"db": display_name(args.output), "observers": summary.observers,
+            "frames": summary.frames, "detections": summary.detections,
+            "tracks": summary.tracks, "crops": summary.crops,
             "detector": cfg.detector, "tracker": cfg.tracker, "localizer": cfg.localizer,
             "wall_s": round(wall, 3),
             "frames_per_s_per_observer": round(summary.frames / wall / min(args.workers, n_obs),
                                                2) if wall > 0 else None}
+    if args.append:
+        from dashtraj.store import SightingsDB
+
+        with SightingsDB.open(args.output, check=False) as db:
+            info["run_observers"] = [o["observer_id"] for o in db.observers()]
     if args.json:
         print(json.dumps(info))
     else:
-        print(f"{args.output}: {summary.observers} observers, {summary.frames} frames, "
+        verb = "appended" if args.append else "wrote"
+        print(f"{info['db']}: {verb} {summary.observers} observers, {summary.frames} frames, "
               f"{summary.detections} detections in {summary.tracks} tracks, {summary.crops} "
-              f"crops ({cfg.detector} / {cfg.tracker} / {cfg.localizer}; {wall:.1f} s)")
+              f"crops ({cfg.detector} / {cfg.tracker} / {cfg.localizer}; {wall:.1f} s)"
+              + (f"; the run has observers {', '.join(map(str, info['run_observers']))}"
+                 if args.append else ""))
     return 0
+
+
+def _observers_to_append(args: argparse.Namespace, rec, cfg, obs: list[int]) -> list[int]:
+    """``--append``: refuse a run that is not this one (before any work), and the observers
+    it has; without ``--observers``, the observers of the source that it lacks."""
+    from dashtraj.errors import DashtrajError
+    from dashtraj.perception.pipeline import perceive_identity
+    from dashtraj.store.append import check_append
+    from dashtraj.store.backend import display_name
+
+    have = check_append(args.output, perceive_identity(rec, cfg)) or []
+    where = display_name(args.output)
+    if args.observers:
+        both = sorted(set(obs) & set(have))
+        if both:
+            raise DashtrajError(f"--observers: {where} already has observer"
+                                f"{'s' if len(both) > 1 else ''} {', '.join(map(str, both))}")
+        return obs
+    left = [o for o in obs if o not in have]
+    if not left:
+        raise DashtrajError(f"--append: {where} already has every observer of "
+                            f"{args.recording} ({', '.join(map(str, have))})")
+    return left

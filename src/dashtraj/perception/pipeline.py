@@ -359,6 +359,45 @@ def open_source(path: str | Path):
         return Recording.open(path)
 
 
+SOURCE_FILES = ("meta.json", "states.parquet", "vehicles.csv", "map.xodr")
+"""The files that define a simulated recording (its frames are rendered from them)."""
+DRIVE_FILES = ("drive.json", "poses.csv", "truth.csv", "map.xodr")
+"""The files that define a drive besides its images (the cameras' poses, its truth)."""
+
+
+def source_sha256(recording) -> str:
+    """The sha256 of what a perception run reads, whatever its path: a recording's
+    `SOURCE_FILES`, a drive's `DRIVE_FILES` (``meta`` ``source_sha256`` of a sightings
+    database: `dashtraj.store.append` appends only observers of the same source)."""
+    from dashtraj.digest import files_sha256
+
+    return files_sha256(recording.path,
+                        DRIVE_FILES if isinstance(recording, Drive) else SOURCE_FILES)
+
+
+def detector_sha256(detector: str) -> str:
+    """``"oracle"``, or the sha256 of the detector model file."""
+    from dashtraj.digest import file_sha256
+
+    return detector if detector == "oracle" else file_sha256(detector)
+
+
+def run_meta(recording, config: PerceiveConfig) -> dict[str, str]:
+    """The ``meta`` rows a perception run adds: ``source_sha256``, ``detector_sha256``."""
+    return {"source_sha256": source_sha256(recording),
+            "detector_sha256": detector_sha256(config.detector)}
+
+
+def perceive_identity(recording, config: PerceiveConfig) -> dict:
+    """What a run of ``config`` on ``recording`` would be, for
+    `dashtraj.store.append.same_run` (checked before any work by ``perceive --append``)."""
+    from dashtraj.store.append import run_identity
+
+    return run_identity(run_meta(recording, config),
+                        recording.meta.get("map", {}).get("sha256"),
+                        image_camera(recording, config.size).to_dict(), config.to_dict())
+
+
 def check_drive_config(config: PerceiveConfig, drive: Drive) -> None:
     """Refuse the settings that need a renderer (PerceiveError naming the option): a
     drive's images are what they are; and the ``oracle`` detector on a drive without
@@ -457,6 +496,7 @@ def perceive(recording, db_path: str | Path, config: PerceiveConfig = PerceiveCo
         db.write_run(str(recording.path), recording.meta.get("map", {}).get("source"),
                      recording.meta.get("map", {}).get("sha256"), spec.to_dict(),
                      config.to_dict(), [(o, roles.get(str(o))) for o in obs])
+        db.set_meta(run_meta(recording, config))
         if workers <= 1 or len(obs) <= 1:
             road_map = RoadMap.from_file(recording.map_path)
             for o, b in _all_batches(recording, obs, _process_config(config, 1), road_map,

@@ -20,13 +20,12 @@ Example:
 
 from __future__ import annotations
 
-import hashlib
 import io
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
+from dashtraj.digest import file_sha256
 from dashtraj.errors import DashtrajError
 from dashtraj.reid.embed import ReidEmbedder
 from dashtraj.store import SightingsDB, StoreError
@@ -34,15 +33,6 @@ from dashtraj.store import SightingsDB, StoreError
 
 class EmbedError(DashtrajError):
     """A database that cannot be embedded (no crops, a crop that is not an image)."""
-
-
-def file_sha256(path: str | Path) -> str:
-    """Hex sha256 of a file's bytes (identifies a model in the embeddings table)."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def model_dim(embedder: ReidEmbedder) -> int | None:

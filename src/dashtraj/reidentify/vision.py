@@ -51,7 +51,6 @@ of the model are computed and stored first, as ``dashtraj reid embed DB`` does).
 from __future__ import annotations
 
 import bisect
-import hashlib
 import json
 from collections import Counter
 from collections.abc import Callable, Hashable
@@ -171,7 +170,10 @@ class Threshold:
 
 
 def sha256_of(path: str | Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    """Hex sha256 of a model file (`dashtraj.digest.file_sha256`)."""
+    from dashtraj.digest import file_sha256
+
+    return file_sha256(path)
 
 
 def threshold_path(model_path: str | Path) -> Path:

@@ -2,7 +2,10 @@
 
 Tables (units: seconds, CARLA world metres, degrees, image pixels):
 
-``meta``        key, value: ``format`` = "dashtraj-sightings", ``schema_version``.
+``meta``        key, value: ``format`` = "dashtraj-sightings", ``schema_version``;
+                ``source_sha256`` (the recording's or drive's defining files) and
+                ``detector_sha256`` (the model file, or "oracle"), written by
+                ``perceive`` since appending observers (`dashtraj.store.append`).
 ``run``         one row: recording (path as given), map_name, map_sha256, camera (JSON
                 `CameraSpec` of the images), config (JSON of the perception config),
                 complete (1 once every observer finished).
@@ -546,7 +549,19 @@ class SightingsDB:
         with self.dialect.transaction():
             self.dialect.execute("UPDATE run SET complete = 1 WHERE id = 1")
 
+    def set_meta(self, items: dict[str, str]) -> None:
+        """Add or replace ``meta`` rows (key, value) in one transaction."""
+        self._need_writable()
+        with self.dialect.transaction():
+            self.dialect.many(insert_sql("meta", ("key", "value"), key=("key",)),
+                              sorted(items.items()))
+
     # ------------------------------------------------------------------ reading
+    def meta(self) -> dict[str, str]:
+        """The ``meta`` rows as a dict (format, schema_version, and what a run adds:
+        ``source_sha256``, ``detector_sha256``; `dashtraj.store.append`)."""
+        return dict(self._query("SELECT key, value FROM meta"))
+
     def run_info(self) -> dict:
         """The run row as a dict (camera and config parsed)."""
         rows = self._query("SELECT recording, map_name, map_sha256, camera, config, complete "
@@ -819,14 +834,17 @@ class SightingsDB:
 
 def copy_database(src: SightingsDB, dst: SightingsDB, batch_frames: int = 500) -> dict:
     """Copy every row of ``src`` into the new, empty ``dst`` (an SQLite file into a
-    PostgreSQL schema or back): the run, each observer's frames, detections, crops and
-    tracks in batches of ``batch_frames`` frames, each observer's and the run's
-    completeness as they are, and the vectors of every embedding model. Returns the rows
+    PostgreSQL schema or back): the run and its meta rows, each observer's frames,
+    detections, crops and tracks in batches of ``batch_frames`` frames, each observer's and
+    the run's completeness as they are, and the vectors of every embedding model. Returns the rows
     copied per table; `StoreError` when a count of ``dst`` differs from ``src``'s."""
     run = src.run_info()
     observers = src.observers()
     dst.write_run(run["recording"], run["map_name"], run["map_sha256"], run["camera"],
                   run["config"], [(o["observer_id"], o["role"]) for o in observers])
+    extra = {k: v for k, v in src.meta().items() if k not in ("format", "schema_version")}
+    if extra:  # the source's and detector's sha256 (a copy can be appended to)
+        dst.set_meta(extra)
     for o in observers:
         oid = o["observer_id"]
         rows: dict[int, tuple[list, list, list]] = {}

@@ -7,6 +7,10 @@ is dropped and the new one renamed to its name. Readers see the old run or the n
 never a mix. A failure or Ctrl-C keeps the partial schema under its own name (every
 committed frame readable, like a file's ``.partial-<n>``) and leaves the old run as it
 was. A schema that is not a dashtraj sightings database is never replaced.
+
+With ``append`` (``perceive --append``) the partial schema is appended to the run's
+instead of replacing it, in the same one transaction under the same lock
+(`dashtraj.store.append`).
 """
 
 from __future__ import annotations
@@ -45,9 +49,19 @@ def _refuse_foreign(d: PgDialect, target: PgTarget, schema: str) -> None:
                          "database; it is not replaced (choose another ?schema=)")
 
 
-def check_pg_output(url: str, *, overwrite: bool) -> PgTarget:
+def pg_schema_exists(target: PgTarget) -> bool:
+    """Whether the run's schema of ``target`` exists."""
+    d = _connect(target)
+    try:
+        return d.schema_exists()
+    finally:
+        d.close()
+
+
+def check_pg_output(url: str, *, overwrite: bool, append: bool = False) -> PgTarget:
     """Refuse early (before any work) what `pg_atomic_output` would refuse at the end: the
-    run's schema exists and ``overwrite`` is off, or it exists and is not a dashtraj run."""
+    run's schema exists and neither ``overwrite`` nor ``append`` is on, or it exists and is
+    not a dashtraj run."""
     target = parse_url(url)
     if len(target.schema) > MAX_RUN_SCHEMA:
         raise StoreError(f"{target.display}: a run's schema name is at most {MAX_RUN_SCHEMA} "
@@ -55,7 +69,7 @@ def check_pg_output(url: str, *, overwrite: bool) -> PgTarget:
     d = _connect(target)
     try:
         if d.schema_exists():
-            if not overwrite:
+            if not (overwrite or append):
                 raise StoreError(f"{target.display} exists; pass --overwrite to replace it "
                                  "whole")
             _refuse_foreign(d, target, target.schema)
@@ -66,30 +80,43 @@ def check_pg_output(url: str, *, overwrite: bool) -> PgTarget:
 
 @contextlib.contextmanager
 def pg_atomic_output(url: str, *, overwrite: bool = False, keep_partial: bool = True,
-                     quiet: bool = False) -> Iterator[str]:
+                     quiet: bool = False, append: bool = False) -> Iterator[str]:
     """Yield the URL of a new partial schema to write the run into; publish it as the run's
-    schema when the block ends without an exception (module docstring). On an exception
+    schema when the block ends without an exception (module docstring), or with ``append``
+    append it to the run's schema (`dashtraj.store.append.append_schema`). On an exception
     the partial schema is kept (and said so on stderr unless ``quiet``), or dropped
     without ``keep_partial``."""
-    target = check_pg_output(url, overwrite=overwrite)
+    target = check_pg_output(url, overwrite=overwrite, append=append)
     d = _connect(target)
     try:
-        n = 1
-        while d.schema_exists(f"{target.schema}{PARTIAL_TAG}{n}"):
+        n = 1  # a name no schema has and no other writer is about to create (its lock)
+        while (d.schema_exists(f"{target.schema}{PARTIAL_TAG}{n}")
+               or not d.conn.execute("SELECT pg_try_advisory_lock(hashtext(%s))", (
+                   f"{target.schema}{PARTIAL_TAG}{n}",)).fetchone()[0]):
             n += 1
         partial = f"{target.schema}{PARTIAL_TAG}{n}"
         try:
             yield target.with_schema(partial)
+            if append and d.schema_exists():  # an older run is upgraded first, on its own
+                from dashtraj.store.db import SightingsDB
+
+                SightingsDB.open(url, writable=True).close()
             with d.transaction():
                 d.conn.execute("SELECT pg_advisory_xact_lock(hashtext(%s))", (target.schema,))
-                if d.schema_exists():
-                    if not overwrite:
-                        raise StoreError(f"{target.display} was created while this run was "
-                                         "written; pass --overwrite to replace it whole")
-                    _refuse_foreign(d, target, target.schema)
-                    d.conn.execute(f"DROP SCHEMA {quote_ident(target.schema)} CASCADE")
-                d.conn.execute(f"ALTER SCHEMA {quote_ident(partial)} RENAME TO "
-                               f"{quote_ident(target.schema)}")
+                if append:
+                    from dashtraj.store.append import append_schema
+
+                    append_schema(d, target.schema, partial, target.display)
+                else:
+                    if d.schema_exists():
+                        if not overwrite:
+                            raise StoreError(f"{target.display} was created while this run "
+                                             "was written; pass --overwrite to replace it "
+                                             "whole")
+                        _refuse_foreign(d, target, target.schema)
+                        d.conn.execute(f"DROP SCHEMA {quote_ident(target.schema)} CASCADE")
+                    d.conn.execute(f"ALTER SCHEMA {quote_ident(partial)} RENAME TO "
+                                   f"{quote_ident(target.schema)}")
         except BaseException:
             if not d.conn.closed and d.schema_exists(partial):
                 if not keep_partial:
@@ -102,24 +129,33 @@ def pg_atomic_output(url: str, *, overwrite: bool = False, keep_partial: bool = 
         d.close()
 
 
-def check_db_output(target, *, overwrite: bool) -> None:
+def check_db_output(target, *, overwrite: bool, append: bool = False) -> None:
     """`check_pg_output` for a URL, `dashtraj.outputs.check_output` (a file) otherwise:
-    what a command that writes a sightings database refuses before any work."""
+    what a command that writes a sightings database refuses before any work (with
+    ``append`` an existing run is no reason to refuse)."""
     from dashtraj.outputs import check_output
     from dashtraj.store.backend import is_url
 
     if is_url(target):
-        check_pg_output(target, overwrite=overwrite)
+        check_pg_output(target, overwrite=overwrite, append=append)
     else:
-        check_output(target, overwrite=overwrite, kind="file")
+        check_output(target, overwrite=overwrite or append, kind="file")
 
 
-def db_output(target, *, overwrite: bool, keep_partial: bool):
+def db_output(target, *, overwrite: bool, keep_partial: bool, append: bool = False):
     """The context that writes a sightings database whole: `pg_atomic_output` for a URL,
-    `dashtraj.outputs.atomic_output` (a file) otherwise; it yields where to create it."""
+    `dashtraj.outputs.atomic_output` (a file) otherwise; it yields where to create it.
+    With ``append`` what was written is appended to the run there (or becomes it when
+    there is none; `dashtraj.store.append`)."""
     from dashtraj.outputs import atomic_output
     from dashtraj.store.backend import is_url
 
     if is_url(target):
-        return pg_atomic_output(target, overwrite=overwrite, keep_partial=keep_partial)
+        return pg_atomic_output(target, overwrite=overwrite, keep_partial=keep_partial,
+                                append=append)
+    if append:
+        from dashtraj.store.append import append_file
+
+        return atomic_output(target, overwrite=True, kind="file", keep_partial=keep_partial,
+                             publish=append_file)
     return atomic_output(target, overwrite=overwrite, kind="file", keep_partial=keep_partial)
