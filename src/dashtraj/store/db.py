@@ -836,8 +836,9 @@ def copy_database(src: SightingsDB, dst: SightingsDB, batch_frames: int = 500) -
     """Copy every row of ``src`` into the new, empty ``dst`` (an SQLite file into a
     PostgreSQL schema or back): the run and its meta rows, each observer's frames,
     detections, crops and tracks in batches of ``batch_frames`` frames, each observer's and
-    the run's completeness as they are, and the vectors of every embedding model. Returns the rows
-    copied per table; `StoreError` when a count of ``dst`` differs from ``src``'s."""
+    the run's completeness as they are, and the vectors of every embedding model. Returns
+    the rows copied per table; `StoreError` when a count of ``dst`` differs from
+    ``src``'s."""
     run = src.run_info()
     observers = src.observers()
     dst.write_run(run["recording"], run["map_name"], run["map_sha256"], run["camera"],
