@@ -125,6 +125,9 @@ class ExperimentConfig:
             ``render`` too). observers, agents, duration_s, twins, image_size and look
             do not apply; ``experiments --drives`` sets town to the drive's map and
             seed to 0.
+        pose_noise: ``detections``/``vision``: the observers perceive from poses with
+            GNSS/INS errors (`PerceiveConfig.pose_noise`; (xy_m, yaw_deg, pitch_deg,
+            tau_s)), drawn with the experiment's seed; None: the exact poses.
     """
 
     town: str = "town10"
@@ -151,8 +154,12 @@ class ExperimentConfig:
     confirm_score: float = CONFIRM_SCORE
     localizer: str = "smoothed"
     drive: str | None = None
+    pose_noise: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
+        if self.pose_noise is not None and self.sightings == "oracle":
+            raise ExperimentError("--pose-noise perturbs the observers' poses in perception: "
+                                  "it needs --sightings detections or vision")
         if self.drive is not None and self.sightings != "vision":
             raise ExperimentError(f"a drive is perceived from its images: sightings "
                                   f"{self.sightings!r} needs a simulated recording")
@@ -177,14 +184,17 @@ class ExperimentConfig:
         d = asdict(self)
         d["methods"] = list(self.methods)
         d["image_size"] = None if self.image_size is None else list(self.image_size)
+        d["pose_noise"] = None if self.pose_noise is None else list(self.pose_noise)
         return d
 
     @classmethod
     def from_dict(cls, d: dict) -> ExperimentConfig:
         size = d.get("image_size")
         d = {"confirm_score": 0.0, **d}  # written before the rule: every track reported
+        noise = d.get("pose_noise")
         return cls(**{**d, "methods": tuple(d.get("methods", METHODS)),
-                      "image_size": None if size is None else tuple(size)})
+                      "image_size": None if size is None else tuple(size),
+                      "pose_noise": None if noise is None else tuple(noise)})
 
 
 class ExperimentError(DashtrajError, ValueError):
@@ -475,7 +485,9 @@ def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
                                               agnostic_nms_iou=config.agnostic_nms_iou,
                                               min_score=config.min_score,
                                               confirm_score=config.confirm_score,
-                                              localizer=config.localizer),
+                                              localizer=config.localizer,
+                                              pose_noise=config.pose_noise,
+                                              pose_noise_seed=config.seed),
                  workers=config.workers, progress=progress)
     stages.note(f"perceive: {s.frames} frames, {s.detections} detections, {s.tracks} tracks, "
                 f"{s.crops} crops within {config.max_distance_m:g} m")
@@ -583,7 +595,9 @@ def target_sightings(config: ExperimentConfig, rec, out: Path, road_map,
                                           "detector oracle")
         perceive(rec, db_path, PerceiveConfig(detector="oracle", size=config.image_size,
                                               reid_range_m=config.max_distance_m,
-                                              localizer=config.localizer),
+                                              localizer=config.localizer,
+                                              pose_noise=config.pose_noise,
+                                              pose_noise_seed=config.seed),
                  workers=config.workers)
         with SightingsDB.open(db_path) as db:
             truth = truth_of_tracks(db, config.max_distance_m)

@@ -292,6 +292,34 @@ def detector_filters_used(args: argparse.Namespace) -> dict:
             "confirm_score": args.confirm_score}
 
 
+def pose_noise(text: str) -> tuple[float, float, float, float]:
+    """``XY_M,YAW_DEG[,PITCH_DEG[,TAU_S]]``: the observers' GNSS/INS errors
+    (`dashtraj.perception.posenoise.PoseNoise`), as a tuple."""
+    from dashtraj.perception.posenoise import PoseNoise, PoseNoiseError
+
+    try:
+        return tuple(PoseNoise.parse(text).to_list())
+    except PoseNoiseError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix(f"--pose-noise {text!r}: ")
+                                         + f", got {text!r}") from None
+
+
+POSE_NOISE_HELP = ("perturb every observer's camera pose as a real drive's GNSS/INS would: "
+                   "standard deviations of the east and north errors (m), of the heading and "
+                   "the pitch (degrees), slowly wandering with correlation time TAU_S "
+                   "(default 30 s); e.g. 1.5,1 (consumer GNSS), 0.5,0.3 (automotive GNSS/INS); "
+                   "the truth stays exact (dashtraj.perception.posenoise)")
+
+
+def add_pose_noise_args(parser: argparse.ArgumentParser, with_seed: bool = True) -> None:
+    """``--pose-noise XY,YAW[,PITCH[,TAU]]`` (and ``--pose-noise-seed N``)."""
+    parser.add_argument("--pose-noise", type=pose_noise, default=None,
+                        metavar="XY_M,YAW_DEG[,PITCH_DEG[,TAU_S]]", help=POSE_NOISE_HELP)
+    if with_seed:
+        parser.add_argument("--pose-noise-seed", type=seed, default=0, metavar="N",
+                            help="seed of the pose errors (default 0)")
+
+
 def add_frame_source_args(parser: argparse.ArgumentParser, every_s: float) -> None:
     """The inputs every evaluation on rendered frames takes: recordings, the detector (and
     its box filters), the frame period (seconds) and the image size."""

@@ -9,6 +9,7 @@ from pathlib import Path
 from dashtraj.cli._args import (
     ArgumentError,
     add_detector_filter_args,
+    add_pose_noise_args,
     image_size,
     int_at_least,
     positive_float,
@@ -61,6 +62,7 @@ def add_vision_args(p: argparse.ArgumentParser, default_sightings: str | None = 
                    help="detections/vision: perceive's localizer (paper, ground, fused, "
                         "tracked, smoothed or mapped; default smoothed)")
     add_detector_filter_args(p)
+    add_pose_noise_args(p, with_seed=False)
 
 
 def vision_settings(args) -> dict:
@@ -98,7 +100,8 @@ def vision_settings(args) -> dict:
             "reid_model": args.reid_model, "reid_threshold": args.reid_threshold,
             "look": args.look, "image_size": size, "every_s": every, "workers": args.workers,
             "agnostic_nms_iou": args.agnostic_nms, "min_score": args.min_score,
-            "confirm_score": args.confirm_score, "localizer": args.localizer}
+            "confirm_score": args.confirm_score, "localizer": args.localizer,
+            "pose_noise": args.pose_noise}
 
 
 def check_reid_model(config) -> None:

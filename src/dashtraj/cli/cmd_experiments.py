@@ -168,6 +168,9 @@ def run(args) -> int:
         if args.every is None:
             vision["every_s"] = VISION_EVERY_S
     reid = args.reid or ("appearance" if vision["sightings"] == "vision" else "identity")
+    if args.ablation and args.pose_noise is not None:
+        raise ArgumentError("--ablation with --pose-noise: the error budget's stages are "
+                            "measured from the exact poses (give --pose-noise without it)")
     if args.ablation and reid != "appearance":
         raise ArgumentError(f"--ablation with --reid {reid}: the ablation's last stage is "
                             "appearance ReID (leave --reid out)")

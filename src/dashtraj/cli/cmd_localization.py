@@ -10,6 +10,7 @@ import json
 def register(subparsers: argparse._SubParsersAction) -> None:
     from dashtraj.cli._args import (
         add_frame_source_args,
+        add_pose_noise_args,
         picture_path,
         positive_float,
         positive_int,
@@ -30,6 +31,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "true distance with --plot."),
     )
     add_frame_source_args(e, every_s=0.5)
+    add_pose_noise_args(e)
     e.add_argument("--localizers", nargs="+", metavar="NAME",
                    default=["paper", "ground", "fused", "tracked", "smoothed", "mapped"],
                    help="estimators (default all: paper ground fused tracked smoothed mapped)")
@@ -80,11 +82,14 @@ def run_eval(args: argparse.Namespace) -> int:
     recs = [open_recording(r) for r in args.recordings]
     summary, samples = localization_eval(recs, args.localizers, args.detector, args.every,
                                          _size(args.size), args.mu_h, args.track_every,
-                                         args.agnostic_nms, args.min_score)
+                                         args.agnostic_nms, args.min_score,
+                                         pose_noise=args.pose_noise,
+                                         pose_noise_seed=args.pose_noise_seed)
     if args.plot:
         with atomic_output(args.plot, overwrite=args.overwrite, kind="file") as tmp:
             scatter_png(samples, args.localizers, tmp)
     out = {"detector": args.detector, **detector_filters_used(args),
+           "pose_noise": None if args.pose_noise is None else list(args.pose_noise),
            "detections": len(samples["true_m"]), **summary}
     if args.json:
         print(json.dumps(out))

@@ -11,6 +11,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `perceive` command."""
     from dashtraj.cli._args import (
         add_detector_filter_args,
+        add_pose_noise_args,
         image_size,
         int_at_least,
         positive_float,
@@ -55,6 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="detector (default oracle: the renderer's exact visible boxes, or a "
                         "drive's truth boxes from its truth.csv)")
     add_detector_filter_args(p)
+    add_pose_noise_args(p)
     p.add_argument("--tracker", default="ego", help="sort or ego (default ego)")
     p.add_argument("--localizer", default="smoothed",
                    help="paper, ground, fused, tracked, smoothed or mapped (default smoothed)")
@@ -136,6 +138,7 @@ def run_perceive(args: argparse.Namespace) -> int:
                          reid_range_m=args.reid_range, look=args.look,
                          agnostic_nms_iou=args.agnostic_nms, min_score=args.min_score,
                          confirm_score=args.confirm_score,
+                         pose_noise=args.pose_noise, pose_noise_seed=args.pose_noise_seed,
                          threads=args.threads, parallel_frames=args.parallel_frames,
                          observers=tuple(args.observers) if args.observers else None)
     from dashtraj.datasets.drive import Drive

@@ -7,7 +7,7 @@ import json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from dashtraj.cli._args import add_frame_source_args
+    from dashtraj.cli._args import add_frame_source_args, add_pose_noise_args
 
     p = subparsers.add_parser(
         "tracker", help="evaluate the trackers (HOTA, IDF1, MOTA) against the renderer's truth")
@@ -23,6 +23,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "as peers when the boxmot package can be imported (pip install '.[bench]')."),
     )
     add_frame_source_args(e, every_s=0.1)
+    add_pose_noise_args(e)
     e.add_argument("--trackers", nargs="+", default=["sort", "ego"], metavar="NAME",
                    help="our trackers (default: sort ego)")
     e.add_argument("--peers", nargs="*", default=None, metavar="NAME",
@@ -55,7 +56,9 @@ def run_eval(args: argparse.Namespace) -> int:
     recs = [open_recording(r) for r in args.recordings]
     peers, why = boxmot_peers(wanted) if wanted else ({}, None)
     res = tracker_eval(recs, args.trackers, peers, args.detector, args.every, size,
-                       args.agnostic_nms, args.min_score, args.confirm_score)
+                       args.agnostic_nms, args.min_score, args.confirm_score,
+                       pose_noise=args.pose_noise, pose_noise_seed=args.pose_noise_seed)
+    res["pose_noise"] = None if args.pose_noise is None else list(args.pose_noise)
     res["detector"] = args.detector
     res.update(detector_filters_used(args))
     res["peers_skipped"] = None if peers or not wanted else why

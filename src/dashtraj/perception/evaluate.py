@@ -64,19 +64,28 @@ image height): truth boxes of the oracle that fall under either are ignore regio
 def eval_frames(recording, detector: str = "oracle", every_s: float = 0.1, size=None,
                 observers=None, keep_rgb: bool = False,
                 agnostic_iou: float | None = AGNOSTIC_NMS_IOU,
-                min_score: float = DEFAULT_MIN_SCORE) -> Iterator[EvalFrame]:
+                min_score: float = DEFAULT_MIN_SCORE, pose_noise=None,
+                pose_noise_seed: int = 0) -> Iterator[EvalFrame]:
     """Render each observer's frames (a drive's: read, with its truth); yield detections
     and truth (observer by observer).
     ``agnostic_iou``, ``min_score``: a detector model's class-agnostic NMS and smallest kept
-    score (`build_detector`)."""
+    score (`build_detector`). ``pose_noise``, ``pose_noise_seed``: the frames' camera poses
+    perturbed as `PerceiveConfig.pose_noise` does (the truth stays exact)."""
     from dashtraj.datasets.frames import source_frames
+    from dashtraj.perception.posenoise import noise_process
 
     spec = image_camera(recording, size)
     det = build_detector(detector, agnostic_iou=agnostic_iou, min_score=min_score)
     floor_px = OracleDetector.min_height_px  # the scored truth is a subset of the truth
     floor_vis = OracleDetector.min_visible_fraction
+    noise: dict = {}
     for rf in source_frames(recording, every_s, size, observers, msaa=0):
-        yield EvalFrame(rf.observer_id, rf.frame, rf.t, camera_pose_of(rf, spec), det.detect(rf),
+        if rf.observer_id not in noise:
+            noise[rf.observer_id] = noise_process(pose_noise, pose_noise_seed, rf.observer_id)
+        pose = camera_pose_of(rf, spec)
+        if noise[rf.observer_id] is not None:
+            pose = noise[rf.observer_id].apply(pose, rf.t)
+        yield EvalFrame(rf.observer_id, rf.frame, rf.t, pose, det.detect(rf),
                         truth_of(rf), rf.frame_data.rgb if keep_rgb else None,
                         truth_of(rf, max(IGNORE_BELOW_PX * spec.height_px / 720.0, floor_px),
                                  max(IGNORE_BELOW_VISIBLE, floor_vis)))
@@ -112,13 +121,16 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
                  every_s: float = 0.1, size=None,
                  agnostic_iou: float | None = AGNOSTIC_NMS_IOU,
                  min_score: float = DEFAULT_MIN_SCORE,
-                 confirm_score: float = CONFIRM_SCORE) -> dict:
+                 confirm_score: float = CONFIRM_SCORE, pose_noise=None,
+                 pose_noise_seed: int = 0) -> dict:
     """HOTA / IDF1 / MOTA per tracker over every observer of every recording.
 
     Args:
         recordings: `Recording` objects. trackers: our tracker names.
         peers: {name: factory(spec) → tracker with ``update(det, t, pose, rgb)``}, or None.
         confirm_score: ``ego``'s `EgoTracker.confirm_score`.
+        pose_noise, pose_noise_seed: the trackers get the observers' poses perturbed
+            (`eval_frames`; `dashtraj.perception.posenoise`).
 
     Returns:
         {tracker: {"hota", "deta", "assa", "idf1", "mota", "idsw", ..., "updates",
@@ -163,7 +175,8 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
         seqs: dict = {}
         iseqs: dict = {}
         for ef in eval_frames(rec, detector, every_s, size, keep_rgb=bool(peers),
-                              agnostic_iou=agnostic_iou, min_score=min_score):
+                              agnostic_iou=agnostic_iou, min_score=min_score,
+                              pose_noise=pose_noise, pose_noise_seed=pose_noise_seed):
             if ef.observer_id != current:
                 if current is not None:
                     flush()
@@ -236,8 +249,12 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
                       detector: str = "oracle", every_s: float = 0.5, size=None,
                       mu_h: float | None = None, track_every_s: float = 0.1,
                       agnostic_iou: float | None = AGNOSTIC_NMS_IOU,
-                      min_score: float = DEFAULT_MIN_SCORE) -> tuple[dict, dict]:
+                      min_score: float = DEFAULT_MIN_SCORE, pose_noise=None,
+                      pose_noise_seed: int = 0) -> tuple[dict, dict]:
     """Position and distance errors per estimator, in bands of true distance.
+
+    ``pose_noise``, ``pose_noise_seed``: the estimators get the observers' poses perturbed
+    (`eval_frames`; `dashtraj.perception.posenoise`); the errors are against the truth.
 
     Only detections matched to a vehicle count (all, with the oracle), in the frames every
     ``every_s`` seconds. A sequential estimator (``tracked``, ``smoothed``, ``mapped``: the
@@ -287,7 +304,8 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
         current = None
         index = 0
         for ef in eval_frames(rec, detector, period, size, agnostic_iou=agnostic_iou,
-                              min_score=min_score):
+                              min_score=min_score, pose_noise=pose_noise,
+                              pose_noise_seed=pose_noise_seed):
             d = ef.detections
             if ef.observer_id != current:
                 flush()

@@ -46,6 +46,7 @@ from dashtraj.perception.detections import (
 )
 from dashtraj.perception.localize import CameraPose, build_localizer
 from dashtraj.perception.mapmatch import map_match
+from dashtraj.perception.posenoise import noise_process
 from dashtraj.perception.track import CONFIRM_SCORE, build_tracker
 from dashtraj.store import (
     CropRow,
@@ -89,6 +90,10 @@ class PerceiveConfig:
         min_score: the detector model's smallest kept score.
         confirm_score: the ``ego`` tracker reports a track once one of its boxes scored
             at least this much (`EgoTracker.confirm_score`; the oracle's boxes score 1).
+        pose_noise: errors added to every observer's camera pose before it is used
+            (`dashtraj.perception.posenoise`: (xy_m, yaw_deg, pitch_deg, tau_s), a real
+            drive's GNSS/INS), or None for the exact poses; the truth stays exact.
+        pose_noise_seed: the seed of those errors (with the observer id).
     """
 
     detector: str = "oracle"
@@ -109,6 +114,8 @@ class PerceiveConfig:
     agnostic_nms_iou: float | None = AGNOSTIC_NMS_IOU
     min_score: float = DEFAULT_MIN_SCORE
     confirm_score: float = CONFIRM_SCORE
+    pose_noise: tuple[float, float, float, float] | None = None
+    pose_noise_seed: int = 0
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -118,8 +125,9 @@ class PerceiveConfig:
         d = dict(d)
         if d.get("size") is not None:
             d["size"] = tuple(d["size"])
-        if d.get("observers") is not None:
-            d["observers"] = tuple(d["observers"])
+        for key in ("observers", "pose_noise"):
+            if d.get(key) is not None:
+                d[key] = tuple(d[key])
         d.setdefault("confirm_score", 0.0)  # written before the rule: every track reported
         return cls(**d)
 
@@ -213,6 +221,7 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
     # tracked/smoothed/mapped run an ego filter of their own: with the same settings it
     # is this tracker, updated once per frame (the same ids as updating both)
     shared = hasattr(localizer, "share_tracker") and localizer.share_tracker(tracker)
+    noise = noise_process(config.pose_noise, config.pose_noise_seed, observer_id)
     tstats = _TrackStats()
     mount = recording.config.camera
     batch = Batch(observer_id)
@@ -224,6 +233,8 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
                                   msaa=config.msaa, renderer=renderer)
     for rf, det in _detected(frames, detector, in_flight):
         pose = camera_pose_of(rf, spec)
+        if noise is not None:  # what the observer's GNSS/INS would say
+            pose = noise.apply(pose, rf.t)
         h = math.radians(pose.yaw_deg)
         gx = pose.x - mount.x_m * math.cos(h) + mount.y_m * math.sin(h)
         gy = pose.y - mount.x_m * math.sin(h) - mount.y_m * math.cos(h)
