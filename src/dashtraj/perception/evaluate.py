@@ -51,6 +51,8 @@ class EvalFrame:
     truth: object
     rgb: np.ndarray | None
     scored: object = None
+    true_pose: object = None
+    """The exact camera pose when ``pose`` is perturbed (``pose_noise``), else None."""
 
 
 IGNORE_BELOW_PX = 20.0
@@ -82,13 +84,14 @@ def eval_frames(recording, detector: str = "oracle", every_s: float = 0.1, size=
     for rf in source_frames(recording, every_s, size, observers, msaa=0):
         if rf.observer_id not in noise:
             noise[rf.observer_id] = noise_process(pose_noise, pose_noise_seed, rf.observer_id)
-        pose = camera_pose_of(rf, spec)
-        if noise[rf.observer_id] is not None:
-            pose = noise[rf.observer_id].apply(pose, rf.t)
+        exact = camera_pose_of(rf, spec)
+        proc = noise[rf.observer_id]
+        pose = exact if proc is None else proc.apply(exact, rf.t)
         yield EvalFrame(rf.observer_id, rf.frame, rf.t, pose, det.detect(rf),
                         truth_of(rf), rf.frame_data.rgb if keep_rgb else None,
                         truth_of(rf, max(IGNORE_BELOW_PX * spec.height_px / 720.0, floor_px),
-                                 max(IGNORE_BELOW_VISIBLE, floor_vis)))
+                                 max(IGNORE_BELOW_VISIBLE, floor_vis)),
+                        None if pose is exact else exact)
 
 
 class EvalError(DashtrajError):
@@ -320,7 +323,8 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
             if not m.any() or abs(k - round(k)) > 1e-6:
                 continue
             tx, ty = where(ef, d.truth_ids[m])
-            true_d.append(np.hypot(tx - ef.pose.x, ty - ef.pose.y))
+            cam = ef.pose if ef.true_pose is None else ef.true_pose  # the true distance
+            true_d.append(np.hypot(tx - cam.x, ty - cam.y))
             on_scored.append(np.isin(d.truth_ids[m], ef.scored.truth_ids))
             scored.append((index - 1, m, tx, ty))
             for n, loc in locs.items():

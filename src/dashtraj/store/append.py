@@ -165,7 +165,8 @@ def append_file(part: Path, path: Path) -> list[int] | None:
         return None
     SightingsDB.open(path, writable=True).close()  # checks it, upgrades an older schema
     before = os.stat(path).st_ino
-    conn = sqlite3.connect(str(path), isolation_level=None)
+    # a URI connection, so that ATTACH takes the partial's URI (read-only) as one
+    conn = sqlite3.connect(path.resolve().as_uri(), uri=True, isolation_level=None)
     try:
         conn.execute("PRAGMA foreign_keys=ON")
         conn.execute("ATTACH DATABASE ? AS part", (f"{part.resolve().as_uri()}?mode=ro",))
