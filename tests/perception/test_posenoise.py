@@ -109,3 +109,6 @@ def test_localization_eval_with_pose_noise_is_worse_and_zero_noise_changes_nothi
     assert exact["fused"] == zero["fused"] and exact["pose_noise"] is None
     assert gnss["pose_noise"] == [2.0, 1.0, 0.0, 30.0]
     assert gnss["fused"]["median_lt20_m"] > exact["fused"]["median_lt20_m"] + 0.5
+    # the bands are of the true distance, from the exact camera
+    assert [gnss["fused"][k] for k in ("n_lt20", "n_20_60")] == [
+        exact["fused"][k] for k in ("n_lt20", "n_20_60")]
