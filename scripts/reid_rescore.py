@@ -12,7 +12,7 @@ Usage:
         [--gate | --no-gate] [--same-camera-m M] [--slack-m M] [--radius-m M] [--max-speed-mps V]
         [--co-observed-m M]
         [--pin-anchor | --no-pin-anchor]
-        [--split | --no-split] [--min-score S] [--json]
+        [--split | --no-split] [--min-score S] [--no-pose-sigma] [--json]
 
 Prints one row per run (ReID precision/recall, hmm and shortest-path SSPD over the whole
 trip and the seen stretch) and the means, with the same aggregation as `experiments`.
@@ -79,6 +79,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--min-score", type=float, default=SIGHTING_MIN_SCORE,
                     help="use only detections scored at least this (default: the library's, "
                          "dashtraj.reidentify.vision.SIGHTING_MIN_SCORE; 0: all)")
+    ap.add_argument("--no-pose-sigma", action="store_true",
+                    help="runs made with --pose-noise: the HMM without the pose errors in its "
+                         "emission σ (as before 2026-11-29)")
     ap.add_argument("--json", action="store_true", help="print the figures as JSON")
     args = ap.parse_args(argv)
 
@@ -113,7 +116,9 @@ def main(argv: list[str] | None = None) -> int:
                                 pin_anchor=args.pin_anchor, split=args.split,
                                 min_score=args.min_score)
             results, _, _ = reconstruct_and_score(road_map, rec.target_route, tt.sightings,
-                                                  config.methods)
+                                                  config.methods,
+                                                  pose_noise=None if args.no_pose_sigma
+                                                  else config.pose_noise)
             summary = {**tt.summary, "methods": results}
             summaries.append(summary)
             row = {"run": run.name, "reid_precision": summary.get("reid_precision"),

@@ -350,7 +350,7 @@ def _finish(config: ExperimentConfig, out: Path, stages: Stages, road_map, truth
     write_trajectory(out / "truth.csv", truth)
 
     results, estimates, seen = reconstruct_and_score(road_map, truth, sightings,
-                                                     config.methods, out)
+                                                     config.methods, out, config.pose_noise)
     summary = {
         "config": config.to_dict(),
         **run,
@@ -367,8 +367,18 @@ def _finish(config: ExperimentConfig, out: Path, stages: Stages, road_map, truth
                             true_match, stages.stop())
 
 
-def reconstruct_and_score(road_map, truth, sightings: list, methods, out: Path | None = None
-                          ) -> tuple[dict, dict, object]:
+def pose_sigma_options(pose_noise) -> dict:
+    """The HMM's options for sightings made from poses with known GNSS/INS errors
+    (``pose_noise``: `PerceiveConfig.pose_noise`, or None): its emission σ takes the
+    observers' position and heading errors (`reconstruct_hmm`'s ``sigma_pose_m``,
+    ``sigma_pose_deg``)."""
+    if pose_noise is None:
+        return {}
+    return {"sigma_pose_m": float(pose_noise[0]), "sigma_pose_deg": float(pose_noise[1])}
+
+
+def reconstruct_and_score(road_map, truth, sightings: list, methods, out: Path | None = None,
+                          pose_noise=None) -> tuple[dict, dict, object]:
     """Reconstruct the route from `sightings` with each method and score it: the one
     reconstruction path of every sightings source (oracle, detections, vision) and of
     every row of the error budget.
@@ -378,6 +388,7 @@ def reconstruct_and_score(road_map, truth, sightings: list, methods, out: Path |
         sightings: the target's sightings (any source), time order.
         methods: names in `dashtraj.trajectory.reconstruct`.
         out: write ``estimate_<method>.csv`` here (None: nothing written).
+        pose_noise: the observers' known pose errors (`pose_sigma_options`), or None.
 
     Returns:
         (per-method scores in metres: sspd/hausdorff whole and seen, points, warnings;
@@ -400,7 +411,8 @@ def reconstruct_and_score(road_map, truth, sightings: list, methods, out: Path |
         for method in methods:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
-                r = reconstruct(road_map, sightings, method=method)
+                r = reconstruct(road_map, sightings, method=method,
+                                **(pose_sigma_options(pose_noise) if method == "hmm" else {}))
             estimates[method] = r.trajectory
             if out is not None:
                 write_trajectory(Path(out) / f"estimate_{method}.csv", r.trajectory)

@@ -304,6 +304,20 @@ def pose_noise(text: str) -> tuple[float, float, float, float]:
                                          + f", got {text!r}") from None
 
 
+def pose_sigma(text: str) -> tuple[float, float]:
+    """``XY_M,YAW_DEG``: the observers' known pose errors (σ per horizontal axis, metres;
+    heading σ, degrees), finite and >= 0."""
+    parts = text.split(",")
+    try:
+        vals = tuple(float(v) for v in parts)
+    except ValueError:
+        vals = ()
+    if len(vals) != 2 or not all(math.isfinite(v) and v >= 0 for v in vals):
+        raise argparse.ArgumentTypeError(f"expected XY_M,YAW_DEG (two numbers >= 0), got "
+                                         f"{text!r}")
+    return vals
+
+
 POSE_NOISE_HELP = ("perturb every observer's camera pose as a real drive's GNSS/INS would: "
                    "standard deviations of the east and north errors (m), of the heading and "
                    "the pitch (degrees), slowly wandering with correlation time TAU_S "

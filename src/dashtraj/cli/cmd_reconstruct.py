@@ -9,6 +9,7 @@ from dashtraj.cli._args import (
     MAX_OFF_ROAD_M,
     ArgumentError,
     non_negative_float,
+    pose_sigma,
     positive_float,
     positive_int,
     seed,
@@ -48,6 +49,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--turn-cost", type=non_negative_float, default=None, metavar="M",
                    help="hmm: metres of route cost per radian of heading change, a prior "
                         "for routes with fewer turns (default 3; 0: by length alone)")
+    p.add_argument("--pose-sigma", type=pose_sigma, default=None, metavar="XY_M,YAW_DEG",
+                   help="hmm: the observers' own pose errors (a real drive's GNSS/INS: σ per "
+                        "horizontal axis, metres; heading σ, degrees), added to the sightings' "
+                        "error model (default: exact poses)")
     add_output_args(p)
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     p.set_defaults(func=run_reconstruct)
@@ -158,6 +163,10 @@ def run_reconstruct(args: argparse.Namespace) -> int:
                                 f"{MAX_TURN_COST_M_PER_RAD:g}: every turn would cost more than "
                                 "any route, and the HMM would jump straight between sightings")
         options["turn_cost_m_per_rad"] = args.turn_cost
+    if args.pose_sigma is not None:
+        if args.method != "hmm":
+            raise ArgumentError("--pose-sigma applies to --method hmm only")
+        options["sigma_pose_m"], options["sigma_pose_deg"] = args.pose_sigma
     road_map = _load_map(args.map)
     read = read_sightings(args.sightings)
     sightings = drop_off_road(road_map, read, args.sightings, args.max_off_road)

@@ -350,6 +350,8 @@ def reconstruct_hmm(road_map: RoadMap, sightings: Sequence[Sighting], *,
                     sigma_base_m: float = 1.0,
                     sigma_per_m: float = 0.12,
                     sigma_max_m: float = 6.0,
+                    sigma_pose_m: float = 0.0,
+                    sigma_pose_deg: float = 0.0,
                     outlier_prob: float = 0.05,
                     orientation_probs: tuple[float, float, float] = (0.8, 0.15, 0.05),
                     orientation_soft_deg: float = 10.0,
@@ -373,7 +375,11 @@ def reconstruct_hmm(road_map: RoadMap, sightings: Sequence[Sighting], *,
     Emission (log): 2-D Gaussian in the distance d from the estimated position to
     the candidate, σ = min(sigma_base_m + sigma_per_m · D, sigma_max_m) where D is
     the estimated camera distance (or the observer-to-estimate distance when
-    unknown), mixed with a uniform density over the search disc of weight
+    unknown), and the observers' own pose errors added in quadrature when they are known
+    (a real drive's GNSS/INS: `sigma_pose_m` per horizontal axis and `sigma_pose_deg` of
+    heading, which moves a sighting D · σ_yaw across its ray; 0 for exact poses:
+    σ_total = hypot(σ, sigma_pose_m, D · sigma_pose_deg in radians)), mixed with a uniform
+    density over the search disc of weight
     `outlier_prob` (departure from N&K's pure Gaussian: ~5 % of dashcam positions
     are gross errors, e.g. on the wrong side of the road, and must not drag the
     route), plus the soft orientation term of `_orientation_loglik`.
@@ -438,6 +444,8 @@ def reconstruct_hmm(road_map: RoadMap, sightings: Sequence[Sighting], *,
         dist = s.distance if s.distance is not None else math.hypot(s.x - s.observer_x,
                                                                     s.y - s.observer_y)
         sigma = min(sigma_base_m + sigma_per_m * dist, sigma_max_m)
+        if sigma_pose_m or sigma_pose_deg:  # the observer's own position and heading
+            sigma = math.hypot(sigma, sigma_pose_m, dist * math.radians(sigma_pose_deg))
         # 2-D Gaussian density of the position error, mixed with a uniform outlier
         # density over the search disc (wrong-side and gross distance errors).
         gauss = np.exp(-0.5 * (c.dist / sigma) ** 2) / (2.0 * math.pi * sigma**2)
