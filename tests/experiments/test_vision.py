@@ -24,8 +24,8 @@ def spy(monkeypatch):
     calls: list[dict] = []
     real = ex.reconstruct_and_score
 
-    def wrapped(road_map, truth, sightings, methods, out=None):
-        res = real(road_map, truth, sightings, methods, out)
+    def wrapped(road_map, truth, sightings, methods, out=None, pose_noise=None):
+        res = real(road_map, truth, sightings, methods, out, pose_noise)
         calls.append({"sightings": list(sightings), "results": res[0]})
         return res
 
