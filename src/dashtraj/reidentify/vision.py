@@ -59,6 +59,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dashtraj.digest import file_sha256 as sha256_of  # a model file's identity
 from dashtraj.errors import DashtrajError
 from dashtraj.reidentify.decision import (
     Calibration,
@@ -167,13 +168,6 @@ class Threshold:
     def to_dict(self) -> dict:
         return {"calibration": self.calibration.to_dict(), "model_sha256": self.model_sha256,
                 "provenance": self.provenance}
-
-
-def sha256_of(path: str | Path) -> str:
-    """Hex sha256 of a model file (`dashtraj.digest.file_sha256`)."""
-    from dashtraj.digest import file_sha256
-
-    return file_sha256(path)
 
 
 def threshold_path(model_path: str | Path) -> Path:
