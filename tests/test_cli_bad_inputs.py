@@ -147,6 +147,12 @@ CASES: list[tuple[str, list[str], str]] = [
                                       "1,1,1,0"], "tau_s must be > 0"),
     ("experiments-pose-noise-ablation", ["experiments", "--ablation", "--pose-noise", "1,1",
                                          "-o", "{NEW_DIR}"], "--ablation with --pose-noise"),
+    ("experiments-calibrate-pitch-ablation", ["experiments", "--ablation", "--calibrate-pitch",
+                                              "-o", "{NEW_DIR}"],
+     "--ablation with --calibrate-pitch"),
+    ("experiments-calibrate-pitch-oracle", ["experiments", "--sightings", "oracle",
+                                            "--calibrate-pitch", "-o", "{NEW_DIR}"],
+     "--calibrate-pitch corrects the observers' poses in perception"),
     # --- tracker, localization
     ("tracker-eval-missing", ["tracker", "eval", "{MISSING}"], "is not a directory"),
     ("tracker-eval-unknown", ["tracker", "eval", "{REC}", "--trackers", "kalman"],

@@ -128,6 +128,8 @@ class ExperimentConfig:
         pose_noise: ``detections``/``vision``: the observers perceive from poses with
             GNSS/INS errors (`PerceiveConfig.pose_noise`; (xy_m, yaw_deg, pitch_deg,
             tau_s)), drawn with the experiment's seed; None: the exact poses.
+        calibrate_pitch: ``detections``/``vision``: perception self-calibrates each
+            observer's camera pitch (`PerceiveConfig.calibrate_pitch`).
     """
 
     town: str = "town10"
@@ -155,11 +157,15 @@ class ExperimentConfig:
     localizer: str = "smoothed"
     drive: str | None = None
     pose_noise: tuple[float, float, float, float] | None = None
+    calibrate_pitch: bool = False
 
     def __post_init__(self) -> None:
         if self.pose_noise is not None and self.sightings == "oracle":
             raise ExperimentError("--pose-noise perturbs the observers' poses in perception: "
                                   "it needs --sightings detections or vision")
+        if self.calibrate_pitch and self.sightings == "oracle":
+            raise ExperimentError("--calibrate-pitch corrects the observers' poses in "
+                                  "perception: it needs --sightings detections or vision")
         if self.drive is not None and self.sightings != "vision":
             raise ExperimentError(f"a drive is perceived from its images: sightings "
                                   f"{self.sightings!r} needs a simulated recording")
@@ -499,7 +505,8 @@ def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
                                               confirm_score=config.confirm_score,
                                               localizer=config.localizer,
                                               pose_noise=config.pose_noise,
-                                              pose_noise_seed=config.seed),
+                                              pose_noise_seed=config.seed,
+                                              calibrate_pitch=config.calibrate_pitch),
                  workers=config.workers, progress=progress)
     stages.note(f"perceive: {s.frames} frames, {s.detections} detections, {s.tracks} tracks, "
                 f"{s.crops} crops within {config.max_distance_m:g} m")
@@ -609,7 +616,8 @@ def target_sightings(config: ExperimentConfig, rec, out: Path, road_map,
                                               reid_range_m=config.max_distance_m,
                                               localizer=config.localizer,
                                               pose_noise=config.pose_noise,
-                                              pose_noise_seed=config.seed),
+                                              pose_noise_seed=config.seed,
+                                              calibrate_pitch=config.calibrate_pitch),
                  workers=config.workers)
         with SightingsDB.open(db_path) as db:
             truth = truth_of_tracks(db, config.max_distance_m)

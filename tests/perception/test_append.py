@@ -60,6 +60,8 @@ def test_append_refuses_another_run_before_any_work(small_run, small_db, tmp_pat
     assert "tracker='ego', these observers with tracker='sort'" in refused(
         "--observers", "2", "--tracker", "sort", "--append")
     assert "give one of them" in refused("--observers", "2", "--append", "--overwrite")
+    assert "calibrate_pitch=False, these observers with calibrate_pitch=True" in refused(
+        "--observers", "2", "--calibrate-pitch", "--append")
     # another recording: same town and observers, another seed
     from dashtraj.world.camera import CameraSpec
     from dashtraj.world.recording import RunConfig, simulate
@@ -160,3 +162,15 @@ def test_append_into_postgres_from_two_processes_gives_the_one_run(small_run, sm
 
         with pg_atomic_output(pg_url, append=True, quiet=True) as part:
             perceive(small_run, part, PerceiveConfig(observers=(3,)))
+
+
+def test_a_run_written_before_a_setting_existed_is_one_run_with_its_default():
+    from dashtraj.store.append import ADDED_SETTINGS, run_identity
+
+    meta = {"source_sha256": "a" * 64, "detector_sha256": "b" * 64}
+    old = {"every_s": 0.1, "tracker": "ego", "observers": [1]}
+    assert "calibrate_pitch" in ADDED_SETTINGS
+    assert run_identity(meta, "m", {}, old) == run_identity(
+        meta, "m", {}, {**old, "calibrate_pitch": False, "observers": [2]})
+    assert run_identity(meta, "m", {}, old) != run_identity(
+        meta, "m", {}, {**old, "calibrate_pitch": True})

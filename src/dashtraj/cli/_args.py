@@ -326,12 +326,18 @@ POSE_NOISE_HELP = ("perturb every observer's camera pose as a real drive's GNSS/
 
 
 def add_pose_noise_args(parser: argparse.ArgumentParser, with_seed: bool = True) -> None:
-    """``--pose-noise XY,YAW[,PITCH[,TAU]]`` (and ``--pose-noise-seed N``)."""
+    """``--pose-noise XY,YAW[,PITCH[,TAU]]`` (and ``--pose-noise-seed N``), and
+    ``--calibrate-pitch``."""
     parser.add_argument("--pose-noise", type=pose_noise, default=None,
                         metavar="XY_M,YAW_DEG[,PITCH_DEG[,TAU_S]]", help=POSE_NOISE_HELP)
     if with_seed:
         parser.add_argument("--pose-noise-seed", type=seed, default=0, metavar="N",
                             help="seed of the pose errors (default 0)")
+    parser.add_argument("--calibrate-pitch", action="store_true",
+                        help="correct each observer's camera pitch by the horizon that the "
+                             "vehicles it sees drive toward (for a dashcam whose mount or "
+                             "INS pitch is known only to a degree; "
+                             "dashtraj.perception.selfcal)")
 
 
 def add_frame_source_args(parser: argparse.ArgumentParser, every_s: float) -> None:

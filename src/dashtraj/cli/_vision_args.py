@@ -101,7 +101,7 @@ def vision_settings(args) -> dict:
             "look": args.look, "image_size": size, "every_s": every, "workers": args.workers,
             "agnostic_nms_iou": args.agnostic_nms, "min_score": args.min_score,
             "confirm_score": args.confirm_score, "localizer": args.localizer,
-            "pose_noise": args.pose_noise}
+            "pose_noise": args.pose_noise, "calibrate_pitch": args.calibrate_pitch}
 
 
 def check_reid_model(config) -> None:

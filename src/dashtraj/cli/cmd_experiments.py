@@ -171,6 +171,10 @@ def run(args) -> int:
     if args.ablation and args.pose_noise is not None:
         raise ArgumentError("--ablation with --pose-noise: the error budget's stages are "
                             "measured from the exact poses (give --pose-noise without it)")
+    if args.ablation and args.calibrate_pitch:
+        raise ArgumentError("--ablation with --calibrate-pitch: the error budget's stages are "
+                            "measured from the exact poses (give --calibrate-pitch without "
+                            "it)")
     if args.ablation and reid != "appearance":
         raise ArgumentError(f"--ablation with --reid {reid}: the ablation's last stage is "
                             "appearance ReID (leave --reid out)")

@@ -84,12 +84,14 @@ def run_eval(args: argparse.Namespace) -> int:
                                          _size(args.size), args.mu_h, args.track_every,
                                          args.agnostic_nms, args.min_score,
                                          pose_noise=args.pose_noise,
-                                         pose_noise_seed=args.pose_noise_seed)
+                                         pose_noise_seed=args.pose_noise_seed,
+                                         calibrate_pitch=args.calibrate_pitch)
     if args.plot:
         with atomic_output(args.plot, overwrite=args.overwrite, kind="file") as tmp:
             scatter_png(samples, args.localizers, tmp)
     out = {"detector": args.detector, **detector_filters_used(args),
            "pose_noise": None if args.pose_noise is None else list(args.pose_noise),
+           "calibrate_pitch": args.calibrate_pitch,
            "detections": len(samples["true_m"]), **summary}
     if args.json:
         print(json.dumps(out))

@@ -139,6 +139,7 @@ def run_perceive(args: argparse.Namespace) -> int:
                          agnostic_nms_iou=args.agnostic_nms, min_score=args.min_score,
                          confirm_score=args.confirm_score,
                          pose_noise=args.pose_noise, pose_noise_seed=args.pose_noise_seed,
+                         calibrate_pitch=args.calibrate_pitch,
                          threads=args.threads, parallel_frames=args.parallel_frames,
                          observers=tuple(args.observers) if args.observers else None)
     from dashtraj.datasets.drive import Drive

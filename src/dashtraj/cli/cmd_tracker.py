@@ -57,8 +57,10 @@ def run_eval(args: argparse.Namespace) -> int:
     peers, why = boxmot_peers(wanted) if wanted else ({}, None)
     res = tracker_eval(recs, args.trackers, peers, args.detector, args.every, size,
                        args.agnostic_nms, args.min_score, args.confirm_score,
-                       pose_noise=args.pose_noise, pose_noise_seed=args.pose_noise_seed)
+                       pose_noise=args.pose_noise, pose_noise_seed=args.pose_noise_seed,
+                       calibrate_pitch=args.calibrate_pitch)
     res["pose_noise"] = None if args.pose_noise is None else list(args.pose_noise)
+    res["calibrate_pitch"] = args.calibrate_pitch
     res["detector"] = args.detector
     res.update(detector_filters_used(args))
     res["peers_skipped"] = None if peers or not wanted else why

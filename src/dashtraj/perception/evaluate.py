@@ -53,6 +53,9 @@ class EvalFrame:
     scored: object = None
     true_pose: object = None
     """The exact camera pose when ``pose`` is perturbed (``pose_noise``), else None."""
+    pitch_calibrator: object = None
+    """The observer's `PitchCalibrator` that corrected ``pose`` (``calibrate_pitch``;
+    it has seen this frame and the observer's earlier ones), else None."""
 
 
 IGNORE_BELOW_PX = 20.0
@@ -67,31 +70,41 @@ def eval_frames(recording, detector: str = "oracle", every_s: float = 0.1, size=
                 observers=None, keep_rgb: bool = False,
                 agnostic_iou: float | None = AGNOSTIC_NMS_IOU,
                 min_score: float = DEFAULT_MIN_SCORE, pose_noise=None,
-                pose_noise_seed: int = 0) -> Iterator[EvalFrame]:
+                pose_noise_seed: int = 0, calibrate_pitch: bool = False
+                ) -> Iterator[EvalFrame]:
     """Render each observer's frames (a drive's: read, with its truth); yield detections
     and truth (observer by observer).
     ``agnostic_iou``, ``min_score``: a detector model's class-agnostic NMS and smallest kept
     score (`build_detector`). ``pose_noise``, ``pose_noise_seed``: the frames' camera poses
-    perturbed as `PerceiveConfig.pose_noise` does (the truth stays exact)."""
+    perturbed as `PerceiveConfig.pose_noise` does (the truth stays exact).
+    ``calibrate_pitch``: then their pitch corrected as `PerceiveConfig.calibrate_pitch`
+    does (causally; `EvalFrame.pitch_calibrator` holds each observer's calibrator)."""
     from dashtraj.datasets.frames import source_frames
     from dashtraj.perception.posenoise import noise_process
+    from dashtraj.perception.selfcal import PitchCalibrator
 
     spec = image_camera(recording, size)
     det = build_detector(detector, agnostic_iou=agnostic_iou, min_score=min_score)
     floor_px = OracleDetector.min_height_px  # the scored truth is a subset of the truth
     floor_vis = OracleDetector.min_visible_fraction
     noise: dict = {}
+    cals: dict = {}
     for rf in source_frames(recording, every_s, size, observers, msaa=0):
         if rf.observer_id not in noise:
             noise[rf.observer_id] = noise_process(pose_noise, pose_noise_seed, rf.observer_id)
+            cals[rf.observer_id] = PitchCalibrator() if calibrate_pitch else None
         exact = camera_pose_of(rf, spec)
         proc = noise[rf.observer_id]
         pose = exact if proc is None else proc.apply(exact, rf.t)
-        yield EvalFrame(rf.observer_id, rf.frame, rf.t, pose, det.detect(rf),
+        found = det.detect(rf)
+        cal = cals[rf.observer_id]
+        if cal is not None:
+            pose = cal.correct(found.boxes, found.class_ids, spec, pose, rf.t)
+        yield EvalFrame(rf.observer_id, rf.frame, rf.t, pose, found,
                         truth_of(rf), rf.frame_data.rgb if keep_rgb else None,
                         truth_of(rf, max(IGNORE_BELOW_PX * spec.height_px / 720.0, floor_px),
                                  max(IGNORE_BELOW_VISIBLE, floor_vis)),
-                        None if pose is exact else exact)
+                        None if pose is exact else exact, cal)
 
 
 class EvalError(DashtrajError):
@@ -125,7 +138,7 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
                  agnostic_iou: float | None = AGNOSTIC_NMS_IOU,
                  min_score: float = DEFAULT_MIN_SCORE,
                  confirm_score: float = CONFIRM_SCORE, pose_noise=None,
-                 pose_noise_seed: int = 0) -> dict:
+                 pose_noise_seed: int = 0, calibrate_pitch: bool = False) -> dict:
     """HOTA / IDF1 / MOTA per tracker over every observer of every recording.
 
     Args:
@@ -134,6 +147,7 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
         confirm_score: ``ego``'s `EgoTracker.confirm_score`.
         pose_noise, pose_noise_seed: the trackers get the observers' poses perturbed
             (`eval_frames`; `dashtraj.perception.posenoise`).
+        calibrate_pitch: and their pitch self-calibrated (`eval_frames`).
 
     Returns:
         {tracker: {"hota", "deta", "assa", "idf1", "mota", "idsw", ..., "updates",
@@ -179,7 +193,8 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
         iseqs: dict = {}
         for ef in eval_frames(rec, detector, every_s, size, keep_rgb=bool(peers),
                               agnostic_iou=agnostic_iou, min_score=min_score,
-                              pose_noise=pose_noise, pose_noise_seed=pose_noise_seed):
+                              pose_noise=pose_noise, pose_noise_seed=pose_noise_seed,
+                              calibrate_pitch=calibrate_pitch):
             if ef.observer_id != current:
                 if current is not None:
                     flush()
@@ -253,11 +268,14 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
                       mu_h: float | None = None, track_every_s: float = 0.1,
                       agnostic_iou: float | None = AGNOSTIC_NMS_IOU,
                       min_score: float = DEFAULT_MIN_SCORE, pose_noise=None,
-                      pose_noise_seed: int = 0) -> tuple[dict, dict]:
+                      pose_noise_seed: int = 0, calibrate_pitch: bool = False
+                      ) -> tuple[dict, dict]:
     """Position and distance errors per estimator, in bands of true distance.
 
     ``pose_noise``, ``pose_noise_seed``: the estimators get the observers' poses perturbed
     (`eval_frames`; `dashtraj.perception.posenoise`); the errors are against the truth.
+    ``calibrate_pitch``: and their pitch self-calibrated (`eval_frames`; the offline
+    estimators re-localize with the offline estimate, as in `perceive`).
 
     Only detections matched to a vehicle count (all, with the oracle), in the frames every
     ``every_s`` seconds. A sequential estimator (``tracked``, ``smoothed``, ``mapped``: the
@@ -308,13 +326,16 @@ def localization_eval(recordings, localizers=("paper", "ground", "fused", "track
         index = 0
         for ef in eval_frames(rec, detector, period, size, agnostic_iou=agnostic_iou,
                               min_score=min_score, pose_noise=pose_noise,
-                              pose_noise_seed=pose_noise_seed):
+                              pose_noise_seed=pose_noise_seed,
+                              calibrate_pitch=calibrate_pitch):
             d = ef.detections
             if ef.observer_id != current:
                 flush()
                 current = ef.observer_id
                 index = 0
                 locs.update({n: build_localizer(n, mu_h, road_map=road_map) for n in seq})
+                for n in offline:
+                    locs[n].pitch_calibrator = ef.pitch_calibrator
             seq_out = {n: locs[n].localize(d.boxes, d.class_ids, spec, ef.pose, t=ef.t)
                        for n in seq}  # every frame, all detections: the tracks need them
             index += 1

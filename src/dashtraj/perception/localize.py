@@ -67,7 +67,7 @@ Estimators (`LOCALIZERS`, chosen by name with `build_localizer`):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -466,6 +466,11 @@ class SmoothedLocalizer(TrackedLocalizer):
 
     name: str = "smoothed"
     offline: bool = True
+    pitch_calibrator: object = field(default=None, repr=False)
+    """A `dashtraj.perception.selfcal.PitchCalibrator` that corrected the poses fed to
+    `localize` (its causal estimate), or None. `smoothed` then localizes every frame once
+    more, forward and backward, from the poses with its offline estimate instead (the
+    first seconds, before enough vehicles were seen, get the pitch found later)."""
     _frames: list = field(default_factory=list, repr=False)
 
     def localize(self, boxes, class_ids, spec: CameraSpec, pose: CameraPose,
@@ -479,26 +484,58 @@ class SmoothedLocalizer(TrackedLocalizer):
 
     def smoothed(self) -> list[Localized]:
         """The smoothed `Localized` of every frame fed since the last `reset`, in order."""
+
+        return self._smooth()[1]
+
+    def _smooth(self) -> tuple[list, list[Localized]]:
+        """(the frames as localized, with their final poses; their smoothed `Localized`)."""
         from dashtraj.perception.detections import Detections
         from dashtraj.perception.track import EgoTracker
 
         if not self._frames:
-            return []
+            return [], []
+        frames = self._recalibrated()
         back = EgoTracker(spec=self._tracker.spec, mu_h=self.mu_h)  # the forward one's camera
         backward: list[_Pass] = []
-        for boxes, class_ids, pose, t, _, _ in reversed(self._frames):
+        for boxes, class_ids, pose, t, _, _ in reversed(frames):
             n = len(boxes)
             back.update(Detections(boxes, np.ones(n), class_ids, np.full(n, -1, np.int64)),
                         -t, pose)
             backward.append(_pass_of(back))
         backward.reverse()
-        return [self._combine(pose, m, f, b)
-                for (_, _, pose, _, m, f), b in zip(self._frames, backward, strict=True)]
+        return frames, [self._combine(pose, m, f, b)
+                        for (_, _, pose, _, m, f), b in zip(frames, backward, strict=True)]
+
+    def _recalibrated(self) -> list:
+        """The kept frames, localized forward again from the poses with the pitch
+        calibrator's offline estimate (unchanged without a calibrator, or where the
+        estimate is the one `localize` had)."""
+        from dashtraj.perception.detections import Detections
+        from dashtraj.perception.track import EgoTracker
+
+        cal = self.pitch_calibrator
+        if cal is None or len(cal.applied) != len(self._frames):
+            return self._frames
+        times = [fr[3] for fr in self._frames]
+        delta = cal.offsets(times) - np.array([a for _, a in cal.applied])
+        if np.all(np.abs(delta) < 1e-9):
+            return self._frames
+        fwd = EgoTracker(spec=self._tracker.spec, mu_h=self.mu_h)
+        out = []
+        for (boxes, class_ids, pose, t, _, _), d in zip(self._frames, delta, strict=True):
+            pose = replace(pose, pitch_deg=min(max(pose.pitch_deg + float(d), -89.0), 89.0))
+            n = len(boxes)
+            fwd.update(Detections(boxes, np.ones(n), class_ids, np.full(n, -1, np.int64)),
+                       t, pose)
+            out.append((boxes, class_ids, pose, t, fwd.measured, _pass_of(fwd)))
+        return out
 
     def reset(self) -> None:
-        """Forget the frames and the forward filter (a new camera's sequence)."""
+        """Forget the frames, the forward filter and the pitch calibrator (a new camera's
+        sequence)."""
         self._frames = []
         self._tracker = None
+        self.pitch_calibrator = None
 
     def _combine(self, pose: CameraPose, m: Localized, f: _Pass, b: _Pass) -> Localized:
         n = len(m.x)
@@ -673,10 +710,10 @@ class MappedLocalizer(SmoothedLocalizer):
     def smoothed(self) -> list[Localized]:
         if self.road_map is None:
             raise LocalizationError("the mapped localizer needs the road map")
-        out = SmoothedLocalizer.smoothed(self)
+        frames, out = self._smooth()
         spec = self._tracker.spec if self._tracker is not None else None
         res = []
-        for (boxes, class_ids, pose, *_), o in zip(self._frames, out, strict=True):
+        for (boxes, class_ids, pose, *_), o in zip(frames, out, strict=True):
             o = snap_to_lanes(self.road_map, pose, o, self.trigger_m)
             if self.fit_cut and spec is not None:
                 o = fit_cut_boxes(self.road_map, spec, pose, boxes, class_ids, o)

@@ -47,6 +47,7 @@ from dashtraj.perception.detections import (
 from dashtraj.perception.localize import CameraPose, build_localizer
 from dashtraj.perception.mapmatch import map_match
 from dashtraj.perception.posenoise import noise_process
+from dashtraj.perception.selfcal import PitchCalibrator
 from dashtraj.perception.track import CONFIRM_SCORE, build_tracker
 from dashtraj.store import (
     CropRow,
@@ -94,6 +95,9 @@ class PerceiveConfig:
             (`dashtraj.perception.posenoise`: (xy_m, yaw_deg, pitch_deg, tau_s), a real
             drive's GNSS/INS), or None for the exact poses; the truth stays exact.
         pose_noise_seed: the seed of those errors (with the observer id).
+        calibrate_pitch: correct every observer's camera pitch by what the vehicles it
+            sees say of the horizon (`dashtraj.perception.selfcal.PitchCalibrator`): for
+            drives whose camera mount or INS pitch is known only to a degree or so.
     """
 
     detector: str = "oracle"
@@ -116,6 +120,7 @@ class PerceiveConfig:
     confirm_score: float = CONFIRM_SCORE
     pose_noise: tuple[float, float, float, float] | None = None
     pose_noise_seed: int = 0
+    calibrate_pitch: bool = False
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -222,6 +227,9 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
     # is this tracker, updated once per frame (the same ids as updating both)
     shared = hasattr(localizer, "share_tracker") and localizer.share_tracker(tracker)
     noise = noise_process(config.pose_noise, config.pose_noise_seed, observer_id)
+    calibrator = PitchCalibrator() if config.calibrate_pitch else None
+    if calibrator is not None and getattr(localizer, "offline", False):
+        localizer.pitch_calibrator = calibrator  # it re-localizes with the offline pitch
     tstats = _TrackStats()
     mount = recording.config.camera
     batch = Batch(observer_id)
@@ -235,6 +243,8 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
         pose = camera_pose_of(rf, spec)
         if noise is not None:  # what the observer's GNSS/INS would say
             pose = noise.apply(pose, rf.t)
+        if calibrator is not None:  # the pitch the vehicles in view say
+            pose = calibrator.correct(det.boxes, det.class_ids, spec, pose, rf.t)
         h = math.radians(pose.yaw_deg)
         gx = pose.x - mount.x_m * math.cos(h) + mount.y_m * math.sin(h)
         gy = pose.y - mount.x_m * math.sin(h) - mount.y_m * math.cos(h)

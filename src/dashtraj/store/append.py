@@ -62,14 +62,21 @@ _MERGED = (
 named (a migrated run's columns may lie in another order)."""
 
 
+ADDED_SETTINGS = {"calibrate_pitch": False}
+"""Perception settings added after runs with ``source_sha256`` were first written, and the
+value a run without one was perceived with."""
+
+
 def run_identity(meta: dict, map_sha256, camera: dict, config: dict) -> dict:
     """What makes two perception outputs one run (`same_run` compares two of these): the
     source's and the detector's sha256 (``meta``), the map's, the camera, and the settings
-    without `RUNTIME_SETTINGS`; JSON-normalised (tuples become lists)."""
+    without `RUNTIME_SETTINGS` (`ADDED_SETTINGS` filled in); JSON-normalised (tuples become
+    lists)."""
     return json.loads(json.dumps({
         "source": meta.get("source_sha256"), "detector": meta.get("detector_sha256"),
         "map": map_sha256, "camera": camera,
-        "settings": {k: v for k, v in config.items() if k not in RUNTIME_SETTINGS}}))
+        "settings": {k: v for k, v in {**ADDED_SETTINGS, **config}.items()
+                     if k not in RUNTIME_SETTINGS}}))
 
 
 def db_identity(db: SightingsDB) -> dict:
