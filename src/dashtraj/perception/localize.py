@@ -484,7 +484,6 @@ class SmoothedLocalizer(TrackedLocalizer):
 
     def smoothed(self) -> list[Localized]:
         """The smoothed `Localized` of every frame fed since the last `reset`, in order."""
-
         return self._smooth()[1]
 
     def _smooth(self) -> tuple[list, list[Localized]]:
