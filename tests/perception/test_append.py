@@ -164,7 +164,7 @@ def test_append_into_postgres_from_two_processes_gives_the_one_run(small_run, sm
             perceive(small_run, part, PerceiveConfig(observers=(3,)))
 
 
-def test_a_run_written_before_a_setting_existed_is_one_run_with_its_default():
+def test_run_identity_fills_new_settings_in_and_takes_zero_pose_noise_for_none():
     from dashtraj.store.append import ADDED_SETTINGS, run_identity
 
     meta = {"source_sha256": "a" * 64, "detector_sha256": "b" * 64}
@@ -174,3 +174,11 @@ def test_a_run_written_before_a_setting_existed_is_one_run_with_its_default():
         meta, "m", {}, {**old, "calibrate_pitch": False, "observers": [2]})
     assert run_identity(meta, "m", {}, old) != run_identity(
         meta, "m", {}, {**old, "calibrate_pitch": True})
+    # zero pose errors are the exact poses, whatever their seed; real errors are not
+    exact = {**old, "pose_noise": None, "pose_noise_seed": 0}
+    assert run_identity(meta, "m", {}, exact) == run_identity(
+        meta, "m", {}, {**old, "pose_noise": [0.0, 0.0, 0.0, 30.0], "pose_noise_seed": 5})
+    noisy = {**old, "pose_noise": [0.5, 0.3, 0.0, 30.0], "pose_noise_seed": 0}
+    assert run_identity(meta, "m", {}, noisy) != run_identity(meta, "m", {}, exact)
+    assert run_identity(meta, "m", {}, noisy) != run_identity(
+        meta, "m", {}, {**noisy, "pose_noise_seed": 1})

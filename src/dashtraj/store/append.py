@@ -70,13 +70,19 @@ value a run without one was perceived with."""
 def run_identity(meta: dict, map_sha256, camera: dict, config: dict) -> dict:
     """What makes two perception outputs one run (`same_run` compares two of these): the
     source's and the detector's sha256 (``meta``), the map's, the camera, and the settings
-    without `RUNTIME_SETTINGS` (`ADDED_SETTINGS` filled in); JSON-normalised (tuples become
+    without `RUNTIME_SETTINGS` (`ADDED_SETTINGS` filled in; a pose noise of zero errors is
+    no pose noise, and without one its seed is left out); JSON-normalised (tuples become
     lists)."""
+    settings = {k: v for k, v in {**ADDED_SETTINGS, **config}.items()
+                if k not in RUNTIME_SETTINGS}
+    noise = settings.get("pose_noise")
+    if noise is not None and not any(noise[:3]):
+        settings["pose_noise"] = None  # zero errors: the exact poses
+    if settings.get("pose_noise") is None:
+        settings.pop("pose_noise_seed", None)  # the seed of no errors changes nothing
     return json.loads(json.dumps({
         "source": meta.get("source_sha256"), "detector": meta.get("detector_sha256"),
-        "map": map_sha256, "camera": camera,
-        "settings": {k: v for k, v in {**ADDED_SETTINGS, **config}.items()
-                     if k not in RUNTIME_SETTINGS}}))
+        "map": map_sha256, "camera": camera, "settings": settings}))
 
 
 def db_identity(db: SightingsDB) -> dict:
