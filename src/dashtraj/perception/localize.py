@@ -516,7 +516,7 @@ class SmoothedLocalizer(TrackedLocalizer):
         if cal is None or len(cal.applied) != len(self._frames):
             return self._frames
         times = [fr[3] for fr in self._frames]
-        delta = cal.offsets(times) - np.array([a for _, a in cal.applied])
+        delta = cal.offsets(times) - np.asarray(cal.applied)
         if np.all(np.abs(delta) < 1e-9):
             return self._frames
         fwd = EgoTracker(spec=self._tracker.spec, mu_h=self.mu_h)

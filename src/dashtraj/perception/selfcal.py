@@ -57,6 +57,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from dashtraj.errors import DashtrajError
+from dashtraj.perception.detections import iou_matrix
 from dashtraj.perception.localize import CameraPose, box_evidence
 from dashtraj.world.camera import CameraSpec
 
@@ -66,17 +67,6 @@ _HORIZON_TAUS = 10.0
 
 class SelfCalibrationError(DashtrajError):
     """A self-calibration setting out of range, or frames out of time order."""
-
-
-def _iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    x1 = np.maximum(a[:, None, 0], b[None, :, 0])
-    y1 = np.maximum(a[:, None, 1], b[None, :, 1])
-    x2 = np.minimum(a[:, None, 2], b[None, :, 2])
-    y2 = np.minimum(a[:, None, 3], b[None, :, 3])
-    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
-    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
-    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-    return inter / np.maximum(area_a[:, None] + area_b[None, :] - inter, 1e-9)
 
 
 @dataclass
@@ -111,7 +101,7 @@ class PitchCalibrator:
     _t: float | None = field(default=None, repr=False)
     _last: float = field(default=0.0, repr=False)
     applied: list = field(default_factory=list, repr=False)
-    """(t, correction in degrees) of every frame `correct` returned, in order."""
+    """The correction (degrees) of every frame `correct` returned, in order."""
 
     def __post_init__(self) -> None:
         for name in ("tau_s", "min_leverage", "min_total", "min_px", "max_alpha_deg",
@@ -132,7 +122,7 @@ class PitchCalibrator:
         cls = np.asarray(class_ids, np.int64).reshape(-1)
         ids = np.full(len(b), -1, np.int64)
         if self._prev is not None and len(self._prev[0]) and len(b):
-            m = _iou(b, self._prev[0])
+            m = iou_matrix(b, self._prev[0])
             m[cls[:, None] != self._prev[1][None, :]] = 0.0
             for _ in range(min(m.shape)):
                 i, j = np.unravel_index(int(np.argmax(m)), m.shape)
@@ -193,12 +183,12 @@ class PitchCalibrator:
         d = self.estimate(t)
         if d is not None:
             self._last = d
-        self.applied.append((float(t), self._last))
+        self.applied.append(self._last)
         return replace(pose, pitch_deg=min(max(pose.pitch_deg + self._last, -89.0), 89.0))
 
     def offsets(self, times) -> np.ndarray:
-        """Offline: the pitch error at each time of ``times`` (seconds) from every
-        observation, before and after (the estimate nearest in time where there is
+        """Offline: the pitch error at each time of ``times`` (seconds, in order) from
+        every observation, before and after (the estimate nearest in time where there is
         none; 0 where there is none at all), degrees."""
         times = np.asarray(times, np.float64)
         est = [self.estimate(float(t), causal=False) for t in times]
@@ -206,9 +196,9 @@ class PitchCalibrator:
         if not have.any():
             return np.zeros(len(times))
         val = np.array([0.0 if e is None else e for e in est])
-        idx = np.flatnonzero(have)
-        near = idx[np.clip(np.searchsorted(idx, np.arange(len(times))), 0, len(idx) - 1)]
-        prev = idx[np.clip(np.searchsorted(idx, np.arange(len(times))) - 1, 0, len(idx) - 1)]
-        pick = np.where(np.abs(near - np.arange(len(times))) <= np.abs(prev - np.arange(
-            len(times))), near, prev)
-        return np.where(have, val, val[pick])
+        t_have, v_have = times[have], val[have]
+        after = np.clip(np.searchsorted(t_have, times), 0, len(t_have) - 1)
+        before = np.clip(after - 1, 0, len(t_have) - 1)
+        nearest = np.where(np.abs(t_have[after] - times) <= np.abs(t_have[before] - times),
+                           v_have[after], v_have[before])
+        return np.where(have, val, nearest)
