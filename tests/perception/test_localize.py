@@ -335,3 +335,63 @@ def test_fit_cut_boxes_places_cars_cut_by_the_border(cut_cars):
     same = fit_cut_boxes(road, SPEC, rendered[0].pose, np.array([[600.0, 300, 700, 400]]),
                          np.zeros(1, np.int64), clean)
     assert same is clean
+
+
+@pytest.fixture(scope="module")
+def strip_scene(gl_available):
+    """A car's strip above a nearer, lower car, both cut by the right border: the observer
+    at (-95, -5.25) heading +x; an Audi TT (1.35 m high) 4.2 m ahead in the next lane
+    (y = -1.75), a BMW X5 (1.75 m) 11.7 m ahead two lanes further (y = 5.25), 15.7 m away,
+    its wheels hidden by the TT."""
+    from dashtraj.world import catalog
+
+    ids = catalog.identities()
+    cars = {1: ids[1], 2: ids[4]}
+    assert (cars[1].model.blueprint_id, cars[2].model.blueprint_id) == \
+        ("vehicle.audi.tt", "vehicle.bmw.x5")
+    frames = [(0.0, (-95.0, -5.25, 0.0), [(1, -90.8, -1.75, 0.0), (2, -83.3, 5.25, 0.0)])]
+    return render_scene(frames, SPEC, cars)[0], {1: (-90.8, -1.75), 2: (-83.3, 5.25)}
+
+
+def test_a_strip_above_a_nearer_car_lies_between_it_and_the_far_reading(strip_scene):
+    """Measured: the X5's box is the 48 px above the TT's roof (its lowest row the TT's
+    top row), cut by the border, so its bottom row, its height and its width all read far:
+    ``fused`` put it at 36.5 m (truth 15.7 m). Between the occluder's range + 1 m and that
+    reading (the log-uniform median of the two) it is 14.6 m, 1.3 m off; `fit_cut_boxes`
+    then puts it 0.06 m off, taking the hidden bottom row as a bound (the model's lowest
+    pixel at or below it). Fitted to the hidden row as if it were the wheels' (the
+    evidence bit cleared), the fit lands 4.4 m off."""
+    from dashtraj.perception.localize import (
+        CUT_RIGHT,
+        HIDDEN_BOTTOM,
+        FusedLocalizer,
+        Localized,
+        fit_cut_boxes,
+    )
+    from dashtraj.render.synthetic import STRAIGHT_XODR
+    from dashtraj.roads import RoadMap
+
+    frame, truth = strip_scene
+    d = OracleDetector().detect(frame)
+    far = int(np.flatnonzero(d.truth_ids == 2)[0])
+    near = int(np.flatnonzero(d.truth_ids == 1)[0])
+    assert abs(d.boxes[far, 3] - d.boxes[near, 1]) <= 2.0  # its lowest row: the TT's top
+    tx, ty = truth[2]
+
+    def err(loc):
+        return float(np.hypot(loc.x[far] - tx, loc.y[far] - ty))
+
+    raw = FusedLocalizer(strip_px=None).localize(d.boxes, d.class_ids, SPEC, frame.pose)
+    out = build_localizer("fused").localize(d.boxes, d.class_ids, SPEC, frame.pose)
+    assert out.evidence[far] & CUT_RIGHT and out.evidence[far] & HIDDEN_BOTTOM
+    assert raw.distance_m[far] > 30.0 and err(raw) > 15.0
+    lo = out.distance_m[near] + 1.0
+    assert out.distance_m[far] == pytest.approx(np.sqrt(lo * raw.distance_m[far]))
+    assert err(out) < 2.0
+    assert out.distance_m[near] == pytest.approx(raw.distance_m[near])  # the TT: unchanged
+    road = RoadMap.from_string(STRAIGHT_XODR, name="straight")
+    fit = fit_cut_boxes(road, SPEC, frame.pose, d.boxes, d.class_ids, out)
+    assert err(fit) < 0.5
+    blind = Localized(out.distance_m, out.bearing_deg, out.x, out.y, out.sigma_m, out.valid,
+                      out.evidence & ~HIDDEN_BOTTOM)
+    assert err(fit_cut_boxes(road, SPEC, frame.pose, d.boxes, d.class_ids, blind)) > 2.0

@@ -39,7 +39,10 @@ Estimators (`LOCALIZERS`, chosen by name with `build_localizer`):
   D² / (f h_cam) × 1 px + 0.3 m), falling back to the other estimate where one is
   unusable (bottom edge cut by the image border or above the horizon; top edge cut);
   where nearer detections hide a box's bottom edge (cover 60 % of its columns), the
-  distance from the box width replaces both (see `FusedLocalizer._occluded_bottoms`).
+  distance from the box width replaces both, and where the box is also cut sideways and
+  its lowest row is a nearer box's top (a strip of a vehicle above a nearer one), the
+  log-uniform median of the occluder's range and the far reading (see
+  `FusedLocalizer._occluded_bottoms`).
   Its output carries each box's truncation/occlusion evidence (`box_evidence`).
 - ``tracked``: track-level (`TrackedLocalizer`, sequential: one per camera, fed every
   frame with its time): ``fused`` where the box is clean and consistent with its track,
@@ -292,6 +295,7 @@ class FusedLocalizer:
     name: str = "fused"
     border_px: float = 1.0
     cover_frac: float = 0.6
+    strip_px: float | None = 4.0
 
     def localize(self, boxes, class_ids, spec: CameraSpec, pose: CameraPose,
                  rel_deg=None) -> Localized:
@@ -326,7 +330,12 @@ class FusedLocalizer:
         distance from the box width (class width for back views, the vehicle seen
         straight; the geometric mean with the fused value for front and side views, seen
         obliquely), never more than the fused value and at least 1 m beyond the
-        occluder."""
+        occluder. A hidden box cut sideways whose lowest row lies within `strip_px` of
+        a covering box's top row is a strip of a vehicle above a nearer one (a car's roof
+        over a lower car beside the observer): its range lies between the occluder's + 1 m
+        and the fused value, which reads too far, and it gets their geometric mean (the
+        median of a log-uniform prior between the two; `strip_px` None: the fused value
+        stays)."""
         n = len(boxes)
         if n < 2:
             return d
@@ -345,6 +354,16 @@ class FusedLocalizer:
         cut = below & ((np.abs(b[:, None, 0] - b[None, :, 2]) <= 2.0)
                        | (np.abs(b[:, None, 2] - b[None, :, 0]) <= 2.0))
         cut = cut.any(1) | (b[:, 0] <= self.border_px) | (b[:, 2] >= spec.width_px - self.border_px)
+        occluder = np.where(covers, d[None, :], 0.0).max(1)
+        if self.strip_px is not None:
+            # hidden, cut sideways, and its lowest pixel a covering box's upper edge: a
+            # strip of the vehicle above a nearer one. Neither its bottom row, its height
+            # nor its width pins the range; it lies between the occluder's and what both
+            # cues read (too far): the log-uniform median of the two
+            strip = hidden & cut & (covers & (np.abs(b[:, None, 3] - b[None, :, 1])
+                                              <= self.strip_px)).any(1)
+            lo = occluder + 1.0
+            d = np.where(strip & (d > lo), np.sqrt(lo * np.maximum(d, lo)), d)
         hidden &= ~cut
         if not hidden.any():
             return d
@@ -353,7 +372,6 @@ class FusedLocalizer:
         side = np.array([ORIENTATION_OF_CLASS[c] == "side" for c in np.asarray(class_ids)])
         extent = np.where(side, np.asarray(CLASS_LENGTH_M)[vc], np.asarray(CLASS_WIDTH_M)[vc])
         d_w = spec.focal_px * extent / w_px / np.cos(np.radians(bearing_deg))
-        occluder = np.where(covers, d[None, :], 0.0).max(1)
         est = np.minimum(np.where(back, d_w, np.sqrt(d_w * d)), d)
         return np.where(hidden, np.maximum(est, occluder + 1.0), d)
 
@@ -657,8 +675,10 @@ def fit_cut_boxes(road_map, spec: CameraSpec, pose: CameraPose, boxes, class_ids
     ``radius_m`` of its current estimate, which also weighs in (σ = ``prior_m`` +
     ``prior_rel`` × distance). A cut box's centre column is not the vehicle's and its
     bottom row is wherever the vehicle's near side leaves the image, so the
-    per-detection cues misread it; the lane says how the vehicle stands. Other boxes,
-    and cut boxes no candidate explains, are unchanged."""
+    per-detection cues misread it; the lane says how the vehicle stands. Where a nearer
+    box hides the bottom edge (`HIDDEN_BOTTOM`), the box's lowest row is that box's edge,
+    not the vehicle's: the model's bottom row only has to lie at or below it. Other
+    boxes, and cut boxes no candidate explains, are unchanged."""
     ev = np.asarray(loc.evidence)
     cut = (ev & (CUT_LEFT | CUT_RIGHT)) != 0
     cut &= (ev & (CUT_LEFT | CUT_RIGHT)) != (CUT_LEFT | CUT_RIGHT)
@@ -681,9 +701,12 @@ def fit_cut_boxes(road_map, spec: CameraSpec, pose: CameraPose, boxes, class_ids
         w, h = b[2] - b[0], b[3] - b[1]
         inner, seen = (umax, b[2]) if ev[i] & CUT_LEFT else (umin, b[0])
         prior = prior_m + prior_rel * math.hypot(x[i] - pose.x, y[i] - pose.y)
+        dv = vbot - b[3]
+        if ev[i] & HIDDEN_BOTTOM:  # a nearer box hides the wheels: it ends at or below
+            dv = np.minimum(dv, 0.0)
         with np.errstate(invalid="ignore"):
             cost = (((inner - seen) / (2.0 + 0.05 * w)) ** 2
-                    + ((vbot - b[3]) / (2.0 + 0.03 * h)) ** 2
+                    + (dv / (2.0 + 0.03 * h)) ** 2
                     + ((vtop - b[1]) / (4.0 + 0.15 * h)) ** 2
                     + (np.hypot(cand[:, 0] - x[i], cand[:, 1] - y[i]) / prior) ** 2)
         cost = np.where(np.isfinite(cost), cost, np.inf)
