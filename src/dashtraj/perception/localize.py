@@ -702,7 +702,7 @@ def fit_cut_boxes(road_map, spec: CameraSpec, pose: CameraPose, boxes, class_ids
         inner, seen = (umax, b[2]) if ev[i] & CUT_LEFT else (umin, b[0])
         prior = prior_m + prior_rel * math.hypot(x[i] - pose.x, y[i] - pose.y)
         dv = vbot - b[3]
-        if ev[i] & HIDDEN_BOTTOM:  # a nearer box hides the wheels: it ends at or below
+        if ev[i] & HIDDEN_BOTTOM:  # the vehicle's lowest pixel is at or below the box's
             dv = np.minimum(dv, 0.0)
         with np.errstate(invalid="ignore"):
             cost = (((inner - seen) / (2.0 + 0.05 * w)) ** 2
