@@ -363,7 +363,7 @@ class FusedLocalizer:
             strip = hidden & cut & (covers & (np.abs(b[:, None, 3] - b[None, :, 1])
                                               <= self.strip_px)).any(1)
             lo = occluder + 1.0
-            d = np.where(strip & (d > lo), np.sqrt(lo * np.maximum(d, lo)), d)
+            d = np.where(strip & (d > lo), np.sqrt(lo * d), d)
         hidden &= ~cut
         if not hidden.any():
             return d
