@@ -18,7 +18,9 @@ unassigned). Ids start at 1 and are never reused within a tracker.
   Kalman filter of the vehicle's ground position (CARLA world metres), measured by the
   ``fused`` localizer with an anisotropic covariance: the localizer's range error along
   the viewing ray, a few pixels of bearing across it (a far box is well placed across
-  the ray and poorly along it). Every frame the predicted ground position is projected
+  the ray and poorly along it); a box whose hidden bottom edge made ``fused`` take a
+  rule's distance updates the filter with the rule's wider σ but is gated with the
+  cues' (`Localized.gate_sigma_m`). Every frame the predicted ground position is projected
   into the *current* camera: its bearing gives the predicted box column, and the ratio
   of the old to the new distance scales the last box about the principal point (points
   at fixed heights move as 1/depth), so a turning or braking observer moves the
@@ -317,7 +319,9 @@ class EgoTracker:
         eta = VEHICLE_CLASS_INDEX[det.class_ids] if n else np.zeros(0, np.int64)
         strong = np.asarray(det.scores, np.float64) >= self.confirm_score
         lost = self._hidden > self.max_age_s + 1e-9
-        r_det = self._meas_cov(loc, pose)
+        r_upd = self._meas_cov(loc, pose)  # the update's; the gate's where they differ
+        r_det = r_upd if loc.gate_sigma_m is None else self._meas_cov(loc, pose,
+                                                                      loc.gate_sigma_m)
         if n and m:
             pbox, _, front = self.predicted_boxes(pose)
             iou = np.where(front[None, :], iou_matrix(det.boxes, pbox), 0.0)
@@ -345,7 +349,7 @@ class EgoTracker:
         if len(matches):
             d, k = matches[:, 0], matches[:, 1]
             x, p = self._x[k], self._p[k]
-            s = p[:, :2, :2] + r_det[d]
+            s = p[:, :2, :2] + r_upd[d]
             gain = p[:, :, :2] @ np.linalg.inv(s)
             self._x[k] = x + np.einsum("nij,nj->ni", gain, zx[d] - x[:, :2])
             self._p[k] = (np.eye(4) - gain @ np.eye(2, 4)) @ p
@@ -360,7 +364,7 @@ class EgoTracker:
             x = np.zeros((k, 4))
             x[:, :2] = zx[ud]
             p = np.zeros((k, 4, 4))
-            p[:, :2, :2] = r_det[ud]
+            p[:, :2, :2] = r_upd[ud]
             p[:, 2, 2] = p[:, 3, 3] = 10.0**2  # unknown velocity, up to ~10 m/s
             votes = np.zeros((k, 5))
             votes[np.arange(k), eta[ud]] = 1
@@ -383,7 +387,7 @@ class EgoTracker:
             self.track_of[matches[:, 0]] = self._ids[matches[:, 1]]
         if len(ud):
             self.track_of[ud] = self._ids[len(self._ids) - len(ud):]
-        self.position_cov = r_det.copy()
+        self.position_cov = r_upd.copy()
         self.innovation_d2 = np.full(n, np.inf)
         if len(matches):
             self.positions[matches[:, 0]] = self._x[matches[:, 1], :2]
@@ -410,13 +414,13 @@ class EgoTracker:
         mg = self.view_margin_px
         return (front & (box[:, 2] > mg) & (box[:, 0] < self.spec.width_px - mg))
 
-    def _meas_cov(self, loc, pose) -> np.ndarray:
+    def _meas_cov(self, loc, pose, sigma_m=None) -> np.ndarray:
         """(N, 2, 2) covariance of each localized position (CARLA world, m²): the
         localizer's range error along the ray, ``cross_px`` pixels of bearing across it."""
         ang = np.radians(pose.yaw_deg + loc.bearing_deg)
         u = np.stack([np.cos(ang), np.sin(ang)], -1)
         w = np.stack([-u[:, 1], u[:, 0]], -1)
-        sr = np.maximum(loc.sigma_m, 0.3) ** 2
+        sr = np.maximum(loc.sigma_m if sigma_m is None else sigma_m, 0.3) ** 2
         sc = np.maximum(loc.distance_m * self.cross_px / self.spec.focal_px, 0.3) ** 2
         return (sr[:, None, None] * u[:, :, None] * u[:, None, :]
                 + sc[:, None, None] * w[:, :, None] * w[:, None, :])
