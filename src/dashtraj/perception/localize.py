@@ -39,11 +39,11 @@ Estimators (`LOCALIZERS`, chosen by name with `build_localizer`):
   D² / (f h_cam) × 1 px + 0.3 m), falling back to the other estimate where one is
   unusable (bottom edge cut by the image border or above the horizon; top edge cut);
   where nearer detections hide a box's bottom edge (cover 60 % of its columns), the
-  distance from the box width replaces both (σ then 30 % of it,
-  `HIDDEN_SIGMA_REL`), and where the box is also cut sideways and
+  distance from the box width replaces both, and where the box is also cut sideways and
   its lowest row is a nearer box's top (a strip of a vehicle above a nearer one), the
   log-uniform median of the occluder's range and the far reading (see
-  `FusedLocalizer._occluded_bottoms`).
+  `FusedLocalizer._occluded_bottoms`); a distance either rule moved has σ = 30 % of it
+  (`HIDDEN_SIGMA_REL`).
   Its output carries each box's truncation/occlusion evidence (`box_evidence`).
 - ``tracked``: track-level (`TrackedLocalizer`, sequential: one per camera, fed every
   frame with its time): ``fused`` where the box is clean and consistent with its track,
