@@ -171,6 +171,19 @@ def test_a_box_below_that_is_estimated_farther_is_no_occluder():
     assert out.gate_sigma_m[0] == pytest.approx(lone.sigma_m[0])  # a tracker gates with it
     near_alone = loc.localize(np.array([near]), np.array([car_back]), SPEC, pose)
     assert out.sigma_m[1] == pytest.approx(near_alone.sigma_m[0])
+    # the tracker that reports ids counts the box with the cues' σ; a smoother's filter
+    # (rule_sigma) with the rule's: the variance along the ray of the track it starts
+    from dashtraj.perception.detections import Detections
+    from dashtraj.perception.track import EgoTracker
+
+    det = Detections(np.array([far, near]), np.ones(2), np.array([car_back, car_back]),
+                     np.full(2, -1))
+    for rule_sigma, sigma in ((False, lone.sigma_m[0]), (True, out.sigma_m[0])):
+        tr = EgoTracker(spec=SPEC, rule_sigma=rule_sigma)
+        tr.update(det, 0.0, pose)
+        u = np.array([np.cos(np.radians(out.bearing_deg[0])),
+                      np.sin(np.radians(out.bearing_deg[0]))])  # the ray (yaw 0)
+        assert u @ tr.position_cov[0] @ u == pytest.approx(sigma**2)
 
 
 @pytest.fixture(scope="module")
@@ -222,10 +235,10 @@ def test_tracked_keeps_the_position_through_an_occlusion(crossing_occluder):
 def test_smoothed_carries_later_clean_boxes_back_to_a_track_born_occluded(crossing_occluder):
     """The same scene from t = 1.8 s: car 1's track is *born* with its bottom edge hidden
     by car 2 (its first box read 2.35 m off), so the forward filter has no clean history
-    and ``tracked`` follows the flagged boxes, if more softly than ``fused`` since their
-    distances carry the width rule's σ (measured on the 5 flagged boxes: up to 2.91 m
-    off, RMS 2.16 m; ``fused`` 4.20 m, 3.06 m); ``smoothed`` runs the filter backward
-    too, where the clean boxes after t = 2.4 s are the history (measured: at most 0.97 m
+    and ``tracked`` follows the flagged boxes (measured on the 5 flagged boxes: up to
+    3.86 m off, RMS 2.90 m; ``fused`` 4.20 m, 3.06 m); ``smoothed`` runs the filter
+    backward too, where the clean boxes after t = 2.4 s are the history, and both its
+    filters weigh the width rule's distances by the rule's σ (measured: at most 0.97 m
     off, RMS 0.92 m; the clean boxes' own error at 30 m is 0.85 m); on clean,
     consistent boxes it keeps ``fused``."""
     rendered, truth = crossing_occluder
@@ -257,9 +270,9 @@ def test_smoothed_carries_later_clean_boxes_back_to_a_track_born_occluded(crossi
     def rms(e):
         return float(np.sqrt(np.mean(e[flagged] ** 2)))
 
-    assert err_t[flagged].max() > 2.5 and err_f[flagged].max() > 4.0
+    assert err_t[flagged].max() > 3.5 and err_f[flagged].max() > 4.0
     assert err_s[flagged].max() < 1.1, np.round(err_s, 2)
-    assert rms(err_s) < 0.55 * min(rms(err_t), rms(err_f)), (rms(err_s), rms(err_t))
+    assert rms(err_s) < 0.4 * min(rms(err_t), rms(err_f)), (rms(err_s), rms(err_t))
     assert np.allclose(err_s[~flagged][-10:], err_f[~flagged][-10:])
     smoothed.reset()
     assert smoothed.smoothed() == []

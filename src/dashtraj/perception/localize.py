@@ -111,9 +111,10 @@ HIDDEN_SIGMA_REL = 0.30
 the box width, or a strip's range between two bounds), as a share of it: the RMS relative
 error of those distances on 25 development recordings (896 boxes: 0.22 front, 0.33 back,
 0.32 side views), where the cues' own σ, which such a box used to keep, was a median 5-14 %
-of it. A tracker's filter updates with it; its association gate keeps the cues' σ
-(`Localized.gate_sigma_m`): with the rules' σ, the 6-σ gate lets such a box join another
-vehicle's track tens of metres along its ray."""
+of it. The smoothed localizers' filters update with it (`EgoTracker.rule_sigma`) and gate
+their association with the cues' σ (`Localized.gate_sigma_m`; with the rules' σ, the 6-σ
+gate lets such a box join another vehicle's track tens of metres along its ray); the tracker
+that reports the ids keeps the cues' σ for both."""
 
 
 class LocalizationError(DashtrajError):
@@ -328,7 +329,7 @@ class FusedLocalizer:
         cues = d
         d, ruled = self._occluded_bottoms(boxes, class_ids, spec, p.bearing_deg, d)
         # a distance the hidden-bottom rules moved carries their error, not the cues' σ;
-        # a tracker gates with the cues' σ still (`HIDDEN_SIGMA_REL`)
+        # a tracker gates with the cues' σ still, and keeps it unless told (`HIDDEN_SIGMA_REL`)
         ruled &= np.abs(d - cues) > 1e-9
         x, y = place(pose, d, p.bearing_deg)
         return Localized(d, p.bearing_deg, x, y,
@@ -533,7 +534,8 @@ class SmoothedLocalizer(TrackedLocalizer):
         if not self._frames:
             return [], []
         frames = self._recalibrated()
-        back = EgoTracker(spec=self._tracker.spec, mu_h=self.mu_h)  # the forward one's camera
+        back = EgoTracker(spec=self._tracker.spec, mu_h=self.mu_h,  # the forward one's camera
+                          rule_sigma=True)
         backward: list[_Pass] = []
         for boxes, class_ids, pose, t, _, _ in reversed(frames):
             n = len(boxes)
@@ -545,20 +547,22 @@ class SmoothedLocalizer(TrackedLocalizer):
                         for (_, _, pose, _, m, f), b in zip(frames, backward, strict=True)]
 
     def _recalibrated(self) -> list:
-        """The kept frames, localized forward again from the poses with the pitch
-        calibrator's offline estimate (unchanged without a calibrator, or where the
-        estimate is the one `localize` had)."""
+        """The kept frames, localized forward again by a filter that updates with the
+        hidden-bottom rules' σ (`EgoTracker.rule_sigma`; the online one, which reports
+        the ids, does not), from the poses with the pitch calibrator's offline estimate
+        where there is one. Unchanged where neither would change anything (no distance
+        set by a rule, and no calibrator or the estimate `localize` had)."""
         from dashtraj.perception.detections import Detections
         from dashtraj.perception.track import EgoTracker
 
         cal = self.pitch_calibrator
-        if cal is None or len(cal.applied) != len(self._frames):
+        delta = np.zeros(len(self._frames))
+        if cal is not None and len(cal.applied) == len(self._frames):
+            delta = cal.offsets([fr[3] for fr in self._frames]) - np.asarray(cal.applied)
+        ruled = any(fr[4].gate_sigma_m is not None for fr in self._frames)
+        if not ruled and np.all(np.abs(delta) < 1e-9):
             return self._frames
-        times = [fr[3] for fr in self._frames]
-        delta = cal.offsets(times) - np.asarray(cal.applied)
-        if np.all(np.abs(delta) < 1e-9):
-            return self._frames
-        fwd = EgoTracker(spec=self._tracker.spec, mu_h=self.mu_h)
+        fwd = EgoTracker(spec=self._tracker.spec, mu_h=self.mu_h, rule_sigma=True)
         out = []
         for (boxes, class_ids, pose, t, _, _), d in zip(self._frames, delta, strict=True):
             pose = replace(pose, pitch_deg=min(max(pose.pitch_deg + float(d), -89.0), 89.0))
