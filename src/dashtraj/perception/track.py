@@ -215,16 +215,16 @@ class EgoTracker:
             detection starts a track; weaker ones only extend it). A run of weak boxes
             (a detector's guess at a wheel, a shadow or a part of a car beside a better
             box) is followed but never reported. 0: every track with ``min_hits`` hits.
-        rule_sigma: update the filter with ``fused``'s σ of a box whose distance a
-            hidden-bottom rule set (`HIDDEN_SIGMA_REL` of it), while the gate keeps the
-            σ of the cues it replaced. The smoothed localizers' filters do (a misread
-            box then moves a track's position less); the tracker that reports ids does
-            not (on e11-e15 its IDF1 fell 0.782 -> 0.777 with it).
             The default, 0.5, is ByteTrack's high-score threshold; the oracle's boxes
             score 1. Measured on the development runs of the experiments from pixels
             (seeds 5-9, the shipped detector; README, "Results"): the target's tracks
             within 15 m 85 → 63, ReID recall 0.66 → 0.81 at the same precision, 9 of 684
             true sightings fewer, hmm SSPD unchanged.
+        rule_sigma: update the filter with ``fused``'s σ of a box whose distance a
+            hidden-bottom rule set (`HIDDEN_SIGMA_REL` of it), while the gate keeps the
+            σ of the cues it replaced. The smoothed localizers' filters do (a misread
+            box then moves a track's position less); the tracker that reports ids does
+            not (on e11-e15 its IDF1 fell 0.782 -> 0.777 with it).
     """
 
     spec: CameraSpec = field(default_factory=CameraSpec)
