@@ -327,10 +327,10 @@ class FusedLocalizer:
         sigma = np.where(both, 1.0 / np.sqrt(np.where(both, wp + wg, 1.0)),
                          PAPER_SIGMA_REL * p_dist)
         cues = d
-        d, ruled = self._occluded_bottoms(boxes, class_ids, spec, p.bearing_deg, d)
+        d = self._occluded_bottoms(boxes, class_ids, spec, p.bearing_deg, d)
         # a distance the hidden-bottom rules moved carries their error, not the cues' σ;
         # a tracker gates with the cues' σ still, and keeps it unless told (`HIDDEN_SIGMA_REL`)
-        ruled &= np.abs(d - cues) > 1e-9
+        ruled = np.abs(d - cues) > 1e-9
         x, y = place(pose, d, p.bearing_deg)
         return Localized(d, p.bearing_deg, x, y,
                          np.where(ruled, np.maximum(sigma, HIDDEN_SIGMA_REL * d), sigma),
@@ -354,12 +354,10 @@ class FusedLocalizer:
         over a lower car beside the observer): its range lies between the occluder's + 1 m
         and the fused value, which reads too far, and it gets their geometric mean (the
         median of a log-uniform prior between the two; `strip_px` None: the fused value
-        stays). Returns (the distances, (N,) bool: the boxes either rule decided, whose
-        bottom row the cues misread)."""
+        stays)."""
         n = len(boxes)
-        ruled = np.zeros(n, bool)
         if n < 2:
-            return d, ruled
+            return d
         b = boxes
         w_px = np.maximum(b[:, 2] - b[:, 0], 1.0)
         below = (b[None, :, 3] > b[:, None, 3]) & (b[None, :, 1] <= b[:, None, 3] + 2.0)
@@ -384,18 +382,17 @@ class FusedLocalizer:
             strip = hidden & cut & (covers & (np.abs(b[:, None, 3] - b[None, :, 1])
                                               <= self.strip_px)).any(1)
             lo = occluder + 1.0
-            ruled = strip & (d > lo)
-            d = np.where(ruled, np.sqrt(lo * d), d)
+            d = np.where(strip & (d > lo), np.sqrt(lo * d), d)
         hidden &= ~cut
         if not hidden.any():
-            return d, ruled
+            return d
         vc = VEHICLE_CLASS_INDEX[np.asarray(class_ids)]
         back = np.array([ORIENTATION_OF_CLASS[c] == "back" for c in np.asarray(class_ids)])
         side = np.array([ORIENTATION_OF_CLASS[c] == "side" for c in np.asarray(class_ids)])
         extent = np.where(side, np.asarray(CLASS_LENGTH_M)[vc], np.asarray(CLASS_WIDTH_M)[vc])
         d_w = spec.focal_px * extent / w_px / np.cos(np.radians(bearing_deg))
         est = np.minimum(np.where(back, d_w, np.sqrt(d_w * d)), d)
-        return np.where(hidden, np.maximum(est, occluder + 1.0), d), ruled | hidden
+        return np.where(hidden, np.maximum(est, occluder + 1.0), d)
 
 
 @dataclass

@@ -325,9 +325,9 @@ class EgoTracker:
         eta = VEHICLE_CLASS_INDEX[det.class_ids] if n else np.zeros(0, np.int64)
         strong = np.asarray(det.scores, np.float64) >= self.confirm_score
         lost = self._hidden > self.max_age_s + 1e-9
-        gate_sigma = loc.sigma_m if loc.gate_sigma_m is None else loc.gate_sigma_m
-        r_det = self._meas_cov(loc, pose, gate_sigma)  # the gate's; the update's:
-        r_upd = self._meas_cov(loc, pose) if self.rule_sigma else r_det
+        r_det = self._meas_cov(loc, pose, loc.gate_sigma_m)  # the gate's; the update's:
+        r_upd = (self._meas_cov(loc, pose) if self.rule_sigma and loc.gate_sigma_m is not None
+                 else r_det)
         if n and m:
             pbox, _, front = self.predicted_boxes(pose)
             iou = np.where(front[None, :], iou_matrix(det.boxes, pbox), 0.0)
@@ -422,7 +422,8 @@ class EgoTracker:
 
     def _meas_cov(self, loc, pose, sigma_m=None) -> np.ndarray:
         """(N, 2, 2) covariance of each localized position (CARLA world, m²): the
-        localizer's range error along the ray, ``cross_px`` pixels of bearing across it."""
+        localizer's range error along the ray (``sigma_m``; None: ``loc.sigma_m``),
+        ``cross_px`` pixels of bearing across it."""
         ang = np.radians(pose.yaw_deg + loc.bearing_deg)
         u = np.stack([np.cos(ang), np.sin(ang)], -1)
         w = np.stack([-u[:, 1], u[:, 0]], -1)
