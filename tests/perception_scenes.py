@@ -122,3 +122,17 @@ def look_away_scene(hz: float = 10.0, speed_mps: float = 5.0, away_s: float = 4.
         x, y, _ = straight(-60.0, 1.75, 0.0, speed_mps, t)
         frames.append((t, (x, y, yaw), [(1, *straight(-45.0, 1.75, 0.0, speed_mps, t))]))
     return frames
+
+
+def look_away_two_scene(hz: float = 10.0, speed_mps: float = 5.0, away_s: float = 4.0,
+                        swap: bool = False):
+    """`look_away_scene` with two cars ahead, car 1 in the observer's lane 15 m ahead and
+    car 2 in the lane to its left 24 m ahead, both at its speed. ``swap``: while the
+    camera looks away car 1 becomes car 3 (another look) and car 2 car 4: the cars seen
+    after the glance are not the ones seen before, where those would be."""
+    out = []
+    for t, cam, _ in look_away_scene(hz, speed_mps, away_s):
+        later = swap and t > 2.0 + away_s / 2
+        out.append((t, cam, [(3 if later else 1, *straight(-45.0, 1.75, 0.0, speed_mps, t)),
+                             (4 if later else 2, *straight(-36.0, -1.75, 0.0, speed_mps, t))]))
+    return out

@@ -160,6 +160,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("tracker-eval-every", ["tracker", "eval", "{REC}", "--every", "0"],
      "argument --every: expected a number > 0"),
     ("tracker-eval-size", ["tracker", "eval", "{REC}", "--size", "4x4"], "argument --size"),
+    ("tracker-eval-reid-model", ["tracker", "eval", "{REC}", "--reid-model", "{MISSING}"],
+     "--reid-model"),
     ("localization-eval-missing", ["localization", "eval", "{MISSING}"], "is not a directory"),
     ("localization-eval-mu-nan", ["localization", "eval", "{REC}", "--mu-h", "nan"],
      "argument --mu-h: expected a finite number"),

@@ -15,13 +15,21 @@ from dashtraj.perception.detections import Detections, OracleDetector
 from dashtraj.perception.track import (
     Backfill,
     EgoTracker,
+    Relink,
     TrackerError,
     backfill,
     build_tracker,
     mot_rows,
+    relink,
 )
 from dashtraj.world.camera import CameraSpec
-from perception_scenes import look_away_scene, pass_scene, render_scene, turn_scene
+from perception_scenes import (
+    look_away_scene,
+    look_away_two_scene,
+    pass_scene,
+    render_scene,
+    turn_scene,
+)
 
 SPEC = CameraSpec()
 
@@ -227,3 +235,95 @@ def test_ego_reports_the_track_of_every_detection(pass10):
         assert (ids[ids > 0] == tracker.track_of[ids > 0]).all()
         unconfirmed += int((ids < 0).sum())
     assert unconfirmed >= 2 * 3  # min_hits - 1 boxes of each of the three vehicles
+
+
+def _unit(v):
+    v = np.asarray(v, np.float64)
+    return v / np.linalg.norm(v)
+
+
+def test_relink_joins_tracks_by_appearance_within_the_rules():
+    """Track 1 (0-2 s) is followed by 2 (5-7 s, nearly its look: 0.10 apart) and by 3
+    (5-7 s, another look, 0.89 apart: over `max_distance`); 4 has 1's look but overlaps it
+    in time (one camera never sees a car twice at once) and is 500 m from 2; 5 has 1's
+    look but is a truck; 7 (10-11 s) has 3's look and is within reach of it; 6 has that
+    look too but appears 300 m from 7 one second after it; 8 has it 35 s after 7 (beyond
+    `max_gap_s`); 9 was never embedded."""
+    look_a, look_b = _unit([1, 0, 0, 0]), _unit([1, 0.1, 0, 0])
+    other = _unit([0.6, 0.8, 0, 0])
+    rl = Relink()
+    car, truck = 0, 3  # class ids car_front and truck_front
+    rows = [(1, 0.0, 2.0, (0, 0), look_a, car), (2, 5.0, 7.0, (30, 0), look_b, car),
+            (3, 5.0, 7.0, (30, 2), other, car), (4, 1.0, 3.0, (500, 0), look_a, car),
+            (5, 5.0, 7.0, (31, 0), look_a, truck), (7, 10.0, 11.0, (0, 0), other, car),
+            (6, 12.0, 13.0, (300, 0), other, car), (8, 46.0, 47.0, (0, 0), other, car)]
+    for tid, t0, t1, (x, y), look, cls in rows:
+        for t in (t0, t1):
+            rl.add(t, np.array([tid]), np.array([cls]), np.array([[x + (t - t0), y]]),
+                   look[None, :].astype(np.float32))
+    rl.add(9.0, np.array([9, -1]), np.array([0, 0]), np.zeros((2, 2)), None)
+    links = rl.links()
+    assert links == {1: 1, 2: 1, 3: 3, 4: 4, 5: 5, 6: 6, 7: 3, 8: 8, 9: 9}
+    assert rl.links({2, 3}) == {2: 2, 3: 3}  # only the tracks named take part
+    ids = [np.array([1, -1]), np.array([2, 7])]
+    assert [x.tolist() for x in relink(ids, links)] == [[1, -1], [1, 3]]
+
+
+@pytest.fixture(scope="module")
+def reid_model():
+    from dashtraj.reid.embed import ReidEmbedder
+
+    return ReidEmbedder(threads=1)
+
+
+def _identities(frames, embedder):
+    """`EgoTracker` without its out-of-view memory on the frames, then `Relink` with the
+    shipped ReID model's embeddings: (vehicles per backfilled track, per re-linked id)."""
+    tracker = EgoTracker(spec=SPEC, out_of_view_s=0.0)
+    det = OracleDetector()
+    rl = Relink()
+    ids_l, raw_l, truth = [], [], []
+    for f in frames:
+        d = det.detect(f)
+        ids_l.append(tracker.update(d, f.t, f.pose))
+        raw_l.append(tracker.track_of.copy())
+        truth.append(d.truth_ids)
+        rl.add(f.t, tracker.track_of, d.class_ids, tracker.positions,
+               embedder.embed_boxes(f.frame_data.rgb, d.boxes, rl.min_box_px))
+    ids_b = backfill(ids_l, raw_l)
+    out = relink(ids_b, rl.links({i for x in ids_b for i in x.tolist() if i > 0}))
+    per = []
+    for ids_per_frame in (ids_b, out):
+        m: dict = {}
+        for ids, tr in zip(ids_per_frame, truth, strict=True):
+            for i, v in zip(ids.tolist(), tr.tolist(), strict=True):
+                if i > 0:
+                    m.setdefault(i, set()).add(v)
+        per.append(sorted(sorted(v) for v in m.values()))
+    return per
+
+
+def test_relink_gives_a_car_back_its_identity_after_a_glance_away(gl_available, reid_model):
+    """The camera looks away from two cars for ~5 s; without out-of-view memory each
+    comes back as a new track (4 tracks); re-linked by appearance, each car has one
+    identity again, and the right one (the two cars look different)."""
+    frames = render_scene(look_away_two_scene(hz=10.0), SPEC)
+    tracks, ids = _identities(frames, reid_model)
+    assert tracks == [[1], [1], [2], [2]]
+    assert ids == [[1], [2]]
+
+
+def test_relink_keeps_other_cars_apart_where_the_lost_ones_would_be(gl_available, reid_model):
+    """The same glance, but the cars after it are two others exactly where the first two
+    would be: position allows every link, appearance refuses them (the later cars a black
+    SUV and a van, 0.84-0.94 from the earlier two by the shipped model). A car of a look
+    close to a lost one's is joined to it: a white sedan seen from behind after another
+    (`car_identities`' 2 and 3) is 0.39 from it, under `Relink.max_distance`."""
+    from dashtraj.world import catalog
+
+    cars = [i for i in catalog.identities() if i.model.vehicle_class == "car"]
+    looks = {1: cars[0], 2: cars[7], 3: cars[22], 4: cars[30]}
+    frames = render_scene(look_away_two_scene(hz=10.0, swap=True), SPEC, looks)
+    tracks, ids = _identities(frames, reid_model)
+    assert tracks == [[1], [2], [3], [4]]
+    assert ids == tracks

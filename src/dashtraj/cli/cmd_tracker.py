@@ -20,7 +20,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "exact boxes, or an ONNX model), run every tracker on the same detections and "
             "score them against the renderer's identities with HOTA, IDF1 and MOTA "
             "(TrackEval's definitions). BoxMOT's ByteTrack, OC-SORT and BoT-SORT (ECC) run "
-            "as peers when the boxmot package can be imported (pip install '.[bench]')."),
+            "as peers when the boxmot package can be imported (pip install '.[bench]'). "
+            "ego is also scored offline: +backfill (a confirmed track's first boxes get its "
+            "id) and +relink (then the tracks of one vehicle that a gap split joined by "
+            "their ReID embeddings)."),
     )
     add_frame_source_args(e, every_s=0.1)
     add_pose_noise_args(e)
@@ -29,6 +32,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     e.add_argument("--peers", nargs="*", default=None, metavar="NAME",
                    help="BoxMOT peers (default: bytetrack ocsort botsort when boxmot imports; "
                         "give none to skip)")
+    e.add_argument("--relink", action=argparse.BooleanOptionalAction, default=True,
+                   help="also score ego+relink: ego's offline output with the tracks of one "
+                        "vehicle that a gap split re-linked by appearance (every box >= 10 px "
+                        "high at 720 rows embedded by the ReID model; default on)")
+    e.add_argument("--reid-model", default=None, metavar="M.onnx",
+                   help="--relink's ReID model (default: the shipped one)")
     e.add_argument("--json", action="store_true", help="print the result as JSON")
     e.set_defaults(func=run_eval)
 
@@ -54,14 +63,27 @@ def run_eval(args: argparse.Namespace) -> int:
         raise ArgumentError(f"--peers {unknown[0]!r} is not a BoxMOT peer; valid: "
                             f"{', '.join(PEER_NAMES)}")
     recs = [open_recording(r) for r in args.recordings]
+    embedder = None
+    if args.relink:
+        from pathlib import Path
+
+        from dashtraj.reid.embed import ReidEmbedder
+
+        if args.reid_model is not None and not Path(args.reid_model).is_file():
+            from dashtraj.cli._args import ArgumentError
+
+            raise ArgumentError(f"--reid-model {args.reid_model!r}: no such file")
+
+        embedder = ReidEmbedder(args.reid_model)
     peers, why = boxmot_peers(wanted) if wanted else ({}, None)
     res = tracker_eval(recs, args.trackers, peers, args.detector, args.every, size,
                        args.agnostic_nms, args.min_score, args.confirm_score,
                        pose_noise=args.pose_noise, pose_noise_seed=args.pose_noise_seed,
-                       calibrate_pitch=args.calibrate_pitch)
+                       calibrate_pitch=args.calibrate_pitch, embedder=embedder)
     res["pose_noise"] = None if args.pose_noise is None else list(args.pose_noise)
     res["calibrate_pitch"] = args.calibrate_pitch
     res["detector"] = args.detector
+    res["reid_model"] = None if embedder is None else str(embedder.path)
     res.update(detector_filters_used(args))
     res["peers_skipped"] = None if peers or not wanted else why
     if args.json:
@@ -69,7 +91,8 @@ def run_eval(args: argparse.Namespace) -> int:
         return 0
     print(f"{len(recs)} recordings, {res['sequences']} observer videos, {res['frames']} frames, "
           f"detector {args.detector}")
-    offline = [f"{n}+backfill" for n in args.trackers if f"{n}+backfill" in res]
+    offline = [f"{n}+{k}" for n in args.trackers for k in ("backfill", "relink")
+               if f"{n}+{k}" in res]
     for n in [*args.trackers, *offline, *peers]:
         r = res[n]
         ig = r["ignore_regions"]

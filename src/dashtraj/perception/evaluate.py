@@ -34,7 +34,7 @@ from dashtraj.perception.detections import (
 from dashtraj.perception.localize import build_localizer
 from dashtraj.perception.mot_metrics import Sequence, counts, summarize
 from dashtraj.perception.pipeline import camera_pose_of, image_camera
-from dashtraj.perception.track import CONFIRM_SCORE, backfill, build_tracker
+from dashtraj.perception.track import CONFIRM_SCORE, Relink, backfill, build_tracker, relink
 
 BANDS_M = {"lt20": (0.0, 20.0), "20_60": (20.0, 60.0)}
 
@@ -138,7 +138,8 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
                  agnostic_iou: float | None = AGNOSTIC_NMS_IOU,
                  min_score: float = DEFAULT_MIN_SCORE,
                  confirm_score: float = CONFIRM_SCORE, pose_noise=None,
-                 pose_noise_seed: int = 0, calibrate_pitch: bool = False) -> dict:
+                 pose_noise_seed: int = 0, calibrate_pitch: bool = False,
+                 embedder=None, relink_settings: dict | None = None) -> dict:
     """HOTA / IDF1 / MOTA per tracker over every observer of every recording.
 
     Args:
@@ -148,6 +149,11 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
         pose_noise, pose_noise_seed: the trackers get the observers' poses perturbed
             (`eval_frames`; `dashtraj.perception.posenoise`).
         calibrate_pitch: and their pitch self-calibrated (`eval_frames`).
+        embedder: a `ReidEmbedder`, or None. With one, a tracker that reports each
+            detection's track is also scored as ``"<name>+relink"``: its backfilled
+            output with the tracks of one vehicle that a gap split re-linked by
+            appearance (`dashtraj.perception.track.Relink`, ``relink_settings`` its
+            settings; every box at least ``Relink.min_box_px`` high is embedded).
 
     Returns:
         {tracker: {"hota", "deta", "assa", "idf1", "mota", "idsw", ..., "updates",
@@ -165,9 +171,13 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
     peers = peers or {}
     names = list(trackers) + list(peers)
     offline = [n for n in trackers if hasattr(build_tracker(n), "track_of")]
-    all_counts: dict[str, list] = {n: [] for n in names + [n + "+backfill" for n in offline]}
+    rl_names = [n + "+relink" for n in offline] if embedder is not None else []
+    all_counts: dict[str, list] = {n: [] for n in names + [n + "+backfill" for n in offline]
+                                   + rl_names}
     ign_counts: dict[str, list] = {n: [] for n in all_counts}
     kept: dict[str, list] = {n: [] for n in offline}  # this observer's frames, for backfill
+    rl_cfg = Relink(**(relink_settings or {}))
+    relinks: dict[str, Relink] = {}
 
     def flush() -> None:
         for n in names:
@@ -181,6 +191,14 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
                 _score_frame(a, b, gt, sc, on_ignored, x, boxes)
             all_counts[n + "+backfill"].append(counts(a))
             ign_counts[n + "+backfill"].append(counts(b))
+            if n in relinks:
+                links = relinks[n].links({i for x in ids for i in x.tolist() if i > 0})
+                a, b = Sequence(), Sequence()
+                for (gt, sc, on_ignored, boxes, _, _), x in zip(frames, relink(ids, links),
+                                                                strict=True):
+                    _score_frame(a, b, gt, sc, on_ignored, x, boxes)
+                all_counts[n + "+relink"].append(counts(a))
+                ign_counts[n + "+relink"].append(counts(b))
             frames.clear()
 
     seconds = dict.fromkeys(names, 0.0)
@@ -191,7 +209,8 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
         state: dict = {}
         seqs: dict = {}
         iseqs: dict = {}
-        for ef in eval_frames(rec, detector, every_s, size, keep_rgb=bool(peers),
+        for ef in eval_frames(rec, detector, every_s, size,
+                              keep_rgb=bool(peers) or embedder is not None,
                               agnostic_iou=agnostic_iou, min_score=min_score,
                               pose_noise=pose_noise, pose_noise_seed=pose_noise_seed,
                               calibrate_pitch=calibrate_pitch):
@@ -202,12 +221,16 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
                 n_seq += 1
                 state = {n: build_tracker(n, spec, confirm_score) for n in trackers}
                 state.update({n: f(spec) for n, f in peers.items()})
+                if embedder is not None:
+                    relinks = {n: Relink(**(relink_settings or {})) for n in offline}
                 seqs = {n: Sequence() for n in names}
                 iseqs = {n: Sequence() for n in names}
             n_frames += 1
             d, gt, sc = ef.detections, ef.truth, ef.scored
             ignored = np.setdiff1d(gt.truth_ids, sc.truth_ids)
             on_ignored = np.isin(d.truth_ids, ignored)
+            emb = (embedder.embed_boxes(ef.rgb, d.boxes, rl_cfg.min_box_px * spec.height_px
+                                        / 720.0) if embedder is not None else None)
             for n in names:
                 t0 = time.perf_counter()
                 if n in peers:
@@ -217,6 +240,8 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
                 seconds[n] += time.perf_counter() - t0
                 if n in kept:
                     kept[n].append((gt, sc, on_ignored, d.boxes, ids, state[n].track_of.copy()))
+                if n in relinks:
+                    relinks[n].add(ef.t, state[n].track_of, d.class_ids, state[n].positions, emb)
                 _score_frame(seqs[n], iseqs[n], gt, sc, on_ignored, ids, d.boxes)
         if current is not None:
             flush()
@@ -224,7 +249,7 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
     for n in all_counts:
         r = summarize(all_counts[n])
         r["updates"] = n_frames
-        sec = seconds.get(n.removesuffix("+backfill"), 0.0)
+        sec = seconds.get(n.removesuffix("+backfill").removesuffix("+relink"), 0.0)
         r["updates_per_s"] = n_frames / sec if sec > 0 else None
         r["ignore_regions"] = summarize(ign_counts[n])
         out[n] = r

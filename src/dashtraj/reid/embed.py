@@ -106,6 +106,24 @@ class ReidEmbedder:
         f = np.concatenate(out) if out else np.zeros((0, 512), np.float32)
         return l2_normalize(f) if normalize else f.astype(np.float32)
 
+    def embed_boxes(self, rgb: np.ndarray, boxes: np.ndarray,
+                    min_height_px: float = 0.0) -> np.ndarray:
+        """The boxes (N, 4; x0, y0, x1, y1 pixels) of one (H, W, 3) uint8 image embedded:
+        (N, 512) float32, L2-normalised; each box is cropped with 10 % margin as the
+        sightings' crops are (`dashtraj.datasets.frames.crop_vehicle`). A box under
+        ``min_height_px`` high gets a NaN row."""
+        from dashtraj.datasets.frames import crop_vehicle
+
+        boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+        big = np.flatnonzero(boxes[:, 3] - boxes[:, 1] >= min_height_px)
+        out = np.full((len(boxes), 512), np.nan, np.float32)
+        if len(big):
+            f = self.embed([crop_vehicle(rgb, boxes[i], 0.1) for i in big])
+            if f.shape[1] != out.shape[1]:
+                out = np.full((len(boxes), f.shape[1]), np.nan, np.float32)
+            out[big] = f
+        return out
+
     def embed(self, crops: Iterable, batch_size: int = 64, normalize: bool = True) -> np.ndarray:
         """Crops (paths, Pillow images or uint8 RGB arrays) → (N, 512) float32 embeddings."""
         crops = list(crops)
