@@ -35,10 +35,11 @@ def test_tracker_eval_json_has_the_metrics_per_tracker(small_run, gl_available, 
     assert off["mota"] > r["ego"]["mota"] and off["idf1"] >= r["ego"]["idf1"]
     # and then the tracks of one vehicle that a gap split re-linked by appearance (on this
     # short run none is split: the same scores)
-    rl = r["ego+relink"]
     assert r["reid_model"].endswith(".onnx")
-    assert rl["num_gt"] == off["num_gt"] and rl["num_tracked"] == off["num_tracked"]
-    assert rl["idf1"] >= off["idf1"] >= 0.99
+    for n, base in (("ego+relink", r["ego"]), ("ego+backfill+relink", off)):
+        rl = r[n]
+        assert rl["num_gt"] == base["num_gt"] and rl["num_tracked"] == base["num_tracked"]
+        assert rl["idf1"] >= base["idf1"] >= 0.95
 
 
 def test_localization_eval_json_and_scatter(small_run, gl_available, tmp_path, capsys):

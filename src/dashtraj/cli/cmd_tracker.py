@@ -22,8 +22,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "(TrackEval's definitions). BoxMOT's ByteTrack, OC-SORT and BoT-SORT (ECC) run "
             "as peers when the boxmot package can be imported (pip install '.[bench]'). "
             "ego is also scored offline: +backfill (a confirmed track's first boxes get its "
-            "id) and +relink (then the tracks of one vehicle that a gap split joined by "
-            "their ReID embeddings)."),
+            "id), +relink (the tracks of one vehicle that a gap split joined by their "
+            "ReID embeddings) and +backfill+relink (both)."),
     )
     add_frame_source_args(e, every_s=0.1)
     add_pose_noise_args(e)
@@ -33,9 +33,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="BoxMOT peers (default: bytetrack ocsort botsort when boxmot imports; "
                         "give none to skip)")
     e.add_argument("--relink", action=argparse.BooleanOptionalAction, default=True,
-                   help="also score ego+relink: ego's offline output with the tracks of one "
-                        "vehicle that a gap split re-linked by appearance (every box >= 10 px "
-                        "high at 720 rows embedded by the ReID model; default on)")
+                   help="also score ego+relink and ego+backfill+relink: ego's output with "
+                        "the tracks of one vehicle that a gap split re-linked by appearance "
+                        "(every box >= 10 px high at 720 rows embedded by the ReID model; "
+                        "default on)")
     e.add_argument("--reid-model", default=None, metavar="M.onnx",
                    help="--relink's ReID model (default: the shipped one)")
     e.add_argument("--json", action="store_true", help="print the result as JSON")
@@ -91,12 +92,12 @@ def run_eval(args: argparse.Namespace) -> int:
         return 0
     print(f"{len(recs)} recordings, {res['sequences']} observer videos, {res['frames']} frames, "
           f"detector {args.detector}")
-    offline = [f"{n}+{k}" for n in args.trackers for k in ("backfill", "relink")
-               if f"{n}+{k}" in res]
+    offline = [f"{n}+{k}" for n in args.trackers
+               for k in ("backfill", "relink", "backfill+relink") if f"{n}+{k}" in res]
     for n in [*args.trackers, *offline, *peers]:
         r = res[n]
         ig = r["ignore_regions"]
-        print(f"  {n:13s} HOTA {r['hota']:.3f}  IDF1 {r['idf1']:.3f}  MOTA {r['mota']:.3f}  "
+        print(f"  {n:21s} HOTA {r['hota']:.3f}  IDF1 {r['idf1']:.3f}  MOTA {r['mota']:.3f}  "
               f"IDSW {r['idsw']:4d}  {r['updates_per_s'] or 0:,.0f} updates/s  "
               f"(ignore regions: HOTA {ig['hota']:.3f}  IDF1 {ig['idf1']:.3f}  "
               f"MOTA {ig['mota']:.3f})")

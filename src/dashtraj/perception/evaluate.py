@@ -150,10 +150,11 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
             (`eval_frames`; `dashtraj.perception.posenoise`).
         calibrate_pitch: and their pitch self-calibrated (`eval_frames`).
         embedder: a `ReidEmbedder`, or None. With one, a tracker that reports each
-            detection's track is also scored as ``"<name>+relink"``: its backfilled
-            output with the tracks of one vehicle that a gap split re-linked by
-            appearance (`dashtraj.perception.track.Relink`, ``relink_settings`` its
-            settings; every box at least ``Relink.min_box_px`` high is embedded).
+            detection's track is also scored as ``"<name>+relink"``: its output with the
+            tracks of one vehicle that a gap split re-linked by appearance
+            (`dashtraj.perception.track.Relink`, ``relink_settings`` its settings; every
+            box at least ``Relink.min_box_px`` high at 720 rows is embedded), and as
+            ``"<name>+backfill+relink"``, its backfilled output re-linked.
 
     Returns:
         {tracker: {"hota", "deta", "assa", "idf1", "mota", "idsw", ..., "updates",
@@ -171,7 +172,8 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
     peers = peers or {}
     names = list(trackers) + list(peers)
     offline = [n for n in trackers if hasattr(build_tracker(n), "track_of")]
-    rl_names = [n + "+relink" for n in offline] if embedder is not None else []
+    rl_names = ([n + s for n in offline for s in ("+relink", "+backfill+relink")]
+                if embedder is not None else [])
     all_counts: dict[str, list] = {n: [] for n in names + [n + "+backfill" for n in offline]
                                    + rl_names}
     ign_counts: dict[str, list] = {n: [] for n in all_counts}
@@ -193,12 +195,14 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
             ign_counts[n + "+backfill"].append(counts(b))
             if n in relinks:
                 links = relinks[n].links({i for x in ids for i in x.tolist() if i > 0})
-                a, b = Sequence(), Sequence()
-                for (gt, sc, on_ignored, boxes, _, _), x in zip(frames, relink(ids, links),
-                                                                strict=True):
-                    _score_frame(a, b, gt, sc, on_ignored, x, boxes)
-                all_counts[n + "+relink"].append(counts(a))
-                ign_counts[n + "+relink"].append(counts(b))
+                for name, base in (("+relink", [f[-2] for f in frames]),
+                                   ("+backfill+relink", ids)):
+                    a, b = Sequence(), Sequence()
+                    for (gt, sc, on_ignored, boxes, _, _), x in zip(
+                            frames, relink(base, links), strict=True):
+                        _score_frame(a, b, gt, sc, on_ignored, x, boxes)
+                    all_counts[n + name].append(counts(a))
+                    ign_counts[n + name].append(counts(b))
             frames.clear()
 
     seconds = dict.fromkeys(names, 0.0)
@@ -249,7 +253,7 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
     for n in all_counts:
         r = summarize(all_counts[n])
         r["updates"] = n_frames
-        sec = seconds.get(n.removesuffix("+backfill").removesuffix("+relink"), 0.0)
+        sec = seconds.get(n.split("+")[0], 0.0)
         r["updates_per_s"] = n_frames / sec if sec > 0 else None
         r["ignore_regions"] = summarize(ign_counts[n])
         out[n] = r
