@@ -7,7 +7,9 @@ frames: render (with exact labels), detect (``--detector``: oracle, or an ONNX m
 such as the shipped ``src/dashtraj/data/detector/detector.onnx``, timed as its own
 stage ``detect_model`` beside the oracle), localize (fused; and smoothed, the whole
 sequence forward then both directions, per frame), track (sort, ego),
-map-match, crops (JPEG of the detections within 15 m), and the database write. Then
+map-match, crops (JPEG of the detections within 15 m), relink (`tracker eval`'s offline
+re-linking of ego's tracks: every box >= 10 px high embedded by the shipped ReID model,
+then `Relink.links`), and the database write. Then
 `perceive` with that detector of one observer (one process; pipelined, the default, and in
 turn on one thread, ``parallel_frames=0``, with their ratio) and of two observers with
 2 workers, frames/s per observer (render included). Trackers: updates/s on the cached detections
@@ -36,16 +38,18 @@ def stages(rec, observer: int, model: str | None = None) -> tuple[dict, list]:
     from dashtraj.perception.localize import build_localizer
     from dashtraj.perception.mapmatch import map_match
     from dashtraj.perception.pipeline import camera_pose_of, image_camera
-    from dashtraj.perception.track import build_tracker
+    from dashtraj.perception.track import Relink, build_tracker
+    from dashtraj.reid.embed import ReidEmbedder
     from dashtraj.roads import RoadMap
 
     spec = image_camera(rec, None)
+    embedder, relink = ReidEmbedder(), Relink()
     road_map = RoadMap.from_file(rec.map_path)
     r = open_renderer(rec.map_path, spec.width_px, spec.height_px, spec.fov_deg, msaa=0)
     det, loc = OracleDetector(), build_localizer("fused")
     trk = {n: build_tracker(n, spec) for n in ("sort", "ego")}
     t = dict.fromkeys(("render", "detect", "localize", "track_sort", "track_ego", "mapmatch",
-                       "crops"), 0.0)
+                       "crops", "relink"), 0.0)
     mdet = None
     if model is not None:
         from dashtraj.perception.detections import build_detector
@@ -84,8 +88,15 @@ def stages(rec, observer: int, model: str | None = None) -> tuple[dict, list]:
         for i in np.flatnonzero(lz.distance_m <= 15.0):
             encode_jpeg(np.asarray(crop_vehicle(rf.frame_data.rgb, d.boxes[i], 0.1)), 90)
         t["crops"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        emb = embedder.embed_boxes(rf.frame_data.rgb, d.boxes, relink.min_box_px)
+        relink.add(rf.t, trk["ego"].track_of, d.class_ids, trk["ego"].positions, emb)
+        t["relink"] += time.perf_counter() - t0
         frames.append((rf.t, pose, d))
     r.release()
+    t0 = time.perf_counter()
+    relink.links()
+    t["relink"] += time.perf_counter() - t0
     sm = build_localizer("smoothed")  # offline: every frame forward, then both directions
     t0 = time.perf_counter()
     for ft, pose, d in frames:
