@@ -34,6 +34,10 @@ unassigned). Ids start at 1 and are never reused within a tracker.
   Mahalanobis distance alone and the same vehicle class (not on their predicted box).
   A track is reported once it has `min_hits` hits, one of them a confident detection
   (score ≥ `confirm_score`, ByteTrack's rule): weak boxes extend tracks but never make one.
+
+Offline, after a whole video: `backfill` gives a confirmed track's first boxes its id, and
+`Relink` joins the tracks of one vehicle that a gap split by their appearance (ReID
+embeddings); `dashtraj tracker eval` scores both.
 """
 
 from __future__ import annotations
@@ -472,21 +476,22 @@ class Relink:
     remembers it) are joined into one identity.
 
     Feed `add` every frame after the tracker's update with the frame's raw track of each
-    detection (``track_of``: `EgoTracker`), the boxes, their classes, the tracks' ground
-    positions (`EgoTracker.positions`) and an appearance embedding per box (the ReID
-    model's, L2-normalised; a NaN row for a box not embedded: `ReidEmbedder.embed_boxes`
-    embeds boxes at least `min_box_px` high). Then `links` maps each track id to the id of
-    the first track of its chain. A track's appearance is the mean of its embeddings. Track
-    B may follow track A when B's first box comes after A's last (one camera never sees a
-    vehicle twice at once), within `max_gap_s`, of the same vehicle class, no farther from
-    A's last position than `max_speed_mps` × the gap + `slack_m` (the ground positions of
-    far boxes are poor along the ray), and with an appearance distance (L2 of the unit
-    means) ≤ `max_distance`. The allowed pairs are taken greedily, nearest appearance
-    first, each track with at most one successor and one predecessor.
+    detection (``track_of``: `EgoTracker`), the detections' classes, their ground positions
+    as the tracks filtered them (`EgoTracker.positions`) and an appearance embedding per
+    detection (the ReID model's, L2-normalised; a NaN row for a box not embedded:
+    `ReidEmbedder.embed_boxes` embeds the boxes at least `min_box_px` high). Then `links`
+    maps each track id to the id of the first track of its chain. A track's appearance is
+    the mean of its embeddings. Track B may follow track A when B's first box comes after
+    A's last (one camera never sees a vehicle twice at once), within `max_gap_s`, of the
+    same vehicle class, no farther from A's last position than `max_speed_mps` × the gap +
+    `slack_m` (the ground positions of far boxes are poor along the ray), and with an
+    appearance distance (L2 of the unit means) ≤ `max_distance`. The allowed pairs are
+    taken greedily, nearest appearance first, each track with at most one successor and
+    one predecessor.
 
     Settings chosen on development recordings with the shipped ReID model (README,
-    "Tracking"): at ``max_distance`` 0.6 the tracks of one vehicle are a median 0.39 apart
-    and those of two vehicles of one class 0.97 (boxes ≥ 12 px high).
+    "Re-linking tracks by appearance"): the tracks of one vehicle are a median 0.39 apart
+    there, those of two vehicles of one class 0.97 (boxes ≥ 12 px high).
     """
 
     max_distance: float = 0.6
