@@ -102,3 +102,23 @@ def test_flip_embedding_is_the_same_for_a_crop_and_its_mirror_image():
     assert np.allclose(f, raw / np.linalg.norm(raw, axis=1, keepdims=True), atol=1e-5)
     with pytest.raises(ValueError, match="flip"):
         embed_database(None, flip)
+
+
+def test_embed_boxes_crops_each_box_as_a_sighting_and_skips_small_ones():
+    """`ReidEmbedder.embed_boxes`: a box's row is the embedding of its crop with 10 %
+    margin (`crop_vehicle`, as `perceive` crops a sighting); a box under the height floor
+    gets a NaN row; no boxes, no rows."""
+    from dashtraj.datasets.frames import crop_vehicle
+
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, (90, 160, 3), dtype=np.uint8)
+    rgb[20:60, 30:90] = (200, 30, 30)
+    boxes = np.array([[30.0, 20.0, 90.0, 60.0], [100.0, 10.0, 110.0, 18.0]])  # 40 and 8 px
+    e = ReidEmbedder(threads=1)
+    got = e.embed_boxes(rgb, boxes, min_height_px=10.0)
+    assert got.shape == (2, 512) and got.dtype == np.float32
+    assert np.isnan(got[1]).all() and np.isfinite(got[0]).all()
+    np.testing.assert_allclose(got[0], e.embed([crop_vehicle(rgb, boxes[0], 0.1)])[0],
+                               atol=1e-6)
+    assert abs(float(np.linalg.norm(got[0])) - 1.0) < 1e-5
+    assert e.embed_boxes(rgb, np.zeros((0, 4))).shape == (0, 512)
