@@ -9,7 +9,7 @@ stage ``detect_model`` beside the oracle), localize (fused; and smoothed, the wh
 sequence forward then both directions, per frame), track (sort, ego),
 map-match, crops (JPEG of the detections within 15 m), relink (`tracker eval`'s offline
 re-linking of ego's tracks: every box >= 10 px high embedded by the shipped ReID model,
-then `Relink.links`), and the database write. Then
+then `Relink.apply`), and the database write. Then
 `perceive` with that detector of one observer (one process; pipelined, the default, and in
 turn on one thread, ``parallel_frames=0``, with their ratio) and of two observers with
 2 workers, frames/s per observer (render included). Trackers: updates/s on the cached detections
@@ -56,7 +56,7 @@ def stages(rec, observer: int, model: str | None = None) -> tuple[dict, list]:
 
         mdet = build_detector(model)
         t["detect_model"] = 0.0
-    frames = []
+    frames, ego_ids = [], []
     it = recording_frames(rec, 0.1, None, [observer], msaa=0, renderer=r)
     n = 0
     while True:
@@ -90,12 +90,13 @@ def stages(rec, observer: int, model: str | None = None) -> tuple[dict, list]:
         t["crops"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         emb = embedder.embed_boxes(rf.frame_data.rgb, d.boxes, relink.min_box_px)
-        relink.add(rf.t, trk["ego"].track_of, d.class_ids, trk["ego"].positions, emb)
+        relink.add(rf.t, d.class_ids, trk["ego"].positions, emb)
+        ego_ids.append(trk["ego"].track_of.copy())
         t["relink"] += time.perf_counter() - t0
         frames.append((rf.t, pose, d))
     r.release()
     t0 = time.perf_counter()
-    relink.links()
+    relink.apply(ego_ids)
     t["relink"] += time.perf_counter() - t0
     sm = build_localizer("smoothed")  # offline: every frame forward, then both directions
     t0 = time.perf_counter()

@@ -20,7 +20,6 @@ from dashtraj.perception.track import (
     backfill,
     build_tracker,
     mot_rows,
-    relink,
 )
 from dashtraj.world.camera import CameraSpec
 from perception_scenes import (
@@ -242,31 +241,74 @@ def _unit(v):
     return v / np.linalg.norm(v)
 
 
+def _feed(rl, rows, n_frames):
+    """Add ``n_frames`` frames, one per second, of tracks given as (id, first frame, last
+    frame, (x, y) at the first, look(s), class id); returns the ids reported per frame.
+    A track's x grows 1 m/s. A look may be a function of the frame."""
+    ids = []
+    for f in range(n_frames):
+        here = [r for r in rows if r[1] <= f <= r[2]]
+        emb = np.array([(r[4](f) if callable(r[4]) else r[4]) for r in here], np.float32)
+        rl.add(float(f), np.array([r[5] for r in here], np.int64),
+               np.array([[r[3][0] + (f - r[1]), r[3][1]] for r in here], np.float64).reshape(-1, 2),
+               emb.reshape(len(here), -1) if here else None)
+        ids.append(np.array([r[0] for r in here], np.int64))
+    return ids
+
+
 def test_relink_joins_tracks_by_appearance_within_the_rules():
-    """Track 1 (0-2 s) is followed by 2 (5-7 s, nearly its look: 0.10 apart) and by 3
-    (5-7 s, another look, 0.89 apart: over `max_distance`); 4 has 1's look but overlaps it
+    """Track 1 (frames 0-2) is followed by 2 (5-7, nearly its look: 0.10 apart) and by 3
+    (5-7, another look, 0.89 apart: over `max_distance`); 4 has 1's look but overlaps it
     in time (one camera never sees a car twice at once) and is 500 m from 2; 5 has 1's
-    look but is a truck; 7 (10-11 s) has 3's look and is within reach of it; 6 has that
+    look but is a truck; 7 (10-11) has 3's look and is within reach of it; 6 has that
     look too but appears 300 m from 7 one second after it; 8 has it 35 s after 7 (beyond
-    `max_gap_s`); 9 was never embedded."""
+    `max_gap_s`); 9 was never embedded (a NaN row)."""
     look_a, look_b = _unit([1, 0, 0, 0]), _unit([1, 0.1, 0, 0])
     other = _unit([0.6, 0.8, 0, 0])
-    rl = Relink()
     car, truck = 0, 3  # class ids car_front and truck_front
-    rows = [(1, 0.0, 2.0, (0, 0), look_a, car), (2, 5.0, 7.0, (30, 0), look_b, car),
-            (3, 5.0, 7.0, (30, 2), other, car), (4, 1.0, 3.0, (500, 0), look_a, car),
-            (5, 5.0, 7.0, (31, 0), look_a, truck), (7, 10.0, 11.0, (0, 0), other, car),
-            (6, 12.0, 13.0, (300, 0), other, car), (8, 46.0, 47.0, (0, 0), other, car)]
-    for tid, t0, t1, (x, y), look, cls in rows:
-        for t in (t0, t1):
-            rl.add(t, np.array([tid]), np.array([cls]), np.array([[x + (t - t0), y]]),
-                   look[None, :].astype(np.float32))
-    rl.add(9.0, np.array([9, -1]), np.array([0, 0]), np.zeros((2, 2)), None)
-    links = rl.links()
-    assert links == {1: 1, 2: 1, 3: 3, 4: 4, 5: 5, 6: 6, 7: 3, 8: 8, 9: 9}
-    assert rl.links({2, 3}) == {2: 2, 3: 3}  # only the tracks named take part
-    ids = [np.array([1, -1]), np.array([2, 7])]
-    assert [x.tolist() for x in relink(ids, links)] == [[1, -1], [1, 3]]
+    rows = [(1, 0, 2, (0, 0), look_a, car), (2, 5, 7, (30, 0), look_b, car),
+            (3, 5, 7, (30, 2), other, car), (4, 1, 3, (500, 0), look_a, car),
+            (5, 5, 7, (31, 0), look_a, truck), (7, 10, 11, (0, 0), other, car),
+            (6, 12, 13, (300, 0), other, car), (8, 46, 47, (0, 0), other, car),
+            (9, 20, 21, (0, 0), np.full(4, np.nan), car)]
+    rl = Relink(split_distance=None)
+    ids = _feed(rl, rows, 48)
+    out = rl.apply(ids)
+    got = {}
+    for a, b in zip(ids, out, strict=True):
+        for i, j in zip(a.tolist(), b.tolist(), strict=True):
+            got.setdefault(i, set()).add(j)
+    assert got == {1: {1}, 2: {1}, 3: {3}, 4: {4}, 5: {5}, 6: {6}, 7: {3}, 8: {8}, 9: {9}}
+    # only the ids reported take part: with 1 unreported, 2 stays itself; -1 stays -1
+    some = [np.where(x == 1, -1, x) for x in ids]
+    assert all((o[x == 2] == 2).all() and (o[x == -1] == -1).all()
+               for x, o in zip(some, rl.apply(some), strict=True))
+    with pytest.raises(ValueError, match="frames of ids"):
+        rl.apply(ids[:3])
+
+
+def test_relink_cuts_a_track_where_its_look_changes_and_joins_the_parts():
+    """Track 1 follows car A (frames 0-9), then takes car B's boxes (10-19: a swap); car
+    B was track 3 (0-4) before, car A comes back as track 2 (24-30). The cut gives 1's
+    second half a new id, which joins 3 (B's look), and 2 joins 1's first half (A's
+    look). Without the cut, 1 keeps B's boxes and 2 and 3 stay apart (1's mean look is
+    between A's and B's, 0.77 from each)."""
+    look_a, look_b = _unit([1, 0, 0, 0]), _unit([0, 1, 0, 0])
+    rows = [(1, 0, 19, (0, 0), lambda f: look_a if f < 10 else look_b, 0),
+            (2, 24, 30, (24, 0), look_a, 0), (3, 0, 4, (3, 0), look_b, 0)]
+    ids = None
+    for split, want in ((0.8, {1: {1, 3}, 2: {1}, 3: {3}}), (None, {1: {1}, 2: {2}, 3: {3}})):
+        rl = Relink(split_distance=split)
+        ids = _feed(rl, rows, 31)
+        got = {}
+        for a, b in zip(ids, rl.apply(ids), strict=True):
+            for i, j in zip(a.tolist(), b.tolist(), strict=True):
+                got.setdefault(i, set()).add(j)
+        assert got == want, split
+    # the cut falls at the swap: every box of car B is one identity
+    rl = Relink()
+    out = rl.apply(_feed(rl, rows, 31))
+    assert [int(o[0]) for o in out[10:20]] == [3] * 10 and int(out[9][0]) == 1
 
 
 @pytest.fixture(scope="module")
@@ -288,10 +330,10 @@ def _identities(frames, embedder):
         ids_l.append(tracker.update(d, f.t, f.pose))
         raw_l.append(tracker.track_of.copy())
         truth.append(d.truth_ids)
-        rl.add(f.t, tracker.track_of, d.class_ids, tracker.positions,
+        rl.add(f.t, d.class_ids, tracker.positions,
                embedder.embed_boxes(f.frame_data.rgb, d.boxes, rl.min_box_px))
     ids_b = backfill(ids_l, raw_l)
-    out = relink(ids_b, rl.links({i for x in ids_b for i in x.tolist() if i > 0}))
+    out = rl.apply(ids_b)
     per = []
     for ids_per_frame in (ids_b, out):
         m: dict = {}

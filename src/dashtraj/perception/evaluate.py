@@ -34,7 +34,7 @@ from dashtraj.perception.detections import (
 from dashtraj.perception.localize import build_localizer
 from dashtraj.perception.mot_metrics import Sequence, counts, summarize
 from dashtraj.perception.pipeline import camera_pose_of, image_camera
-from dashtraj.perception.track import CONFIRM_SCORE, Relink, backfill, build_tracker, relink
+from dashtraj.perception.track import CONFIRM_SCORE, Relink, backfill, build_tracker
 
 BANDS_M = {"lt20": (0.0, 20.0), "20_60": (20.0, 60.0)}
 
@@ -150,8 +150,9 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
             (`eval_frames`; `dashtraj.perception.posenoise`).
         calibrate_pitch: and their pitch self-calibrated (`eval_frames`).
         embedder: a `ReidEmbedder`, or None. With one, a tracker that reports each
-            detection's track is also scored as ``"<name>+relink"``: its output with the
-            tracks of one vehicle that a gap split re-linked by appearance
+            detection's track is also scored as ``"<name>+relink"``: its output with its
+            tracks cut where their look changes and the tracks of one vehicle that a gap
+            split re-linked by appearance
             (`dashtraj.perception.track.Relink`, ``relink_settings`` its settings; every
             box at least ``Relink.min_box_px`` high at 720 rows is embedded), and as
             ``"<name>+backfill+relink"``, its backfilled output re-linked.
@@ -194,12 +195,11 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
             all_counts[n + "+backfill"].append(counts(a))
             ign_counts[n + "+backfill"].append(counts(b))
             if n in relinks:
-                links = relinks[n].links({i for x in ids for i in x.tolist() if i > 0})
                 for name, base in (("+relink", [f[-2] for f in frames]),
                                    ("+backfill+relink", ids)):
                     a, b = Sequence(), Sequence()
                     for (gt, sc, on_ignored, boxes, _, _), x in zip(
-                            frames, relink(base, links), strict=True):
+                            frames, relinks[n].apply(base), strict=True):
                         _score_frame(a, b, gt, sc, on_ignored, x, boxes)
                     all_counts[n + name].append(counts(a))
                     ign_counts[n + name].append(counts(b))
@@ -245,7 +245,7 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
                 if n in kept:
                     kept[n].append((gt, sc, on_ignored, d.boxes, ids, state[n].track_of.copy()))
                 if n in relinks:
-                    relinks[n].add(ef.t, state[n].track_of, d.class_ids, state[n].positions, emb)
+                    relinks[n].add(ef.t, d.class_ids, state[n].positions, emb)
                 _score_frame(seqs[n], iseqs[n], gt, sc, on_ignored, ids, d.boxes)
         if current is not None:
             flush()

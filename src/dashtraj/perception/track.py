@@ -471,23 +471,29 @@ def backfill(ids_per_frame, track_of_per_frame) -> list[np.ndarray]:
 
 @dataclass
 class Relink:
-    """Offline re-linking of one observer's tracks by appearance: the tracks of one vehicle
-    that a gap split (the vehicle hidden, or out of the image, for longer than the tracker
-    remembers it) are joined into one identity.
+    """Offline re-linking of one observer's tracks by appearance: a track that took another
+    vehicle's boxes is cut where its look changes, and the tracks of one vehicle that a gap
+    split (the vehicle hidden, or out of the image, for longer than the tracker remembers
+    it) are joined into one identity.
 
-    Feed `add` every frame after the tracker's update with the frame's raw track of each
-    detection (``track_of``: `EgoTracker`), the detections' classes, their ground positions
-    as the tracks filtered them (`EgoTracker.positions`) and an appearance embedding per
-    detection (the ReID model's, L2-normalised; a NaN row for a box not embedded:
-    `ReidEmbedder.embed_boxes` embeds the boxes at least `min_box_px` high). Then `links`
-    maps each track id to the id of the first track of its chain. A track's appearance is
-    the mean of its embeddings. Track B may follow track A when B's first box comes after
-    A's last (one camera never sees a vehicle twice at once), within `max_gap_s`, of the
-    same vehicle class, no farther from A's last position than `max_speed_mps` × the gap +
-    `slack_m` (the ground positions of far boxes are poor along the ray), and with an
-    appearance distance (L2 of the unit means) ≤ `max_distance`. The allowed pairs are
-    taken greedily, nearest appearance first, each track with at most one successor and
-    one predecessor.
+    Feed `add` every frame after the tracker's update with the detections' classes, their
+    ground positions as the tracks filtered them (`EgoTracker.positions`) and an appearance
+    embedding per detection (the ReID model's, L2-normalised; a NaN row for a box not
+    embedded: `ReidEmbedder.embed_boxes` embeds the boxes at least `min_box_px` high). Then
+    `apply` takes the ids reported for those frames (a tracker's online ids, or `backfill`'s)
+    and returns them re-linked:
+
+    1. **Cut.** A track's embeddings in time order are cut in two where the means of the two
+       parts (at least `split_min_crops` each) are farthest apart, if that is more than
+       `split_distance`; the later part gets a new id.
+    2. **Join.** A track's look is the mean of its embeddings. Track B may follow track A
+       when B's first box comes after A's last (one camera never sees a vehicle twice at
+       once), within `max_gap_s`, of the same vehicle class, no farther from A's last
+       position than `max_speed_mps` × the gap + `slack_m` (the ground positions of far
+       boxes are poor along the ray), and with an appearance distance (L2 of the unit
+       means) ≤ `max_distance`. The allowed pairs are taken greedily, nearest look first,
+       each track with at most one successor and one predecessor; a chain takes the id of
+       its first track. A cut made where the look did not really change is joined again.
 
     Settings chosen on development recordings with the shipped ReID model (README,
     "Re-linking tracks by appearance"): the tracks of one vehicle are a median 0.39 apart
@@ -499,48 +505,88 @@ class Relink:
     min_box_px: float = 10.0
     max_speed_mps: float = 25.0
     slack_m: float = 10.0
-    _tracks: dict = field(default_factory=dict, repr=False)
+    split_distance: float | None = 0.8
+    split_min_crops: int = 5
+    _frames: list = field(default_factory=list, repr=False)
 
-    def add(self, t: float, track_of: np.ndarray, class_ids: np.ndarray,
-            positions: np.ndarray, embeddings: np.ndarray | None) -> None:
-        """One frame: (N,) raw track per detection (≤ 0: none), (N,) class ids, (N, 2)
-        ground positions, (N, D) embeddings (NaN rows: none; None: none at all)."""
-        eta = VEHICLE_CLASS_INDEX[np.asarray(class_ids, np.int64)] if len(track_of) else ()
-        for j, tid in enumerate(np.asarray(track_of).tolist()):
-            if tid <= 0:
-                continue
-            r = self._tracks.get(tid)
-            if r is None:
-                r = self._tracks[tid] = {"t0": float(t), "p0": np.array(positions[j], float),
-                                         "votes": np.zeros(5), "emb": None, "n": 0}
-            r["t1"] = float(t)
-            r["p1"] = np.array(positions[j], float)
-            r["votes"][eta[j]] += 1
-            if embeddings is not None and not np.isnan(embeddings[j, 0]):
-                e = np.asarray(embeddings[j], np.float64)
-                r["emb"] = e if r["emb"] is None else r["emb"] + e
-                r["n"] += 1
+    def add(self, t: float, class_ids: np.ndarray, positions: np.ndarray,
+            embeddings: np.ndarray | None) -> None:
+        """One frame: (N,) class ids, (N, 2) ground positions, (N, D) embeddings (NaN
+        rows: none; None: none at all)."""
+        cls = np.asarray(class_ids, np.int64)
+        self._frames.append((float(t), VEHICLE_CLASS_INDEX[cls] if len(cls) else cls,
+                             np.asarray(positions, np.float64).reshape(-1, 2),
+                             None if embeddings is None else np.asarray(embeddings, np.float32)))
 
-    def links(self, ids=None) -> dict[int, int]:
-        """{track id: id of the first track of its chain} for every track seen (a track
-        not re-linked maps to itself). ``ids``: only these tracks take part (e.g. the
-        confirmed ones, those a tracker reported); None: all."""
-        tr = {k: r for k, r in self._tracks.items() if ids is None or k in ids}
-        app = {k: r["emb"] / np.linalg.norm(r["emb"]) for k, r in tr.items()
-               if r["n"] and np.linalg.norm(r["emb"]) > 0}
-        cls = {k: int(np.argmax(r["votes"])) for k, r in tr.items()}
-        keys = sorted(app)
+    def apply(self, ids_per_frame) -> list[np.ndarray]:
+        """The ids reported for the added frames (−1: none), re-linked (the module
+        docstring of `Relink`): a chain of tracks carries the id of its first one, the
+        later part of a cut track a new id above every id given."""
+        if len(ids_per_frame) != len(self._frames):
+            raise ValueError(f"{len(ids_per_frame)} frames of ids for {len(self._frames)} added")
+        out = [np.array(ids, np.int64, copy=True) for ids in ids_per_frame]
+        occ: dict[int, list] = {}
+        for fi, ids in enumerate(out):
+            for j, i in enumerate(ids.tolist()):
+                if i > 0:
+                    occ.setdefault(i, []).append((fi, j))
+        nxt = max(occ, default=0) + 1
+        if self.split_distance is not None:
+            for i in sorted(occ):
+                cut = self._cut(occ[i])
+                if cut is not None:
+                    for fi, j in occ[i][cut:]:
+                        out[fi][j] = nxt
+                    occ[nxt] = occ[i][cut:]
+                    occ[i] = occ[i][:cut]
+                    nxt += 1
+        head = self._join(occ)
+        return [np.array([head.get(i, i) if i > 0 else i for i in ids.tolist()], np.int64)
+                for ids in out]
+
+    def _emb(self, fi: int, j: int) -> np.ndarray | None:
+        e = self._frames[fi][3]
+        return None if e is None or np.isnan(e[j, 0]) else e[j].astype(np.float64)
+
+    def _cut(self, boxes: list) -> int | None:
+        """Where to cut one track (index into its boxes), or None."""
+        k = self.split_min_crops
+        seen = [(n, e) for n, (fi, j) in enumerate(boxes)
+                if (e := self._emb(fi, j)) is not None]
+        if len(seen) < 2 * max(k, 1):
+            return None
+        c = np.cumsum([e for _, e in seen], 0)
+        m = np.arange(max(k, 1), len(seen) - max(k, 1) + 1)
+        a, b = c[m - 1], c[-1] - c[m - 1]
+        d = np.linalg.norm(a / np.linalg.norm(a, axis=1, keepdims=True)
+                           - b / np.linalg.norm(b, axis=1, keepdims=True), axis=1)
+        best = int(np.argmax(d))
+        return seen[m[best]][0] if d[best] > self.split_distance else None
+
+    def _join(self, occ: dict) -> dict[int, int]:
+        """{track id: id of the first track of its chain}."""
+        tr = {}
+        for i, boxes in occ.items():
+            (f0, j0), (f1, j1) = boxes[0], boxes[-1]
+            votes = np.zeros(5)
+            s, n = None, 0
+            for fi, j in boxes:
+                votes[self._frames[fi][1][j]] += 1
+                e = self._emb(fi, j)
+                if e is not None:
+                    s, n = (e if s is None else s + e), n + 1
+            if n and np.linalg.norm(s) > 0:
+                tr[i] = (self._frames[f0][0], self._frames[f1][0], self._frames[f0][2][j0],
+                         self._frames[f1][2][j1], int(np.argmax(votes)), s / np.linalg.norm(s))
         pairs = []
-        for a in keys:
-            ra = tr[a]
-            for b in keys:
-                rb = tr[b]
-                gap = rb["t0"] - ra["t1"]
-                if gap <= 0 or gap > self.max_gap_s or cls[a] != cls[b]:
+        for a, (_, ta1, _, pa1, ca, ua) in tr.items():
+            for b, (tb0, _, pb0, _, cb, ub) in tr.items():
+                gap = tb0 - ta1
+                if gap <= 0 or gap > self.max_gap_s or ca != cb:
                     continue
-                if np.hypot(*(rb["p0"] - ra["p1"])) > self.max_speed_mps * gap + self.slack_m:
+                if np.hypot(*(pb0 - pa1)) > self.max_speed_mps * gap + self.slack_m:
                     continue
-                d = float(np.linalg.norm(app[a] - app[b]))
+                d = float(np.linalg.norm(ua - ub))
                 if d <= self.max_distance:
                     pairs.append((d, a, b))
         pairs.sort()
@@ -550,15 +596,9 @@ class Relink:
             if a not in succ and b not in pred:
                 succ[a], pred[b] = b, a
         head: dict[int, int] = {}
-        for k in sorted(tr, key=lambda k: (tr[k]["t0"], k)):
-            head[k] = head[pred[k]] if k in pred else k
+        for i in sorted(occ, key=lambda i: (self._frames[occ[i][0][0]][0], i)):
+            head[i] = head[pred[i]] if i in pred else i
         return head
-
-
-def relink(ids_per_frame, links: dict[int, int]) -> list[np.ndarray]:
-    """Every frame's reported ids (−1: none) with `Relink.links` applied."""
-    return [np.array([links.get(i, i) if i > 0 else i for i in np.asarray(ids).tolist()],
-                     np.int64) for ids in ids_per_frame]
 
 
 TRACKERS: tuple[str, ...] = ("sort", "ego")
