@@ -493,7 +493,8 @@ class Relink:
        boxes are poor along the ray), and with an appearance distance (L2 of the unit
        means) ≤ `max_distance`. The allowed pairs are taken greedily, nearest look first,
        each track with at most one successor and one predecessor; a chain takes the id of
-       its first track. A cut made where the look did not really change is joined again.
+       its first track. (The two parts of a cut are more than ``split_distance`` apart, so
+       they are never joined to each other.)
 
     Settings chosen on development recordings with the shipped ReID model (README,
     "Re-linking tracks by appearance"): the tracks of one vehicle are a median 0.39 apart
