@@ -33,8 +33,8 @@ def test_tracker_eval_json_has_the_metrics_per_tracker(small_run, gl_available, 
     assert off["num_gt"] == r["ego"]["num_gt"]
     assert off["num_tracked"] > r["ego"]["num_tracked"]
     assert off["mota"] > r["ego"]["mota"] and off["idf1"] >= r["ego"]["idf1"]
-    # and then the tracks of one vehicle that a gap split re-linked by appearance (on this
-    # short run none is split: the same scores)
+    # and re-linked by appearance (tracks cut where their look changes, the tracks of one
+    # vehicle that a gap split joined): on this short run nothing is cut or joined
     assert r["reid_model"].endswith(".onnx")
     for n, base in (("ego+relink", r["ego"]), ("ego+backfill+relink", off)):
         rl = r[n]

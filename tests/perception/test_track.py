@@ -296,7 +296,6 @@ def test_relink_cuts_a_track_where_its_look_changes_and_joins_the_parts():
     look_a, look_b = _unit([1, 0, 0, 0]), _unit([0, 1, 0, 0])
     rows = [(1, 0, 19, (0, 0), lambda f: look_a if f < 10 else look_b, 0),
             (2, 24, 30, (24, 0), look_a, 0), (3, 0, 4, (3, 0), look_b, 0)]
-    ids = None
     for split, want in ((0.8, {1: {1, 3}, 2: {1}, 3: {3}}), (None, {1: {1}, 2: {2}, 3: {3}})):
         rl = Relink(split_distance=split)
         ids = _feed(rl, rows, 31)
