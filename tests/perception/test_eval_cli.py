@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 from dashtraj.cli import main
+from dashtraj.perception.track import Relink
 
 
 def test_tracker_eval_json_has_the_metrics_per_tracker(small_run, gl_available, capsys):
@@ -35,7 +36,7 @@ def test_tracker_eval_json_has_the_metrics_per_tracker(small_run, gl_available, 
     assert off["mota"] > r["ego"]["mota"] and off["idf1"] >= r["ego"]["idf1"]
     # and re-linked by appearance (tracks cut where their look changes, the tracks of one
     # vehicle that a gap split joined): on this short run nothing is cut or joined
-    assert r["reid_model"].endswith(".onnx")
+    assert r["reid_model"].endswith(".onnx") and r["relink_cut"] == Relink().split_distance
     for n, base in (("ego+relink", r["ego"]), ("ego+backfill+relink", off)):
         rl = r[n]
         assert rl["num_gt"] == base["num_gt"] and rl["num_tracked"] == base["num_tracked"]

@@ -39,8 +39,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "default on)")
     e.add_argument("--reid-model", default=None, metavar="M.onnx",
                    help="--relink's ReID model (default: the shipped one)")
+    e.add_argument("--relink-cut", type=_cut_distance, default=None, metavar="D|none",
+                   help="--relink cuts a track where the mean looks of its two parts are more "
+                        "than D apart (default: Relink's, 0.8; none: never cut, only join)")
     e.add_argument("--json", action="store_true", help="print the result as JSON")
     e.set_defaults(func=run_eval)
+
+
+def _cut_distance(text: str) -> float | str:
+    """``--relink-cut``: a number > 0, or ``"none"``."""
+    from dashtraj.cli._args import positive_float
+
+    return "none" if text.strip().lower() == "none" else positive_float(text)
 
 
 def run_eval(args: argparse.Namespace) -> int:
@@ -65,6 +75,8 @@ def run_eval(args: argparse.Namespace) -> int:
                             f"{', '.join(PEER_NAMES)}")
     recs = [open_recording(r) for r in args.recordings]
     embedder = None
+    settings = ({} if args.relink_cut is None else
+                {"split_distance": None if args.relink_cut == "none" else args.relink_cut})
     if args.relink:
         from pathlib import Path
 
@@ -80,11 +92,16 @@ def run_eval(args: argparse.Namespace) -> int:
     res = tracker_eval(recs, args.trackers, peers, args.detector, args.every, size,
                        args.agnostic_nms, args.min_score, args.confirm_score,
                        pose_noise=args.pose_noise, pose_noise_seed=args.pose_noise_seed,
-                       calibrate_pitch=args.calibrate_pitch, embedder=embedder)
+                       calibrate_pitch=args.calibrate_pitch, embedder=embedder,
+                       relink_settings=settings)
     res["pose_noise"] = None if args.pose_noise is None else list(args.pose_noise)
     res["calibrate_pitch"] = args.calibrate_pitch
     res["detector"] = args.detector
     res["reid_model"] = None if embedder is None else str(embedder.path)
+    if embedder is not None:
+        from dashtraj.perception.track import Relink
+
+        res["relink_cut"] = Relink(**settings).split_distance
     res.update(detector_filters_used(args))
     res["peers_skipped"] = None if peers or not wanted else why
     if args.json:
