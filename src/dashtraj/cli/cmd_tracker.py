@@ -22,8 +22,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "(TrackEval's definitions). BoxMOT's ByteTrack, OC-SORT and BoT-SORT (ECC) run "
             "as peers when the boxmot package can be imported (pip install '.[bench]'). "
             "ego is also scored offline: +backfill (a confirmed track's first boxes get its "
-            "id), +relink (the tracks of one vehicle that a gap split joined by their "
-            "ReID embeddings) and +backfill+relink (both)."),
+            "id), +relink (tracks cut where their look changes and the tracks of one "
+            "vehicle that a gap split joined, by their ReID embeddings) and "
+            "+backfill+relink (both)."),
     )
     add_frame_source_args(e, every_s=0.1)
     add_pose_noise_args(e)
@@ -34,9 +35,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "give none to skip)")
     e.add_argument("--relink", action=argparse.BooleanOptionalAction, default=True,
                    help="also score ego+relink and ego+backfill+relink: ego's output with "
-                        "the tracks of one vehicle that a gap split re-linked by appearance "
-                        "(every box >= 10 px high at 720 rows embedded by the ReID model; "
-                        "default on)")
+                        "its tracks cut where their look changes (--relink-cut) and the "
+                        "tracks of one vehicle that a gap split joined, by appearance (every "
+                        "box >= 10 px high at 720 rows embedded by the ReID model; default on)")
     e.add_argument("--reid-model", default=None, metavar="M.onnx",
                    help="--relink's ReID model (default: the shipped one)")
     e.add_argument("--relink-cut", type=_cut_distance, default=None, metavar="D|none",

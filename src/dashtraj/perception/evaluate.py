@@ -179,7 +179,8 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
                                    + rl_names}
     ign_counts: dict[str, list] = {n: [] for n in all_counts}
     kept: dict[str, list] = {n: [] for n in offline}  # this observer's frames, for backfill
-    rl_cfg = Relink(**(relink_settings or {}))
+    relink_settings = relink_settings or {}
+    min_px = Relink(**relink_settings).min_box_px  # at 720 rows
     relinks: dict[str, Relink] = {}
 
     def flush() -> None:
@@ -226,15 +227,15 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
                 state = {n: build_tracker(n, spec, confirm_score) for n in trackers}
                 state.update({n: f(spec) for n, f in peers.items()})
                 if embedder is not None:
-                    relinks = {n: Relink(**(relink_settings or {})) for n in offline}
+                    relinks = {n: Relink(**relink_settings) for n in offline}
                 seqs = {n: Sequence() for n in names}
                 iseqs = {n: Sequence() for n in names}
             n_frames += 1
             d, gt, sc = ef.detections, ef.truth, ef.scored
             ignored = np.setdiff1d(gt.truth_ids, sc.truth_ids)
             on_ignored = np.isin(d.truth_ids, ignored)
-            emb = (embedder.embed_boxes(ef.rgb, d.boxes, rl_cfg.min_box_px * spec.height_px
-                                        / 720.0) if embedder is not None else None)
+            emb = (embedder.embed_boxes(ef.rgb, d.boxes, min_px * spec.height_px / 720.0)
+                   if embedder is not None else None)
             for n in names:
                 t0 = time.perf_counter()
                 if n in peers:

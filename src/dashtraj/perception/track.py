@@ -515,7 +515,7 @@ class Relink:
         """One frame: (N,) class ids, (N, 2) ground positions, (N, D) embeddings (NaN
         rows: none; None: none at all)."""
         cls = np.asarray(class_ids, np.int64)
-        self._frames.append((float(t), VEHICLE_CLASS_INDEX[cls] if len(cls) else cls,
+        self._frames.append((float(t), VEHICLE_CLASS_INDEX[cls],
                              np.asarray(positions, np.float64).reshape(-1, 2),
                              None if embeddings is None else np.asarray(embeddings, np.float32)))
 
