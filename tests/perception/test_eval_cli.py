@@ -37,7 +37,9 @@ def test_tracker_eval_json_has_the_metrics_per_tracker(small_run, gl_available, 
     # and re-linked by appearance (tracks cut where their look changes, the tracks of one
     # vehicle that a gap split joined): on this short run nothing is cut or joined
     assert r["reid_model"].endswith(".onnx") and r["relink_cut"] == Relink().split_distance
-    for n, base in (("ego+relink", r["ego"]), ("ego+backfill+relink", off)):
+    # (and online, live: the same as it comes, `LiveRelink`)
+    for n, base in (("ego+relink", r["ego"]), ("ego+backfill+relink", off),
+                    ("ego+live-relink", r["ego"])):
         rl = r[n]
         assert rl["num_gt"] == base["num_gt"] and rl["num_tracked"] == base["num_tracked"]
         assert rl["idf1"] >= base["idf1"] >= 0.95

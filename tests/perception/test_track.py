@@ -15,6 +15,7 @@ from dashtraj.perception.detections import Detections, OracleDetector
 from dashtraj.perception.track import (
     Backfill,
     EgoTracker,
+    LiveRelink,
     Relink,
     TrackerError,
     backfill,
@@ -310,6 +311,69 @@ def test_relink_cuts_a_track_where_its_look_changes_and_joins_the_parts():
     assert [int(o[0]) for o in out[10:20]] == [3] * 10 and int(out[9][0]) == 1
 
 
+def _live(rows, n_frames, **settings):
+    """`LiveRelink` fed `_feed`'s tracks (every box reported, the tracker's track = its
+    id): {track id: [(frame, id reported)]}."""
+    live = LiveRelink(**settings)
+    got: dict = {}
+    for f in range(n_frames):
+        here = [r for r in rows if r[1] <= f <= r[2]]
+        k = np.array([r[0] for r in here], np.int64)
+        emb = np.array([(r[4](f) if callable(r[4]) else r[4]) for r in here], np.float64)
+        out = live.update(float(f), k, k, np.array([r[5] for r in here], np.int64),
+                          np.array([[r[3][0] + (f - r[1]), r[3][1]] for r in here],
+                                   np.float64).reshape(-1, 2), emb.reshape(len(here), 4))
+        for i, o in zip(k.tolist(), out.tolist(), strict=True):
+            got.setdefault(i, []).append((f, o))
+    return got
+
+
+def test_live_relink_joins_as_the_frames_come_within_the_rules():
+    """Track 2 (frames 5-8) has 1's look (0.10 apart) and joins it once it holds
+    `join_min_crops` = 3 embedded boxes (frame 7): its first two boxes keep their new id.
+    3 (another look), 4 (1's look but 500 m away), 5 (a truck) stay apart; 6 (frames
+    20-23) joins the chain 1-2 after that ended; 7 (a look of its own) is never
+    embedded thrice; 8 has 1's look but its third embedded box comes after
+    `join_window_s`; a box reported as -1 stays -1."""
+    look_a, look_b = _unit([1, 0, 0, 0]), _unit([1, 0.1, 0, 0])
+    other, nan = _unit([0.6, 0.8, 0, 0]), np.full(4, np.nan)
+    car, truck = 0, 3
+    rows = [(1, 0, 2, (0, 0), look_a, car), (2, 5, 8, (30, 0), look_b, car),
+            (3, 5, 8, (30, 2), other, car), (4, 1, 3, (500, 0), look_a, car),
+            (5, 5, 8, (31, 0), look_a, truck), (6, 20, 23, (0, 0), look_b, car),
+            (7, 30, 31, (0, 0), _unit([0, 0, 1, 0]), car),
+            (8, 40, 47, (0, 0), lambda f: look_a if f >= 45 else nan, car)]
+    ids = {k: [o for _, o in v] for k, v in _live(rows, 48).items()}
+    first = {k: v[0] for k, v in ids.items()}  # each track starts as an identity of its own
+    assert len(set(first.values())) == 8
+    assert ids[1] == [first[1]] * 3
+    assert ids[2] == [first[2]] * 2 + [first[1]] * 2
+    assert ids[6] == [first[6]] * 2 + [first[1]] * 2
+    assert all(set(ids[k]) == {first[k]} for k in (3, 4, 5, 7, 8))
+    live = LiveRelink()
+    out = live.update(0.0, np.array([1, 2]), np.array([-1, 2]), np.array([0, 0]),
+                      np.zeros((2, 2)), np.array([look_a, look_a]))
+    assert out.tolist() == [-1, 2]  # tracks 1 and 2 became identities 1 and 2
+
+
+def test_live_relink_cuts_a_swapped_track_and_joins_its_parts():
+    """`test_relink_cuts_a_track_where_its_look_changes_and_joins_the_parts`' swap, live:
+    track 1 takes car B's boxes at frame 10; the cut comes at frame 12, when the last 5
+    looks are mostly B's (2 of A, 3 of B: 0.94 from A's), and the new identity joins
+    B's earlier track 3; car A's later track 2 joins 1 after 3 boxes. Without the cut,
+    1 keeps B's boxes and its mean look (0.77 from A's) lets 2 join nothing."""
+    look_a, look_b = _unit([1, 0, 0, 0]), _unit([0, 1, 0, 0])
+    rows = [(1, 0, 19, (0, 0), lambda f: look_a if f < 10 else look_b, 0),
+            (2, 24, 30, (24, 0), look_a, 0), (3, 0, 4, (3, 0), look_b, 0)]
+    ids = {k: [o for _, o in v] for k, v in _live(rows, 31).items()}
+    first = {k: v[0] for k, v in ids.items()}
+    assert ids[1] == [first[1]] * 12 + [first[3]] * 8
+    assert ids[2] == [first[2]] * 2 + [first[1]] * 5
+    ids = {k: [o for _, o in v] for k, v in _live(rows, 31, split_distance=None).items()}
+    assert len({v[0] for v in ids.values()}) == 3
+    assert all(len(set(v)) == 1 for v in ids.values())
+
+
 @pytest.fixture(scope="module")
 def reid_model():
     from dashtraj.reid.embed import ReidEmbedder
@@ -319,22 +383,25 @@ def reid_model():
 
 def _identities(frames, embedder):
     """`EgoTracker` without its out-of-view memory on the frames, then `Relink` with the
-    shipped ReID model's embeddings: (vehicles per backfilled track, per re-linked id)."""
+    shipped ReID model's embeddings: (vehicles per backfilled track, per re-linked id,
+    per id of `LiveRelink` on the online ids)."""
     tracker = EgoTracker(spec=SPEC, out_of_view_s=0.0)
     det = OracleDetector()
-    rl = Relink()
-    ids_l, raw_l, truth = [], [], []
+    rl, live = Relink(), LiveRelink()
+    ids_l, raw_l, live_l, truth = [], [], [], []
     for f in frames:
         d = det.detect(f)
         ids_l.append(tracker.update(d, f.t, f.pose))
         raw_l.append(tracker.track_of.copy())
         truth.append(d.truth_ids)
-        rl.add(f.t, d.class_ids, tracker.positions,
-               embedder.embed_boxes(f.frame_data.rgb, d.boxes, rl.min_box_px))
+        emb = embedder.embed_boxes(f.frame_data.rgb, d.boxes, rl.min_box_px)
+        rl.add(f.t, d.class_ids, tracker.positions, emb)
+        live_l.append(live.update(f.t, tracker.track_of, ids_l[-1], d.class_ids,
+                                  tracker.positions, emb))
     ids_b = backfill(ids_l, raw_l)
     out = rl.apply(ids_b)
     per = []
-    for ids_per_frame in (ids_b, out):
+    for ids_per_frame in (ids_b, out, live_l):
         m: dict = {}
         for ids, tr in zip(ids_per_frame, truth, strict=True):
             for i, v in zip(ids.tolist(), tr.tolist(), strict=True):
@@ -349,9 +416,10 @@ def test_relink_gives_a_car_back_its_identity_after_a_glance_away(gl_available, 
     comes back as a new track (4 tracks); re-linked by appearance, each car has one
     identity again, and the right one (the two cars look different)."""
     frames = render_scene(look_away_two_scene(hz=10.0), SPEC)
-    tracks, ids = _identities(frames, reid_model)
+    tracks, ids, live = _identities(frames, reid_model)
     assert tracks == [[1], [1], [2], [2]]
     assert ids == [[1], [2]]
+    assert live == [[1], [2]]  # online too: each comes back under its first identity
 
 
 def test_relink_keeps_other_cars_apart_where_the_lost_ones_would_be(gl_available, reid_model):
@@ -365,6 +433,6 @@ def test_relink_keeps_other_cars_apart_where_the_lost_ones_would_be(gl_available
     cars = [i for i in catalog.identities() if i.model.vehicle_class == "car"]
     looks = {1: cars[0], 2: cars[7], 3: cars[22], 4: cars[30]}
     frames = render_scene(look_away_two_scene(hz=10.0, swap=True), SPEC, looks)
-    tracks, ids = _identities(frames, reid_model)
+    tracks, ids, live = _identities(frames, reid_model)
     assert tracks == [[1], [2], [3], [4]]
-    assert ids == tracks
+    assert ids == live == tracks

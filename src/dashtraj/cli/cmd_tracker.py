@@ -23,8 +23,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "as peers when the boxmot package can be imported (pip install '.[bench]'). "
             "ego is also scored offline: +backfill (a confirmed track's first boxes get its "
             "id), +relink (tracks cut where their look changes and the tracks of one "
-            "vehicle that a gap split joined, by their ReID embeddings) and "
-            "+backfill+relink (both)."),
+            "vehicle that a gap split joined, by their ReID embeddings), "
+            "+backfill+relink (both); and online: +live-relink (the same cut and join done "
+            "frame by frame, as a live camera must report its ids)."),
     )
     add_frame_source_args(e, every_s=0.1)
     add_pose_noise_args(e)
@@ -34,7 +35,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="BoxMOT peers (default: bytetrack ocsort botsort when boxmot imports; "
                         "give none to skip)")
     e.add_argument("--relink", action=argparse.BooleanOptionalAction, default=True,
-                   help="also score ego+relink and ego+backfill+relink: ego's output with "
+                   help="also score ego+relink, ego+backfill+relink and ego+live-relink: "
+                        "ego's output with "
                         "its tracks cut where their look changes (--relink-cut) and the "
                         "tracks of one vehicle that a gap split joined, by appearance (every "
                         "box >= 10 px high at 720 rows embedded by the ReID model; default on)")
@@ -111,7 +113,8 @@ def run_eval(args: argparse.Namespace) -> int:
     print(f"{len(recs)} recordings, {res['sequences']} observer videos, {res['frames']} frames, "
           f"detector {args.detector}")
     offline = [f"{n}+{k}" for n in args.trackers
-               for k in ("backfill", "relink", "backfill+relink") if f"{n}+{k}" in res]
+               for k in ("backfill", "relink", "backfill+relink", "live-relink")
+               if f"{n}+{k}" in res]
     for n in [*args.trackers, *offline, *peers]:
         r = res[n]
         ig = r["ignore_regions"]

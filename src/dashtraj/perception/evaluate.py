@@ -34,7 +34,13 @@ from dashtraj.perception.detections import (
 from dashtraj.perception.localize import build_localizer
 from dashtraj.perception.mot_metrics import Sequence, counts, summarize
 from dashtraj.perception.pipeline import camera_pose_of, image_camera
-from dashtraj.perception.track import CONFIRM_SCORE, Relink, backfill, build_tracker
+from dashtraj.perception.track import (
+    CONFIRM_SCORE,
+    LiveRelink,
+    Relink,
+    backfill,
+    build_tracker,
+)
 
 BANDS_M = {"lt20": (0.0, 20.0), "20_60": (20.0, 60.0)}
 
@@ -155,7 +161,10 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
             split re-linked by appearance
             (`dashtraj.perception.track.Relink`, ``relink_settings`` its settings; every
             box at least ``Relink.min_box_px`` high at 720 rows is embedded), and as
-            ``"<name>+backfill+relink"``, its backfilled output re-linked.
+            ``"<name>+backfill+relink"``, its backfilled output re-linked, and as
+            ``"<name>+live-relink"``, its output re-linked online as it comes
+            (`dashtraj.perception.track.LiveRelink`, with ``relink_settings``' join and
+            cut settings).
 
     Returns:
         {tracker: {"hota", "deta", "assa", "idf1", "mota", "idsw", ..., "updates",
@@ -173,7 +182,8 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
     peers = peers or {}
     names = list(trackers) + list(peers)
     offline = [n for n in trackers if hasattr(build_tracker(n), "track_of")]
-    rl_names = ([n + s for n in offline for s in ("+relink", "+backfill+relink")]
+    rl_names = ([n + s for n in offline
+                 for s in ("+relink", "+backfill+relink", "+live-relink")]
                 if embedder is not None else [])
     all_counts: dict[str, list] = {n: [] for n in names + [n + "+backfill" for n in offline]
                                    + rl_names}
@@ -182,6 +192,9 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
     relink_settings = relink_settings or {}
     min_px = Relink(**relink_settings).min_box_px  # at 720 rows
     relinks: dict[str, Relink] = {}
+    live_settings = {k: v for k, v in relink_settings.items()
+                     if k in LiveRelink.__dataclass_fields__}
+    lives: dict[str, tuple] = {}  # name: (LiveRelink, Sequence, Sequence of ignore regions)
 
     def flush() -> None:
         for n in names:
@@ -204,6 +217,9 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
                         _score_frame(a, b, gt, sc, on_ignored, x, boxes)
                     all_counts[n + name].append(counts(a))
                     ign_counts[n + name].append(counts(b))
+            if n in lives:
+                all_counts[n + "+live-relink"].append(counts(lives[n][1]))
+                ign_counts[n + "+live-relink"].append(counts(lives[n][2]))
             frames.clear()
 
     seconds = dict.fromkeys(names, 0.0)
@@ -228,6 +244,8 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
                 state.update({n: f(spec) for n, f in peers.items()})
                 if embedder is not None:
                     relinks = {n: Relink(**relink_settings) for n in offline}
+                    lives = {n: (LiveRelink(**live_settings), Sequence(), Sequence())
+                             for n in offline}
                 seqs = {n: Sequence() for n in names}
                 iseqs = {n: Sequence() for n in names}
             n_frames += 1
@@ -247,6 +265,11 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
                     kept[n].append((gt, sc, on_ignored, d.boxes, ids, state[n].track_of.copy()))
                 if n in relinks:
                     relinks[n].add(ef.t, d.class_ids, state[n].positions, emb)
+                if n in lives:
+                    live, a, b = lives[n]
+                    x = live.update(ef.t, state[n].track_of, ids, d.class_ids,
+                                    state[n].positions, emb)
+                    _score_frame(a, b, gt, sc, on_ignored, x, d.boxes)
                 _score_frame(seqs[n], iseqs[n], gt, sc, on_ignored, ids, d.boxes)
         if current is not None:
             flush()

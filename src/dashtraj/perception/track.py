@@ -43,6 +43,7 @@ embeddings); `dashtraj tracker eval` scores both.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -600,6 +601,162 @@ class Relink:
         for i in sorted(occ, key=lambda i: (self._frames[occ[i][0][0]][0], i)):
             head[i] = head[pred[i]] if i in pred else i
         return head
+
+
+@dataclass
+class LiveRelink:
+    """`Relink` done online, frame by frame, for a tracker that must report an id the
+    moment it sees a box (a live dashcam; `dashtraj tracker eval` scores it as
+    ``"<name>+live-relink"``). Feed `update` every frame after the tracker's: the
+    tracker's ``track_of`` (every detection's track, confirmed or not), the ids it
+    reported, the classes, the filtered ground positions and the embeddings (NaN rows:
+    none; `Relink.add`'s). It returns the ids to report instead. Each tracker track is an
+    identity of its own, unless:
+
+    1. **Join.** For `join_window_s` after an identity appeared, once it holds
+       `join_min_crops` embedded boxes, it takes over an identity that is out of sight
+       now, with `Relink`'s join rules against the mean of the boxes seen so far: it
+       started after the other's last box, within `max_gap_s`, the same vehicle class,
+       no farther than `max_speed_mps` × the gap + `slack_m`, mean looks ≤
+       `max_distance` apart (nearest first). The boxes reported before the join keep the
+       identity they had.
+    2. **Cut.** When the mean of a track's last `split_crops` embedded boxes is more than
+       `split_distance` from the mean of its earlier ones (at least as many) since its
+       identity began, the track goes on as a new identity (which may join in turn).
+
+    What it cannot do that `Relink` does: look at a track's later boxes when it decides
+    on a join, or cut a track where the look changed rather than `split_crops` boxes
+    later. Settings: `Relink`'s; the window and crop count chosen on the development
+    recordings (README, "Re-linking tracks by appearance").
+    """
+
+    max_distance: float = 0.6
+    max_gap_s: float = 30.0
+    max_speed_mps: float = 25.0
+    slack_m: float = 10.0
+    split_distance: float | None = 0.8
+    split_crops: int = 5
+    join_window_s: float = 3.0
+    join_min_crops: int = 3
+    _of: dict = field(default_factory=dict, repr=False)   # tracker track -> identity
+    _seg: dict = field(default_factory=dict, repr=False)  # track -> its looks' sum, count, last
+    _ids: dict = field(default_factory=dict, repr=False)  # identity -> _Identity
+    _next: int = 1
+
+    def update(self, t: float, track_of: np.ndarray, ids: np.ndarray,
+               class_ids: np.ndarray, positions: np.ndarray,
+               embeddings: np.ndarray | None) -> np.ndarray:
+        """One frame; returns (N,) the identity of every detection the tracker reported
+        (``ids`` > 0), −1 elsewhere."""
+        t = float(t)
+        track_of = np.asarray(track_of, np.int64)
+        eta = VEHICLE_CLASS_INDEX[np.asarray(class_ids, np.int64)]
+        positions = np.asarray(positions, np.float64).reshape(-1, 2)
+        here: set[int] = set()
+        for j, k in enumerate(track_of.tolist()):
+            if k < 0:
+                continue
+            if k not in self._of:
+                self._of[k] = self._new(t, positions[j])
+                self._seg[k] = (0.0, 0, deque(maxlen=max(self.split_crops, 1)))
+            e = None
+            if embeddings is not None and not np.isnan(embeddings[j, 0]):
+                e = np.asarray(embeddings[j], np.float64)
+                if self.split_distance is not None:
+                    e = self._cut(k, e, t, positions[j])
+            ident = self._ids[self._of[k]]
+            ident.t1, ident.p1 = t, positions[j]
+            ident.votes[eta[j]] += 1
+            if e is not None:
+                ident.add(e)
+            here.add(self._of[k])
+        self._join(t, here)
+        out = np.full(len(track_of), -1, np.int64)
+        for j in np.flatnonzero(np.asarray(ids) > 0):
+            out[j] = self._of[int(track_of[j])]
+        return out
+
+    def _new(self, t: float, p: np.ndarray) -> int:
+        i = self._next
+        self._next += 1
+        self._ids[i] = _Identity(t, p)
+        return i
+
+    def _cut(self, k: int, e: np.ndarray, t: float, p: np.ndarray) -> np.ndarray | None:
+        """Add ``e`` to track ``k``'s looks; on a cut, start its new identity with the
+        last `split_crops` looks and return None (``e`` is among them), else ``e``."""
+        n = max(self.split_crops, 1)
+        total, count, last = self._seg[k]
+        last.append(e)
+        total, count = total + e, count + 1
+        self._seg[k] = (total, count, last)
+        if count < 2 * n:
+            return e
+        b = np.sum(last, 0)
+        a = total - b
+        if np.linalg.norm(a / np.linalg.norm(a) - b / np.linalg.norm(b)) <= self.split_distance:
+            return e
+        self._of[k] = i = self._new(t, p)
+        self._seg[k] = (b, n, last)
+        self._ids[i].s, self._ids[i].n = b, n
+        return None
+
+    def _join(self, t: float, here: set[int]) -> None:
+        for i in [i for i, d in self._ids.items()  # forget what can no longer be joined
+                  if i not in here and t - d.t1 > self.max_gap_s + self.join_window_s]:
+            del self._ids[i]
+        pairs = []
+        for y in here:
+            Y = self._ids[y]
+            if not Y.young or t - Y.t0 > self.join_window_s:
+                Y.young = False
+                continue
+            if Y.n < self.join_min_crops:
+                continue
+            uy, cy = Y.look(), int(np.argmax(Y.votes))
+            for a, A in self._ids.items():
+                if a in here or A.n == 0:
+                    continue
+                gap = Y.t0 - A.t1
+                if gap <= 0 or gap > self.max_gap_s or int(np.argmax(A.votes)) != cy:
+                    continue
+                if np.hypot(*(Y.p0 - A.p1)) > self.max_speed_mps * gap + self.slack_m:
+                    continue
+                d = float(np.linalg.norm(uy - A.look()))
+                if d <= self.max_distance:
+                    pairs.append((d, y, a))
+        pairs.sort()
+        done: set[int] = set()
+        for _, y, a in pairs:
+            if y in done or a in done:
+                continue
+            done |= {y, a}
+            Y, A = self._ids.pop(y), self._ids[a]
+            for k, i in self._of.items():
+                if i == y:
+                    self._of[k] = a
+            A.s, A.n, A.votes = A.s + Y.s, A.n + Y.n, A.votes + Y.votes
+            A.t1, A.p1, A.young = Y.t1, Y.p1, False
+
+
+class _Identity:
+    """One identity of `LiveRelink`: its first and last sighting, class votes and the
+    sum of its looks."""
+
+    __slots__ = ("n", "p0", "p1", "s", "t0", "t1", "votes", "young")
+
+    def __init__(self, t: float, p: np.ndarray):
+        self.t0 = self.t1 = t
+        self.p0 = self.p1 = np.asarray(p, np.float64)
+        self.votes = np.zeros(5)
+        self.s, self.n = 0.0, 0
+        self.young = True
+
+    def add(self, e: np.ndarray) -> None:
+        self.s, self.n = self.s + e, self.n + 1
+
+    def look(self) -> np.ndarray:
+        return self.s / np.linalg.norm(self.s)
 
 
 TRACKERS: tuple[str, ...] = ("sort", "ego")
