@@ -9,7 +9,8 @@ stage ``detect_model`` beside the oracle), localize (fused; and smoothed, the wh
 sequence forward then both directions, per frame), track (sort, ego),
 map-match, crops (JPEG of the detections within 15 m), relink (`tracker eval`'s offline
 re-linking of ego's tracks: every box >= 10 px high embedded by the shipped ReID model,
-then `Relink.apply`), and the database write. Then
+then `Relink.apply`; live_relink_update: `LiveRelink.update` on those embeddings, the
+online re-linking without the embedding), and the database write. Then
 `perceive` with that detector of one observer (one process; pipelined, the default, and in
 turn on one thread, ``parallel_frames=0``, with their ratio) and of two observers with
 2 workers, frames/s per observer (render included). Trackers: updates/s on the cached detections
@@ -38,18 +39,18 @@ def stages(rec, observer: int, model: str | None = None) -> tuple[dict, list]:
     from dashtraj.perception.localize import build_localizer
     from dashtraj.perception.mapmatch import map_match
     from dashtraj.perception.pipeline import camera_pose_of, image_camera
-    from dashtraj.perception.track import Relink, build_tracker
+    from dashtraj.perception.track import LiveRelink, Relink, build_tracker
     from dashtraj.reid.embed import ReidEmbedder
     from dashtraj.roads import RoadMap
 
     spec = image_camera(rec, None)
-    embedder, relink = ReidEmbedder(), Relink()
+    embedder, relink, live = ReidEmbedder(), Relink(), LiveRelink()
     road_map = RoadMap.from_file(rec.map_path)
     r = open_renderer(rec.map_path, spec.width_px, spec.height_px, spec.fov_deg, msaa=0)
     det, loc = OracleDetector(), build_localizer("fused")
     trk = {n: build_tracker(n, spec) for n in ("sort", "ego")}
     t = dict.fromkeys(("render", "detect", "localize", "track_sort", "track_ego", "mapmatch",
-                       "crops", "relink"), 0.0)
+                       "crops", "relink", "live_relink_update"), 0.0)
     mdet = None
     if model is not None:
         from dashtraj.perception.detections import build_detector
@@ -93,6 +94,10 @@ def stages(rec, observer: int, model: str | None = None) -> tuple[dict, list]:
         relink.add(rf.t, d.class_ids, trk["ego"].positions, emb)
         ego_ids.append(trk["ego"].track_of.copy())
         t["relink"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        eg = trk["ego"]
+        live.update(rf.t, eg.track_of, eg.track_of, d.class_ids, eg.positions, emb)
+        t["live_relink_update"] += time.perf_counter() - t0
         frames.append((rf.t, pose, d))
     r.release()
     t0 = time.perf_counter()

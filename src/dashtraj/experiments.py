@@ -130,6 +130,9 @@ class ExperimentConfig:
             tau_s)), drawn with the experiment's seed; None: the exact poses.
         calibrate_pitch: ``detections``/``vision``: perception self-calibrates each
             observer's camera pitch (`PerceiveConfig.calibrate_pitch`).
+        live_relink: ``detections``/``vision``: perception re-links the tracker's ids by
+            appearance as the frames come (`PerceiveConfig.live_relink`, with
+            ``reid_model``).
     """
 
     town: str = "town10"
@@ -158,6 +161,7 @@ class ExperimentConfig:
     drive: str | None = None
     pose_noise: tuple[float, float, float, float] | None = None
     calibrate_pitch: bool = False
+    live_relink: bool = False
 
     def __post_init__(self) -> None:
         if self.pose_noise is not None and self.sightings == "oracle":
@@ -166,6 +170,9 @@ class ExperimentConfig:
         if self.calibrate_pitch and self.sightings == "oracle":
             raise ExperimentError("--calibrate-pitch corrects the observers' poses in "
                                   "perception: it needs --sightings detections or vision")
+        if self.live_relink and self.sightings == "oracle":
+            raise ExperimentError("--live-relink re-links the tracks of perception: it needs "
+                                  "--sightings detections or vision")
         if self.drive is not None and self.sightings != "vision":
             raise ExperimentError(f"a drive is perceived from its images: sightings "
                                   f"{self.sightings!r} needs a simulated recording")
@@ -506,7 +513,10 @@ def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
                                               localizer=config.localizer,
                                               pose_noise=config.pose_noise,
                                               pose_noise_seed=config.seed,
-                                              calibrate_pitch=config.calibrate_pitch),
+                                              calibrate_pitch=config.calibrate_pitch,
+                                              live_relink=config.live_relink,
+                                              reid_model=(config.reid_model
+                                                          if config.live_relink else None)),
                  workers=config.workers, progress=progress)
     stages.note(f"perceive: {s.frames} frames, {s.detections} detections, {s.tracks} tracks, "
                 f"{s.crops} crops within {config.max_distance_m:g} m")
@@ -617,7 +627,10 @@ def target_sightings(config: ExperimentConfig, rec, out: Path, road_map,
                                               localizer=config.localizer,
                                               pose_noise=config.pose_noise,
                                               pose_noise_seed=config.seed,
-                                              calibrate_pitch=config.calibrate_pitch),
+                                              calibrate_pitch=config.calibrate_pitch,
+                                              live_relink=config.live_relink,
+                                              reid_model=(config.reid_model
+                                                          if config.live_relink else None)),
                  workers=config.workers)
         with SightingsDB.open(db_path) as db:
             truth = truth_of_tracks(db, config.max_distance_m)

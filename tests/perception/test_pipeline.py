@@ -99,6 +99,8 @@ def test_perceive_cli_refuses_existing_output_and_replaces_whole(small_run, gl_a
     (["--localizer", "lidar"], "unknown localizer 'lidar'; valid: paper, ground, fused"),
     (["--detector", "yolo"], "unknown detector 'yolo'"),
     (["--observers", "0"], "not observers"),
+    (["--live-relink", "--tracker", "sort"], "--live-relink re-links the ego tracker's"),
+    (["--live-relink", "--reid-model", "nope.onnx"], "--reid-model 'nope.onnx': no such"),
 ])
 def test_perceive_bad_settings_are_one_line_errors(small_run, gl_available, tmp_path, capsys,
                                                    bad, msg):
@@ -107,6 +109,38 @@ def test_perceive_bad_settings_are_one_line_errors(small_run, gl_available, tmp_
     err = capsys.readouterr().err
     assert msg in err and err.count("\n") == 1
     assert not (tmp_path / "r.db").exists()
+
+
+def test_live_relink_writes_its_ids_and_its_model(small_run, small_db, tmp_path):
+    """`perceive` with `PerceiveConfig.live_relink`: the ids written are `LiveRelink`'s
+    (one vehicle each here, the tracks table agreeing with the boxes, no more ids than the
+    tracker's), its ReID model's sha256 is in the run's meta, and a run perceived without
+    it takes no observers perceived with it."""
+    from dashtraj.digest import file_sha256
+    from dashtraj.perception.pipeline import PerceiveConfig, perceive, perceive_identity
+    from dashtraj.reid.embed import shipped_model_path
+    from dashtraj.store.append import StoreError, db_identity, same_run
+
+    path, _ = small_db
+    out = tmp_path / "live.db"
+    cfg = PerceiveConfig(observers=(1, 3), live_relink=True)
+    perceive(small_run, out, cfg)
+    with SightingsDB.open(out) as db, SightingsDB.open(path) as plain:
+        dets, tracks = db.detections(), db.tracks()
+        assert db.meta()["relink_model_sha256"] == file_sha256(shipped_model_path())
+        assert db.run_info()["config"]["live_relink"] is True
+        vehicles: dict = {}
+        for d in dets:
+            if d.track_id is not None:
+                vehicles.setdefault((d.observer_id, d.track_id), set()).add(d.truth_vehicle_id)
+        assert all(len(v) == 1 for v in vehicles.values())
+        assert {(t.observer_id, t.track_id): t.n_detections for t in tracks} == {
+            k: sum(1 for d in dets if (d.observer_id, d.track_id) == k) for k in vehicles}
+        assert 3 <= len(tracks) <= len(plain.tracks())
+        assert len(dets) == len(plain.detections())
+        with pytest.raises(StoreError, match="live_relink=False"):
+            same_run(db_identity(plain), perceive_identity(small_run, cfg), path)
+        same_run(db_identity(db), perceive_identity(small_run, cfg), out)
 
 
 def test_two_workers_write_the_same_content(small_run, small_db, tmp_path):

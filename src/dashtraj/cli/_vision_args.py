@@ -61,6 +61,10 @@ def add_vision_args(p: argparse.ArgumentParser, default_sightings: str | None = 
     p.add_argument("--localizer", default="smoothed", metavar="NAME",
                    help="detections/vision: perceive's localizer (paper, ground, fused, "
                         "tracked, smoothed or mapped; default smoothed)")
+    p.add_argument("--live-relink", action="store_true",
+                   help="detections/vision: perceive re-links ego's tracks by appearance as "
+                        "the frames come (dashtraj perceive --live-relink; the ReID model "
+                        "is --reid-model's)")
     add_detector_filter_args(p)
     add_pose_noise_args(p, with_seed=False)
 
@@ -101,7 +105,8 @@ def vision_settings(args) -> dict:
             "look": args.look, "image_size": size, "every_s": every, "workers": args.workers,
             "agnostic_nms_iou": args.agnostic_nms, "min_score": args.min_score,
             "confirm_score": args.confirm_score, "localizer": args.localizer,
-            "pose_noise": args.pose_noise, "calibrate_pitch": args.calibrate_pitch}
+            "pose_noise": args.pose_noise, "calibrate_pitch": args.calibrate_pitch,
+            "live_relink": args.live_relink}
 
 
 def check_reid_model(config) -> None:

@@ -175,6 +175,9 @@ def run(args) -> int:
         raise ArgumentError("--ablation with --calibrate-pitch: the error budget's stages are "
                             "measured from the exact poses (give --calibrate-pitch without "
                             "it)")
+    if args.ablation and args.live_relink:
+        raise ArgumentError("--ablation with --live-relink: the error budget's tracking stage "
+                            "is the tracker's own ids (give --live-relink without it)")
     if args.ablation and reid != "appearance":
         raise ArgumentError(f"--ablation with --reid {reid}: the ablation's last stage is "
                             "appearance ReID (leave --reid out)")

@@ -48,7 +48,7 @@ from dashtraj.perception.localize import CameraPose, build_localizer
 from dashtraj.perception.mapmatch import map_match
 from dashtraj.perception.posenoise import noise_process
 from dashtraj.perception.selfcal import PitchCalibrator
-from dashtraj.perception.track import CONFIRM_SCORE, build_tracker
+from dashtraj.perception.track import CONFIRM_SCORE, LiveRelink, Relink, build_tracker
 from dashtraj.store import (
     CropRow,
     DetectionRow,
@@ -98,6 +98,12 @@ class PerceiveConfig:
         calibrate_pitch: correct every observer's camera pitch by what the vehicles it
             sees say of the horizon (`dashtraj.perception.selfcal.PitchCalibrator`): for
             drives whose camera mount or INS pitch is known only to a degree or so.
+        live_relink: the ``ego`` tracker's ids re-linked by appearance as the frames come
+            (`dashtraj.perception.track.LiveRelink`; every box at least
+            ``Relink.min_box_px`` high at 720 rows embedded by ``reid_model``): the tracks
+            of one vehicle that a gap split share one id, and a track that went on with
+            another vehicle's boxes is cut.
+        reid_model: the ReID .onnx model of ``live_relink`` (None: the shipped one).
     """
 
     detector: str = "oracle"
@@ -121,6 +127,8 @@ class PerceiveConfig:
     pose_noise: tuple[float, float, float, float] | None = None
     pose_noise_seed: int = 0
     calibrate_pitch: bool = False
+    live_relink: bool = False
+    reid_model: str | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -134,6 +142,7 @@ class PerceiveConfig:
             if d.get(key) is not None:
                 d[key] = tuple(d[key])
         d.setdefault("confirm_score", 0.0)  # written before the rule: every track reported
+        d.setdefault("live_relink", False)  # written before it: the tracker's ids
         return cls(**d)
 
 
@@ -227,6 +236,14 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
     # is this tracker, updated once per frame (the same ids as updating both)
     shared = hasattr(localizer, "share_tracker") and localizer.share_tracker(tracker)
     noise = noise_process(config.pose_noise, config.pose_noise_seed, observer_id)
+    live = embedder = None
+    if config.live_relink:
+        from dashtraj.reid.embed import ReidEmbedder
+
+        embedder = ReidEmbedder(relink_model_path(config),
+                                2 if config.threads is None else config.threads)
+        live = LiveRelink()
+        min_px = Relink().min_box_px * spec.height_px / 720.0
     calibrator = PitchCalibrator() if config.calibrate_pitch else None
     if calibrator is not None and getattr(localizer, "offline", False):
         localizer.pitch_calibrator = calibrator  # it re-localizes with the offline pitch
@@ -262,8 +279,11 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
             loc = localizer.localize(det.boxes, det.class_ids, spec, pose)
         done.append(rf.frame)
         ids = localizer.track_ids if shared else tracker.update(det, rf.t, pose)
-        mm = map_match(road_map, loc.x, loc.y)
         rgb = rf.frame_data.rgb
+        if live is not None:  # the shared localizer updated ``tracker`` itself
+            ids = live.update(rf.t, tracker.track_of, ids, det.class_ids, tracker.positions,
+                              embedder.embed_boxes(rgb, det.boxes, min_px))
+        mm = map_match(road_map, loc.x, loc.y)
         shown = det.truth_ids.copy()  # matched: its truth; unmatched: what the box shows
         unmatched = shown < 0
         if unmatched.any():
@@ -404,9 +424,22 @@ def detector_sha256(detector: str) -> str:
 
 
 def run_meta(recording, config: PerceiveConfig) -> dict[str, str]:
-    """The ``meta`` rows a perception run adds: ``source_sha256``, ``detector_sha256``."""
-    return {"source_sha256": source_sha256(recording),
+    """The ``meta`` rows a perception run adds: ``source_sha256``, ``detector_sha256``,
+    and with `PerceiveConfig.live_relink` ``relink_model_sha256`` (its ReID model's)."""
+    meta = {"source_sha256": source_sha256(recording),
             "detector_sha256": detector_sha256(config.detector)}
+    if config.live_relink:
+        from dashtraj.digest import file_sha256
+
+        meta["relink_model_sha256"] = file_sha256(relink_model_path(config))
+    return meta
+
+
+def relink_model_path(config: PerceiveConfig) -> Path:
+    """The ReID model of `PerceiveConfig.live_relink`."""
+    from dashtraj.reid.embed import shipped_model_path
+
+    return Path(config.reid_model) if config.reid_model else shipped_model_path()
 
 
 def perceive_identity(recording, config: PerceiveConfig) -> dict:
@@ -417,6 +450,19 @@ def perceive_identity(recording, config: PerceiveConfig) -> dict:
     return run_identity(run_meta(recording, config),
                         recording.meta.get("map", {}).get("sha256"),
                         image_camera(recording, config.size).to_dict(), config.to_dict())
+
+
+def check_relink_config(config: PerceiveConfig) -> None:
+    """PerceiveError for `PerceiveConfig.live_relink` with a tracker other than ``ego``
+    (the re-linking needs every detection's track, `EgoTracker.track_of`) or a ReID model
+    file that is not there."""
+    if not config.live_relink:
+        return
+    if config.tracker != "ego":
+        raise PerceiveError(f"--live-relink re-links the ego tracker's tracks; --tracker is "
+                            f"{config.tracker!r}")
+    if not relink_model_path(config).is_file():
+        raise PerceiveError(f"--reid-model {config.reid_model!r}: no such file")
 
 
 def check_drive_config(config: PerceiveConfig, drive: Drive) -> None:
@@ -504,6 +550,7 @@ def perceive(recording, db_path: str | Path, config: PerceiveConfig = PerceiveCo
         preset(config.look)
     build_tracker(config.tracker)
     build_localizer(config.localizer)
+    check_relink_config(config)
     all_obs = observer_ids(recording)
     obs = all_obs if config.observers is None else list(config.observers)
     bad = [o for o in obs if o not in all_obs]

@@ -45,10 +45,11 @@ from dashtraj.store.db import (
     _cols,
 )
 
-RUNTIME_SETTINGS = ("observers", "threads", "parallel_frames", "detector")
+RUNTIME_SETTINGS = ("observers", "threads", "parallel_frames", "detector", "reid_model")
 """Perception settings that do not change what is written for an observer (which
 observers, how many threads) or that name a file by a path that may differ between
-machines (the detector model: compared by its sha256 instead)."""
+machines (the detector model and the ReID model of ``live_relink``: compared by their
+sha256 instead)."""
 
 _MERGED = (
     ("observers", ("observer_id", "role", "frames", "complete")),
@@ -62,7 +63,7 @@ _MERGED = (
 named (a migrated run's columns may lie in another order)."""
 
 
-ADDED_SETTINGS = {"calibrate_pitch": False}
+ADDED_SETTINGS = {"calibrate_pitch": False, "live_relink": False}
 """Perception settings added after runs with ``source_sha256`` were first written, and the
 value a run without one was perceived with."""
 
@@ -82,6 +83,7 @@ def run_identity(meta: dict, map_sha256, camera: dict, config: dict) -> dict:
         settings.pop("pose_noise_seed", None)  # the seed of no errors changes nothing
     return json.loads(json.dumps({
         "source": meta.get("source_sha256"), "detector": meta.get("detector_sha256"),
+        "relink_model": meta.get("relink_model_sha256"),
         "map": map_sha256, "camera": camera, "settings": settings}))
 
 
@@ -98,8 +100,11 @@ def same_run(run: dict, new: dict, where) -> None:
         raise StoreError(f"{where} was written before perceive recorded its source's sha256; "
                          "observers cannot be appended to it (perceive them into a new run)")
     for key, what in (("source", "recording or drive"), ("map", "map"),
-                      ("camera", "camera"), ("detector", "detector model")):
-        if run[key] != new[key]:
+                      ("camera", "camera"), ("detector", "detector model"),
+                      ("relink_model", "ReID model of --live-relink")):
+        if key == "relink_model" and None in (run.get(key), new.get(key)):
+            continue  # one without --live-relink: the settings below say so
+        if run.get(key) != new.get(key):
             raise StoreError(f"{where} was perceived from another {what}; appended observers "
                              f"must come from the run's {what}")
     a, b = run["settings"], new["settings"]
