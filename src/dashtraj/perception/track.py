@@ -626,16 +626,16 @@ class LiveRelink:
 
     What it cannot do that `Relink` does: look at a track's later boxes when it decides
     on a join, or cut a track where the look changed rather than `split_crops` boxes
-    later. Settings: `Relink`'s; the window and crop count chosen on the development
-    recordings (README, "Re-linking tracks by appearance").
+    later. Settings: `Relink`'s defaults; the window and the crops to join chosen on the
+    development recordings (README, "Re-linking online").
     """
 
-    max_distance: float = 0.6
-    max_gap_s: float = 30.0
-    max_speed_mps: float = 25.0
-    slack_m: float = 10.0
-    split_distance: float | None = 0.8
-    split_crops: int = 5
+    max_distance: float = Relink.max_distance
+    max_gap_s: float = Relink.max_gap_s
+    max_speed_mps: float = Relink.max_speed_mps
+    slack_m: float = Relink.slack_m
+    split_distance: float | None = Relink.split_distance
+    split_crops: int = Relink.split_min_crops
     join_window_s: float = 3.0
     join_min_crops: int = 3
     _of: dict = field(default_factory=dict, repr=False)   # tracker track -> identity
