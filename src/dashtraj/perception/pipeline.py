@@ -142,7 +142,6 @@ class PerceiveConfig:
             if d.get(key) is not None:
                 d[key] = tuple(d[key])
         d.setdefault("confirm_score", 0.0)  # written before the rule: every track reported
-        d.setdefault("live_relink", False)  # written before it: the tracker's ids
         return cls(**d)
 
 

@@ -36,8 +36,9 @@ unassigned). Ids start at 1 and are never reused within a tracker.
   (score ≥ `confirm_score`, ByteTrack's rule): weak boxes extend tracks but never make one.
 
 Offline, after a whole video: `backfill` gives a confirmed track's first boxes its id, and
-`Relink` joins the tracks of one vehicle that a gap split by their appearance (ReID
-embeddings); `dashtraj tracker eval` scores both.
+`Relink` cuts a track where its look changes and joins the tracks of one vehicle that a gap
+split, by their appearance (ReID embeddings). Online: `LiveRelink` does the same cut and join
+frame by frame (``perceive --live-relink``). `dashtraj tracker eval` scores all three.
 """
 
 from __future__ import annotations
