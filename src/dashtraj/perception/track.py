@@ -471,6 +471,17 @@ def backfill(ids_per_frame, track_of_per_frame) -> list[np.ndarray]:
     return out
 
 
+def _may_follow(rules, gap: float, same_class: bool, end: np.ndarray,
+                start: np.ndarray) -> bool:
+    """The join rules of `Relink` and `LiveRelink` (``rules``: either) but the look: a
+    track that starts ``gap`` seconds after another's last box, at ``start`` (m), may
+    continue it when the gap is positive and at most ``max_gap_s``, both are one vehicle
+    class, and ``start`` is within ``max_speed_mps`` × the gap + ``slack_m`` of the other's
+    last position ``end``."""
+    return (0 < gap <= rules.max_gap_s and same_class
+            and np.hypot(*(start - end)) <= rules.max_speed_mps * gap + rules.slack_m)
+
+
 @dataclass
 class Relink:
     """Offline re-linking of one observer's tracks by appearance: a track that took another
@@ -584,10 +595,7 @@ class Relink:
         pairs = []
         for a, (_, ta1, _, pa1, ca, ua) in tr.items():
             for b, (tb0, _, pb0, _, cb, ub) in tr.items():
-                gap = tb0 - ta1
-                if gap <= 0 or gap > self.max_gap_s or ca != cb:
-                    continue
-                if np.hypot(*(pb0 - pa1)) > self.max_speed_mps * gap + self.slack_m:
+                if not _may_follow(self, tb0 - ta1, ca == cb, pa1, pb0):
                     continue
                 d = float(np.linalg.norm(ua - ub))
                 if d <= self.max_distance:
@@ -718,10 +726,8 @@ class LiveRelink:
             for a, A in self._ids.items():
                 if a in here or A.n == 0:
                     continue
-                gap = Y.t0 - A.t1
-                if gap <= 0 or gap > self.max_gap_s or int(np.argmax(A.votes)) != cy:
-                    continue
-                if np.hypot(*(Y.p0 - A.p1)) > self.max_speed_mps * gap + self.slack_m:
+                if not _may_follow(self, Y.t0 - A.t1, int(np.argmax(A.votes)) == cy, A.p1,
+                                   Y.p0):
                     continue
                 d = float(np.linalg.norm(uy - A.look()))
                 if d <= self.max_distance:
