@@ -711,9 +711,13 @@ class LiveRelink:
         return None
 
     def _join(self, t: float, here: set[int]) -> None:
-        for i in [i for i, d in self._ids.items()  # forget what can no longer be joined
-                  if i not in here and t - d.t1 > self.max_gap_s + self.join_window_s]:
-            del self._ids[i]
+        gone = {i for i, d in self._ids.items()  # forget what can no longer be joined
+                if i not in here and t - d.t1 > self.max_gap_s + self.join_window_s}
+        if gone:  # and the tracker's tracks that fed it: none was seen since
+            for i in gone:
+                del self._ids[i]
+            for k in [k for k, i in self._of.items() if i in gone]:
+                del self._of[k], self._seg[k]
         pairs = []
         for y in here:
             Y = self._ids[y]
