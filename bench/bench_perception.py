@@ -78,9 +78,10 @@ def stages(rec, observer: int, model: str | None = None) -> tuple[dict, list]:
         t0 = time.perf_counter()
         lz = loc.localize(d.boxes, d.class_ids, spec, pose)
         t["localize"] += time.perf_counter() - t0
+        reported = {}
         for name, tr in trk.items():
             t0 = time.perf_counter()
-            tr.update(d, rf.t, pose)
+            reported[name] = tr.update(d, rf.t, pose)
             t[f"track_{name}"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         map_match(road_map, lz.x, lz.y)
@@ -96,7 +97,7 @@ def stages(rec, observer: int, model: str | None = None) -> tuple[dict, list]:
         t["relink"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         eg = trk["ego"]
-        live.update(rf.t, eg.track_of, eg.track_of, d.class_ids, eg.positions, emb)
+        live.update(rf.t, eg.track_of, reported["ego"], d.class_ids, eg.positions, emb)
         t["live_relink_update"] += time.perf_counter() - t0
         frames.append((rf.t, pose, d))
     r.release()

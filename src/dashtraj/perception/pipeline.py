@@ -242,7 +242,7 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
         embedder = ReidEmbedder(relink_model_path(config),
                                 2 if config.threads is None else config.threads)
         live = LiveRelink()
-        min_px = Relink().min_box_px * spec.height_px / 720.0
+        min_px = Relink.min_box_px * spec.height_px / 720.0
     calibrator = PitchCalibrator() if config.calibrate_pitch else None
     if calibrator is not None and getattr(localizer, "offline", False):
         localizer.pitch_calibrator = calibrator  # it re-localizes with the offline pitch
