@@ -56,6 +56,14 @@ def finite_float(text: str) -> float:
     return _number(text)
 
 
+def require_file(flag: str, path: str | None) -> None:
+    """ArgumentError naming ``flag`` when ``path`` is given and is not a file."""
+    from pathlib import Path
+
+    if path is not None and not Path(path).is_file():
+        raise ArgumentError(f"{flag} {path!r}: no such file")
+
+
 def positive_float(text: str) -> float:
     """A finite float > 0 (durations, steps, periods, distances that must not vanish)."""
     value = _number(text)

@@ -13,6 +13,7 @@ from dashtraj.cli._args import (
     image_size,
     int_at_least,
     positive_float,
+    require_file,
 )
 
 VISION_SIZE = (640, 360)
@@ -81,10 +82,8 @@ def vision_settings(args) -> dict:
         if p.suffix.lower() != ".onnx" or not p.is_file():
             raise ArgumentError(f"--detector {args.detector!r}: expected {', '.join(names)} "
                                 "or an existing .onnx file")
-    if args.reid_model is not None and not Path(args.reid_model).is_file():
-        raise ArgumentError(f"--reid-model {args.reid_model!r}: no such file")
-    if args.reid_threshold is not None and not Path(args.reid_threshold).is_file():
-        raise ArgumentError(f"--reid-threshold {args.reid_threshold!r}: no such file")
+    require_file("--reid-model", args.reid_model)
+    require_file("--reid-threshold", args.reid_threshold)
     if args.look is not None and args.look not in PRESETS:
         raise ArgumentError(f"--look {args.look!r}: unknown preset; valid: "
                             f"{', '.join(sorted(PRESETS))}")

@@ -81,15 +81,10 @@ def run_eval(args: argparse.Namespace) -> int:
     settings = ({} if args.relink_cut is None else
                 {"split_distance": None if args.relink_cut == "none" else args.relink_cut})
     if args.relink:
-        from pathlib import Path
-
+        from dashtraj.cli._args import require_file
         from dashtraj.reid.embed import ReidEmbedder
 
-        if args.reid_model is not None and not Path(args.reid_model).is_file():
-            from dashtraj.cli._args import ArgumentError
-
-            raise ArgumentError(f"--reid-model {args.reid_model!r}: no such file")
-
+        require_file("--reid-model", args.reid_model)
         embedder = ReidEmbedder(args.reid_model)
     peers, why = boxmot_peers(wanted) if wanted else ({}, None)
     res = tracker_eval(recs, args.trackers, peers, args.detector, args.every, size,
