@@ -615,23 +615,13 @@ def target_sightings(config: ExperimentConfig, rec, out: Path, road_map,
                 tracks.setdefault((s.observer_id, s.track_id), []).append(s)
                 truth[(s.observer_id, s.track_id)] = vid
     else:
-        from dashtraj.perception.pipeline import PerceiveConfig, perceive
         from dashtraj.reidentify.scoring import truth_of_tracks
         from dashtraj.store import SightingsDB
 
         db_path = out / "sightings.db"
-        stages.start("perceive (oracle)", f"perceive: {config.observers} observers, "
-                                          "detector oracle")
-        perceive(rec, db_path, PerceiveConfig(detector="oracle", size=config.image_size,
-                                              reid_range_m=config.max_distance_m,
-                                              localizer=config.localizer,
-                                              pose_noise=config.pose_noise,
-                                              pose_noise_seed=config.seed,
-                                              calibrate_pitch=config.calibrate_pitch,
-                                              live_relink=config.live_relink,
-                                              reid_model=(config.reid_model
-                                                          if config.live_relink else None)),
-                 workers=config.workers)
+        # the same perception settings as ``vision`` (frame period, box filters, the
+        # tracker's confirmation rule, localizer, poses), with the renderer's exact boxes
+        perceive_run(config, rec, db_path, "oracle", config.look, stages)
         with SightingsDB.open(db_path) as db:
             truth = truth_of_tracks(db, config.max_distance_m)
             every = db.sightings(max_distance_m=config.max_distance_m, sample_s=SAMPLE_S)

@@ -17,6 +17,7 @@ from dashtraj.experiments import (
     perceive_run,
     plot_experiment,
     run_experiment,
+    target_sightings,
 )
 
 KEYS = ("sspd_whole_m", "sspd_seen_m", "hausdorff_whole_m", "hausdorff_seen_m")
@@ -98,6 +99,35 @@ def test_box_filters_reach_the_perception(monkeypatch, tmp_path):
         assert (cfg.agnostic_nms_iou, cfg.min_score, cfg.confirm_score) == want
         perceive_run(cfg, rec, tmp_path / "x.db", "shipped")
         assert (seen[-1].agnostic_nms_iou, seen[-1].min_score, seen[-1].confirm_score) == want
+
+
+def test_detections_source_takes_the_runs_perception_settings(monkeypatch, tmp_path):
+    """``--sightings detections`` perceives with the run's frame period, box filters,
+    confirmation rule and look, as ``vision`` does (it once took perceive's defaults, so
+    ``--every 0.5`` was silently ignored there)."""
+    seen = []
+
+    class Seen(Exception):
+        pass
+
+    def fake_perceive(rec, db_path, config, workers=1, progress=None):
+        seen.append(config)
+        raise Seen
+
+    monkeypatch.setattr(pipeline, "perceive", fake_perceive)
+    rec = argparse.Namespace(meta={"observer_ids": [1, 2], "simulated_to_t": 4.0,
+                                   "target_vehicle_id": 0})
+    ap = argparse.ArgumentParser()
+    add_vision_args(ap, default_sightings="detections")
+    args = ap.parse_args(["--sightings", "detections", "--every", "0.5", "--confirm-score",
+                          "0.7", "--min-score", "0.3", "--look", "flat", "--size", "320x180"])
+    cfg = ExperimentConfig(**vision_settings(args))
+    with pytest.raises(Seen):
+        target_sightings(cfg, rec, tmp_path, road_map=None)
+    (pc,) = seen
+    assert pc.detector == "oracle" and pc.every_s == 0.5 and pc.size == (320, 180)
+    assert (pc.confirm_score, pc.min_score, pc.look) == (0.7, 0.3, "flat")
+    assert pc.reid_range_m == cfg.max_distance_m == 15.0
 
 
 @pytest.mark.slow
