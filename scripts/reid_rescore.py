@@ -12,7 +12,7 @@ Usage:
         [--gate | --no-gate] [--same-camera-m M] [--slack-m M] [--radius-m M] [--max-speed-mps V]
         [--co-observed-m M]
         [--pin-anchor | --no-pin-anchor]
-        [--split | --no-split] [--min-score S] [--no-pose-sigma] [--json]
+        [--split | --no-split] [--min-score S] [--no-pose-sigma] [--gallery-range M] [--json]
 
 Prints one row per run (ReID precision/recall, hmm and shortest-path SSPD over the whole
 trip and the seen stretch) and the means, with the same aggregation as `experiments`.
@@ -82,6 +82,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-pose-sigma", action="store_true",
                     help="runs made with --pose-noise: the HMM without the pose errors in its "
                          "emission σ (as before 2026-11-29)")
+    ap.add_argument("--gallery-range", type=float, default=None, metavar="M",
+                    help="the gallery and the sightings within M metres (default: the run's "
+                         "own; crops beyond the run's perception range were never stored)")
     ap.add_argument("--json", action="store_true", help="print the figures as JSON")
     args = ap.parse_args(argv)
 
@@ -114,7 +117,9 @@ def main(argv: list[str] | None = None) -> int:
                                 gate=(gate_cfg or True) if gate_on else False,
                                 max_distance_m=config.max_distance_m, sample_s=SAMPLE_S,
                                 pin_anchor=args.pin_anchor, split=args.split,
-                                min_score=args.min_score)
+                                min_score=args.min_score,
+                                gallery_m=(config.gallery_m if args.gallery_range is None
+                                           else args.gallery_range))
             results, _, _ = reconstruct_and_score(road_map, rec.target_route, tt.sightings,
                                                   config.methods,
                                                   pose_noise=None if args.no_pose_sigma

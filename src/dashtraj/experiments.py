@@ -58,6 +58,7 @@ Per method the summary holds the issue's keys ``sspd_whole_m``, ``sspd_seen_m``,
 from __future__ import annotations
 
 import json
+import math
 import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -133,6 +134,11 @@ class ExperimentConfig:
         live_relink: ``detections``/``vision``: perception re-links the tracker's ids by
             appearance as the frames come (`PerceiveConfig.live_relink`, with
             ``reid_model``).
+        gallery_m: ``vision``: the gallery and the target's sightings are the crops and
+            detections estimated this close, metres, at least ``max_distance_m`` (None:
+            ``max_distance_m``, the paper's 15 m); the query stays the target's first crop
+            within ``max_distance_m``, and perception keeps crops to this range
+            (`dashtraj.reidentify.vision.target_from_db`'s ``gallery_m``).
     """
 
     town: str = "town10"
@@ -162,8 +168,17 @@ class ExperimentConfig:
     pose_noise: tuple[float, float, float, float] | None = None
     calibrate_pitch: bool = False
     live_relink: bool = False
+    gallery_m: float | None = None
 
     def __post_init__(self) -> None:
+        if self.gallery_m is not None:
+            if self.sightings != "vision":
+                raise ExperimentError("--gallery-range widens appearance ReID's gallery: it "
+                                      "needs --sightings vision")
+            if not (math.isfinite(self.gallery_m) and self.gallery_m >= self.max_distance_m):
+                raise ExperimentError(f"--gallery-range {self.gallery_m!r}: must be a number "
+                                      f"of metres, at least the query's range "
+                                      f"({self.max_distance_m:g} m)")
         if self.pose_noise is not None and self.sightings == "oracle":
             raise ExperimentError("--pose-noise perturbs the observers' poses in perception: "
                                   "it needs --sightings detections or vision")
@@ -474,6 +489,12 @@ def look_of(config: ExperimentConfig, threshold=None) -> str | None:
     return looks.pop() if len(looks) == 1 else None
 
 
+def reid_range_of(config: ExperimentConfig) -> float:
+    """How far perception keeps crops, metres: the gallery's range (``gallery_m``), or
+    the query's (``max_distance_m``)."""
+    return config.max_distance_m if config.gallery_m is None else config.gallery_m
+
+
 def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
                  look: str | None = None, stages: Stages | None = None) -> None:
     """Perceive every observer of `rec` into `db_path` with the experiment's settings
@@ -506,7 +527,7 @@ def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
 
     s = perceive(rec, db_path, PerceiveConfig(detector=detector_of(detector),
                                               size=config.image_size, every_s=config.every_s,
-                                              look=look, reid_range_m=config.max_distance_m,
+                                              look=look, reid_range_m=reid_range_of(config),
                                               agnostic_nms_iou=config.agnostic_nms_iou,
                                               min_score=config.min_score,
                                               confirm_score=config.confirm_score,
@@ -519,7 +540,7 @@ def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
                                                           if config.live_relink else None)),
                  workers=config.workers, progress=progress)
     stages.note(f"perceive: {s.frames} frames, {s.detections} detections, {s.tracks} tracks, "
-                f"{s.crops} crops within {config.max_distance_m:g} m")
+                f"{s.crops} crops within {reid_range_of(config):g} m")
 
 
 def vision_sightings(config: ExperimentConfig, rec, out: Path, road_map,
@@ -549,10 +570,10 @@ def vision_sightings(config: ExperimentConfig, rec, out: Path, road_map,
     tt = target_from_db(db_path, road_map, target, embedder=embedder,
                         threshold=th.calibration.threshold, recipe=th.calibration.recipe,
                         gate=config.gate, max_distance_m=config.max_distance_m,
-                        sample_s=SAMPLE_S, stages=stages)
+                        sample_s=SAMPLE_S, stages=stages, gallery_m=config.gallery_m)
     s = tt.summary
     line = (f"re-identify: {s['reid_candidates']} of {s['reid_tracks']} tracks within "
-            f"{config.max_distance_m:g} m pass the threshold, the gate keeps "
+            f"{reid_range_of(config):g} m pass the threshold, the gate keeps "
             f"{s['reid_candidates'] - s['reid_gated_out']}")
     if s.get("reid_split_tracks"):
         n = s["reid_split_tracks"]

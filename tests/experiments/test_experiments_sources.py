@@ -130,6 +130,39 @@ def test_detections_source_takes_the_runs_perception_settings(monkeypatch, tmp_p
     assert pc.reid_range_m == cfg.max_distance_m == 15.0
 
 
+def test_gallery_range_reaches_perception_and_is_checked(monkeypatch, tmp_path):
+    """``--gallery-range``: a vision setting that perception's crop range follows; refused
+    with other sources and under the query's range (ExperimentError: exit 2 at the CLI)."""
+    seen = []
+
+    class Summary:
+        frames = detections = tracks = crops = 0
+
+    def fake_perceive(rec, db_path, config, workers=1, progress=None):
+        seen.append(config)
+        return Summary()
+
+    monkeypatch.setattr(pipeline, "perceive", fake_perceive)
+    rec = argparse.Namespace(meta={"observer_ids": [1], "simulated_to_t": 1.0})
+    ap = argparse.ArgumentParser()
+    add_vision_args(ap, default_sightings="vision")
+    for argv, want, crops in (([], None, 15.0), (["--gallery-range", "25"], 25.0, 25.0)):
+        cfg = ExperimentConfig(reid="appearance", **vision_settings(ap.parse_args(argv)))
+        assert cfg.gallery_m == want
+        assert ExperimentConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
+        perceive_run(cfg, rec, tmp_path / "x.db", "shipped")
+        assert seen[-1].reid_range_m == crops
+    with pytest.raises(ExperimentError, match="--gallery-range 10.0: must be a number of "
+                                              r"metres, at least the query's range \(15 m\)"):
+        ExperimentConfig(sightings="vision", reid="appearance", gallery_m=10.0)
+    with pytest.raises(ExperimentError, match="needs --sightings vision"):
+        ExperimentConfig(sightings="detections", gallery_m=30.0)
+    # a summary written before the setting reads as the paper's gallery
+    old = {k: v for k, v in ExperimentConfig(sightings="vision", reid="appearance")
+           .to_dict().items() if k != "gallery_m"}
+    assert ExperimentConfig.from_dict(old).gallery_m is None
+
+
 @pytest.mark.slow
 def test_detections_source_from_pixels(tmp_path):
     # A short run from rendered frames: perceive (oracle detector, ego tracker, fused

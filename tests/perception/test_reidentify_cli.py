@@ -53,3 +53,49 @@ def test_reidentify_refuses_a_missing_track_in_one_line(small_run, small_db, tmp
     err = capsys.readouterr().err
     assert "--track 1:999: no such track" in err and err.count("\n") == 1
     assert not out.exists()
+
+
+def test_a_wider_gallery_adds_far_sightings_and_keeps_the_query(small_run, small_db, tmp_path,
+                                                                capsys):
+    """``gallery_m``: the sightings (and the gallery) reach farther, the query stays the
+    target's first crop within ``max_distance_m``; a gallery nearer than the query's range
+    is refused (and by ``reidentify --gallery-range``, in one line)."""
+    import pytest
+
+    from dashtraj.reid.embed import ReidEmbedder, shipped_model_path
+    from dashtraj.reidentify.vision import VisionReidError, load_threshold, target_from_db
+    from dashtraj.roads import RoadMap
+
+    db = tmp_path / "run.db"
+    shutil.copy(small_db[0], db)
+    target = int(small_run.meta["target_vehicle_id"])
+    th = load_threshold(shipped_model_path())
+    road_map = RoadMap.from_file(small_run.map_path)
+    emb = ReidEmbedder(shipped_model_path(), threads=2)
+
+    def run(**kw):
+        return target_from_db(db, road_map, target, embedder=emb,
+                              threshold=th.calibration.threshold, recipe=th.calibration.recipe,
+                              sample_s=0.5, **kw)
+
+    base, same, wide = run(), run(gallery_m=15.0), run(gallery_m=40.0)
+    assert same.sightings == base.sightings and same.summary == base.summary
+    assert wide.summary["query"] == base.summary["query"]
+    assert max(s.distance for s in base.sightings) <= 15.0
+    far = [s for s in wide.sightings if s.distance > 15.0]
+    assert far and max(s.distance for s in wide.sightings) <= 40.0
+    assert len(wide.sightings) > len(base.sightings)
+    assert wide.summary["reid_tracks"] >= base.summary["reid_tracks"]
+    with pytest.raises(VisionReidError, match=r"gallery's range \(10.0 m\) must be at least"):
+        run(gallery_m=10.0)
+    out = tmp_path / "s.csv"
+    q = base.summary["query"]
+    with SightingsDB.open(db) as d:
+        (tid,) = {x.track_id for x in d.detections(q["observer_id"]) if x.frame == q["frame"]
+                  and x.truth_vehicle_id == target}
+    capsys.readouterr()
+    assert main(["reidentify", str(db), "--track", f"{q['observer_id']}:{tid}", "--map",
+                 str(small_run.map_path), "--gallery-range", "10", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "gallery's range (10.0 m) must be at least the query's (15 m)" in err
+    assert err.count("\n") == 1 and not out.exists()

@@ -66,6 +66,10 @@ def add_vision_args(p: argparse.ArgumentParser, default_sightings: str | None = 
                    help="detections/vision: perceive re-links ego's tracks by appearance as "
                         "the frames come (dashtraj perceive --live-relink; the ReID model "
                         "is --reid-model's)")
+    p.add_argument("--gallery-range", type=positive_float, default=None, metavar="M",
+                   help="vision: the gallery and the target's sightings are the crops "
+                        "estimated within M metres (default: the query's 15 m, the paper's); "
+                        "the query stays the target's first crop within 15 m")
     add_detector_filter_args(p)
     add_pose_noise_args(p, with_seed=False)
 
@@ -105,7 +109,7 @@ def vision_settings(args) -> dict:
             "agnostic_nms_iou": args.agnostic_nms, "min_score": args.min_score,
             "confirm_score": args.confirm_score, "localizer": args.localizer,
             "pose_noise": args.pose_noise, "calibrate_pitch": args.calibrate_pitch,
-            "live_relink": args.live_relink}
+            "live_relink": args.live_relink, "gallery_m": args.gallery_range}
 
 
 def check_reid_model(config) -> None:

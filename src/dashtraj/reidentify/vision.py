@@ -351,7 +351,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
                    positions_of: Callable[[int, np.ndarray], np.ndarray] | None = None,
                    stages=None, pin_anchor: bool = PIN_ANCHOR,
                    split: bool = SPLIT_TRACKS,
-                   min_score: float = SIGHTING_MIN_SCORE) -> TargetTracks:
+                   min_score: float = SIGHTING_MIN_SCORE,
+                   gallery_m: float | None = None) -> TargetTracks:
     """The target's sightings from one perception run's database.
 
     Args:
@@ -371,7 +372,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
             crop, `aggregate`.
         gate: the spatio-temporal gate after the appearance decision: True
             (`VISION_GATE`), a `GateConfig`, or False (none).
-        max_distance_m: the ReID range (detections estimated this close), metres.
+        max_distance_m: the ReID range (detections estimated this close), metres: the
+            query's, and the gallery's and the sightings' unless `gallery_m` is given.
         sample_s: one sighting per track every this many seconds (the decisions, the
             gate and the scoring use these); the target's sightings also hold each
             accepted track's last detection in range where the samples stop before it.
@@ -385,13 +387,17 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
             and scored as tracks of their own.
         min_score: only detections scored at least this are used (crops, sightings,
             the query, the box relations); 0: all.
+        gallery_m: the gallery (crops) and the target's sightings are the detections
+            estimated this close, metres, at least `max_distance_m` (None: that); the
+            query stays the first crop within `max_distance_m`. Crops farther than
+            perceive's ``reid_range_m`` were never stored.
 
     Returns:
         `TargetTracks`.
 
     Raises:
-        VisionReidError: appearance ReID without an embedder or a threshold, or true
-            positions without `positions_of`.
+        VisionReidError: appearance ReID without an embedder or a threshold, true
+            positions without `positions_of`, or a `gallery_m` under `max_distance_m`.
     """
     from dashtraj.store import SightingsDB
 
@@ -399,13 +405,17 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
         raise VisionReidError("appearance ReID needs an embedder and a calibrated threshold")
     if switches.positions == "truth" and positions_of is None:
         raise VisionReidError("true positions need the recording (positions_of)")
+    if gallery_m is not None and not gallery_m >= max_distance_m:
+        raise VisionReidError(f"the gallery's range ({gallery_m!r} m) must be at least the "
+                              f"query's ({max_distance_m:g} m)")
+    gallery_m = max_distance_m if gallery_m is None else float(gallery_m)
     by_truth = switches.tracks == "truth"
     recipe = recipe if recipe is not None else Recipe(aggregate)
     aggregate = recipe.aggregate
     with SightingsDB.open(db_path, writable=switches.reid == "appearance") as db:
         poses = {(p.observer_id, p.frame): p for p in db.poses()}
         every = [d for d in db.detections() if d.score >= min_score]
-        near = [d for d in every if d.distance_m <= max_distance_m
+        near = [d for d in every if d.distance_m <= gallery_m
                 and (d.truth_vehicle_id is not None if by_truth else d.track_id is not None)]
         track_truth: dict[Hashable, int | None] = {}
         if not by_truth:
