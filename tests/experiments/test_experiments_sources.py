@@ -74,9 +74,10 @@ def test_config_round_trip_and_bad_source():
     assert ExperimentConfig().confirm_score == 0.5
 
 
-def test_box_filters_reach_the_perception(monkeypatch, tmp_path):
-    """``experiments --min-score`` / ``--agnostic-nms`` go into the run's config and from
-    there into `PerceiveConfig` (the perception itself is tested in tests/perception)."""
+@pytest.fixture
+def perceived(monkeypatch):
+    """`pipeline.perceive` replaced by a recorder: the list of the `PerceiveConfig`s it
+    was called with (the perception itself is tested in tests/perception)."""
     seen = []
 
     class Summary:
@@ -87,18 +88,30 @@ def test_box_filters_reach_the_perception(monkeypatch, tmp_path):
         return Summary()
 
     monkeypatch.setattr(pipeline, "perceive", fake_perceive)
+    return seen
 
-    rec = argparse.Namespace(meta={"observer_ids": [1], "simulated_to_t": 1.0})
 
+def vision_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser()
     add_vision_args(ap, default_sightings="vision")
+    return ap
+
+
+ONE_OBSERVER = argparse.Namespace(meta={"observer_ids": [1], "simulated_to_t": 1.0})
+
+
+def test_box_filters_reach_the_perception(perceived, tmp_path):
+    """``experiments --min-score`` / ``--agnostic-nms`` go into the run's config and from
+    there into `PerceiveConfig`."""
+    ap = vision_parser()
     for argv, want in (([], (0.45, 0.25, 0.5)),
                        (["--min-score", "0.45", "--agnostic-nms", "none", "--confirm-score", "0"],
                         (None, 0.45, 0.0))):
         cfg = ExperimentConfig(reid="appearance", **vision_settings(ap.parse_args(argv)))
         assert (cfg.agnostic_nms_iou, cfg.min_score, cfg.confirm_score) == want
-        perceive_run(cfg, rec, tmp_path / "x.db", "shipped")
-        assert (seen[-1].agnostic_nms_iou, seen[-1].min_score, seen[-1].confirm_score) == want
+        perceive_run(cfg, ONE_OBSERVER, tmp_path / "x.db", "shipped")
+        assert (perceived[-1].agnostic_nms_iou, perceived[-1].min_score,
+                perceived[-1].confirm_score) == want
 
 
 def test_detections_source_takes_the_runs_perception_settings(monkeypatch, tmp_path):
@@ -117,10 +130,9 @@ def test_detections_source_takes_the_runs_perception_settings(monkeypatch, tmp_p
     monkeypatch.setattr(pipeline, "perceive", fake_perceive)
     rec = argparse.Namespace(meta={"observer_ids": [1, 2], "simulated_to_t": 4.0,
                                    "target_vehicle_id": 0})
-    ap = argparse.ArgumentParser()
-    add_vision_args(ap, default_sightings="detections")
-    args = ap.parse_args(["--sightings", "detections", "--every", "0.5", "--confirm-score",
-                          "0.7", "--min-score", "0.3", "--look", "flat", "--size", "320x180"])
+    args = vision_parser().parse_args(["--sightings", "detections", "--every", "0.5",
+                                       "--confirm-score", "0.7", "--min-score", "0.3",
+                                       "--look", "flat", "--size", "320x180"])
     cfg = ExperimentConfig(**vision_settings(args))
     with pytest.raises(Seen):
         target_sightings(cfg, rec, tmp_path, road_map=None)
@@ -130,28 +142,16 @@ def test_detections_source_takes_the_runs_perception_settings(monkeypatch, tmp_p
     assert pc.reid_range_m == cfg.max_distance_m == 15.0
 
 
-def test_gallery_range_reaches_perception_and_is_checked(monkeypatch, tmp_path):
+def test_gallery_range_reaches_perception_and_is_checked(perceived, tmp_path):
     """``--gallery-range``: a vision setting that perception's crop range follows; refused
     with other sources and under the query's range (ExperimentError: exit 2 at the CLI)."""
-    seen = []
-
-    class Summary:
-        frames = detections = tracks = crops = 0
-
-    def fake_perceive(rec, db_path, config, workers=1, progress=None):
-        seen.append(config)
-        return Summary()
-
-    monkeypatch.setattr(pipeline, "perceive", fake_perceive)
-    rec = argparse.Namespace(meta={"observer_ids": [1], "simulated_to_t": 1.0})
-    ap = argparse.ArgumentParser()
-    add_vision_args(ap, default_sightings="vision")
+    ap = vision_parser()
     for argv, want, crops in (([], None, 15.0), (["--gallery-range", "25"], 25.0, 25.0)):
         cfg = ExperimentConfig(reid="appearance", **vision_settings(ap.parse_args(argv)))
         assert cfg.gallery_m == want
         assert ExperimentConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
-        perceive_run(cfg, rec, tmp_path / "x.db", "shipped")
-        assert seen[-1].reid_range_m == crops
+        perceive_run(cfg, ONE_OBSERVER, tmp_path / "x.db", "shipped")
+        assert perceived[-1].reid_range_m == crops
     with pytest.raises(ExperimentError, match="--gallery-range 10.0: must be a number of "
                                               r"metres, at least the query's range \(15 m\)"):
         ExperimentConfig(sightings="vision", reid="appearance", gallery_m=10.0)
