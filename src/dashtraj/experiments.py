@@ -562,7 +562,8 @@ def vision_sightings(config: ExperimentConfig, rec, out: Path, road_map,
                      None if isinstance(rec, Drive) else config.look, stages)
         stages.start("re-identify", "re-identify: the target's tracks by true identity")
         tt = target_from_db(db_path, road_map, target, switches=StageSwitches(reid="identity"),
-                            max_distance_m=config.max_distance_m, sample_s=SAMPLE_S)
+                            max_distance_m=config.max_distance_m, sample_s=SAMPLE_S,
+                            gallery_m=config.gallery_m)
         return tt.sightings, {**tt.summary, "look": config.look, "_true_match": tt.true_match}
     embedder, th = model if model is not None else reid_model_of(config)
     look = None if isinstance(rec, Drive) else look_of(config, th)
