@@ -12,7 +12,8 @@ Usage:
         [--gate | --no-gate] [--same-camera-m M] [--slack-m M] [--radius-m M] [--max-speed-mps V]
         [--co-observed-m M]
         [--pin-anchor | --no-pin-anchor]
-        [--split | --no-split] [--min-score S] [--no-pose-sigma] [--gallery-range M] [--json]
+        [--split | --no-split] [--min-score S] [--no-pose-sigma] [--gallery-range M]
+        [--route-range M] [--json]
 
 Prints one row per run (ReID precision/recall, hmm and shortest-path SSPD over the whole
 trip and the seen stretch) and the means, with the same aggregation as `experiments`.
@@ -85,6 +86,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--gallery-range", type=float, default=None, metavar="M",
                     help="the gallery and the sightings within M metres (default: the run's "
                          "own; crops beyond the run's perception range were never stored)")
+    ap.add_argument("--route-range", type=float, default=None, metavar="M",
+                    help="the accepted tracks' detections within M metres join the route's "
+                         "sightings (default: the run's own setting)")
     ap.add_argument("--json", action="store_true", help="print the figures as JSON")
     args = ap.parse_args(argv)
 
@@ -119,7 +123,9 @@ def main(argv: list[str] | None = None) -> int:
                                 pin_anchor=args.pin_anchor, split=args.split,
                                 min_score=args.min_score,
                                 gallery_m=(config.gallery_m if args.gallery_range is None
-                                           else args.gallery_range))
+                                           else args.gallery_range),
+                                route_m=(config.route_m if args.route_range is None
+                                         else args.route_range))
             results, _, _ = reconstruct_and_score(road_map, rec.target_route, tt.sightings,
                                                   config.methods,
                                                   pose_noise=None if args.no_pose_sigma

@@ -139,6 +139,10 @@ class ExperimentConfig:
             ``max_distance_m``, the paper's 15 m); the query stays the target's first crop
             within ``max_distance_m``, and perception keeps crops to this range
             (`dashtraj.reidentify.vision.target_from_db`'s ``gallery_m``).
+        route_m: ``vision``: the accepted tracks' detections out to this range, metres
+            (at least the gallery's), join the target's sightings that the route is
+            rebuilt from; the decisions are unchanged (None: none beyond the gallery's
+            range; `target_from_db`'s ``route_m``).
     """
 
     town: str = "town10"
@@ -169,6 +173,7 @@ class ExperimentConfig:
     calibrate_pitch: bool = False
     live_relink: bool = False
     gallery_m: float | None = None
+    route_m: float | None = None
 
     def __post_init__(self) -> None:
         if self.gallery_m is not None:
@@ -179,6 +184,14 @@ class ExperimentConfig:
                 raise ExperimentError(f"--gallery-range {self.gallery_m!r}: must be a number "
                                       f"of metres, at least the query's range "
                                       f"({self.max_distance_m:g} m)")
+        if self.route_m is not None:
+            if self.sightings != "vision":
+                raise ExperimentError("--route-range adds the accepted tracks' farther "
+                                      "detections: it needs --sightings vision")
+            if not (math.isfinite(self.route_m) and self.route_m >= reid_range_of(self)):
+                raise ExperimentError(f"--route-range {self.route_m!r}: must be a number of "
+                                      f"metres, at least the gallery's range "
+                                      f"({reid_range_of(self):g} m)")
         if self.pose_noise is not None and self.sightings == "oracle":
             raise ExperimentError("--pose-noise perturbs the observers' poses in perception: "
                                   "it needs --sightings detections or vision")
@@ -563,7 +576,7 @@ def vision_sightings(config: ExperimentConfig, rec, out: Path, road_map,
         stages.start("re-identify", "re-identify: the target's tracks by true identity")
         tt = target_from_db(db_path, road_map, target, switches=StageSwitches(reid="identity"),
                             max_distance_m=config.max_distance_m, sample_s=SAMPLE_S,
-                            gallery_m=config.gallery_m)
+                            gallery_m=config.gallery_m, route_m=config.route_m)
         return tt.sightings, {**tt.summary, "look": config.look, "_true_match": tt.true_match}
     embedder, th = model if model is not None else reid_model_of(config)
     look = None if isinstance(rec, Drive) else look_of(config, th)
@@ -571,7 +584,8 @@ def vision_sightings(config: ExperimentConfig, rec, out: Path, road_map,
     tt = target_from_db(db_path, road_map, target, embedder=embedder,
                         threshold=th.calibration.threshold, recipe=th.calibration.recipe,
                         gate=config.gate, max_distance_m=config.max_distance_m,
-                        sample_s=SAMPLE_S, stages=stages, gallery_m=config.gallery_m)
+                        sample_s=SAMPLE_S, stages=stages, gallery_m=config.gallery_m,
+                        route_m=config.route_m)
     s = tt.summary
     line = (f"re-identify: {s['reid_candidates']} of {s['reid_tracks']} tracks within "
             f"{reid_range_of(config):g} m pass the threshold, the gate keeps "

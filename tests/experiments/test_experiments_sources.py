@@ -157,10 +157,23 @@ def test_gallery_range_reaches_perception_and_is_checked(perceived, tmp_path):
         ExperimentConfig(sightings="vision", reid="appearance", gallery_m=10.0)
     with pytest.raises(ExperimentError, match="needs --sightings vision"):
         ExperimentConfig(sightings="detections", gallery_m=30.0)
-    # a summary written before the setting reads as the paper's gallery
+    # a summary written before the settings reads as the paper's gallery and route
     old = {k: v for k, v in ExperimentConfig(sightings="vision", reid="appearance")
-           .to_dict().items() if k != "gallery_m"}
-    assert ExperimentConfig.from_dict(old).gallery_m is None
+           .to_dict().items() if k not in ("gallery_m", "route_m")}
+    back = ExperimentConfig.from_dict(old)
+    assert back.gallery_m is None and back.route_m is None
+
+
+def test_route_range_is_a_vision_setting_at_least_the_gallerys():
+    cfg = ExperimentConfig(reid="appearance",
+                           **vision_settings(vision_parser().parse_args(["--route-range", "20"])))
+    assert cfg.route_m == 20.0 and cfg.gallery_m is None
+    assert ExperimentConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
+    with pytest.raises(ExperimentError, match=r"--route-range 20.0: must be a number of "
+                                              r"metres, at least the gallery's range \(25 m\)"):
+        ExperimentConfig(sightings="vision", reid="appearance", gallery_m=25.0, route_m=20.0)
+    with pytest.raises(ExperimentError, match=r"--route-range adds .* needs --sightings vision"):
+        ExperimentConfig(sightings="detections", route_m=20.0)
 
 
 @pytest.mark.slow

@@ -3,6 +3,7 @@ points at; on the track the experiments' query falls in, the same decision and s
 
 from __future__ import annotations
 
+import itertools
 import json
 import shutil
 
@@ -99,3 +100,45 @@ def test_a_wider_gallery_adds_far_sightings_and_keeps_the_query(small_run, small
     err = capsys.readouterr().err
     assert "gallery's range (10.0 m) must be at least the query's (15 m)" in err
     assert err.count("\n") == 1 and not out.exists()
+
+
+def test_a_route_range_adds_the_accepted_tracks_farther_sightings(small_run, small_db,
+                                                                  tmp_path):
+    """``route_m``: the same decisions, and the accepted tracks' detections beyond 15 m
+    (one every ``sample_s`` per track) join the sightings; a route range under the
+    gallery's is refused."""
+    import pytest
+
+    from dashtraj.reid.embed import ReidEmbedder, shipped_model_path
+    from dashtraj.reidentify.vision import VisionReidError, load_threshold, target_from_db
+    from dashtraj.roads import RoadMap
+
+    db = tmp_path / "run.db"
+    shutil.copy(small_db[0], db)
+    target = int(small_run.meta["target_vehicle_id"])
+    th = load_threshold(shipped_model_path())
+    road_map = RoadMap.from_file(small_run.map_path)
+    emb = ReidEmbedder(shipped_model_path(), threads=2)
+
+    def run(**kw):
+        return target_from_db(db, road_map, target, embedder=emb,
+                              threshold=th.calibration.threshold, recipe=th.calibration.recipe,
+                              sample_s=0.5, **kw)
+
+    base, wide = run(), run(route_m=40.0)
+    assert set(wide.true_match) == set(base.true_match)  # the same accepted tracks
+    for k in ("reid_precision", "reid_recall", "reid_candidates", "query"):
+        assert wide.summary[k] == base.summary[k]
+    near = [s for s in wide.sightings if s.distance <= 15.0]
+    far = [s for s in wide.sightings if s.distance > 15.0]
+    assert near == base.sightings and far
+    assert wide.summary["route_sightings_beyond"] == len(far)
+    tracks = {(s.observer_id, s.track_id) for s in base.sightings}
+    assert {(s.observer_id, s.track_id) for s in far} <= tracks
+    assert max(s.distance for s in far) <= 40.0
+    for key in tracks:  # at most one farther sighting per track and half second
+        ts = sorted(s.t for s in far if (s.observer_id, s.track_id) == key)
+        assert all(b - a > 0.25 for a, b in itertools.pairwise(ts))
+    with pytest.raises(VisionReidError, match=r"route's range \(20.0 m\) must be at least "
+                                              r"the gallery's \(25 m\)"):
+        run(gallery_m=25.0, route_m=20.0)

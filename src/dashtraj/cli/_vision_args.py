@@ -70,6 +70,10 @@ def add_vision_args(p: argparse.ArgumentParser, default_sightings: str | None = 
                    help="vision: the gallery and the target's sightings are the crops "
                         "estimated within M metres (default: the query's 15 m, the paper's); "
                         "the query stays the target's first crop within 15 m")
+    p.add_argument("--route-range", type=positive_float, default=None, metavar="M",
+                   help="vision: the route is rebuilt from the accepted tracks' sightings "
+                        "within M metres, at least the gallery's range (default: the "
+                        "gallery's); which tracks are the target's is decided as without it")
     add_detector_filter_args(p)
     add_pose_noise_args(p, with_seed=False)
 
@@ -109,7 +113,8 @@ def vision_settings(args) -> dict:
             "agnostic_nms_iou": args.agnostic_nms, "min_score": args.min_score,
             "confirm_score": args.confirm_score, "localizer": args.localizer,
             "pose_noise": args.pose_noise, "calibrate_pitch": args.calibrate_pitch,
-            "live_relink": args.live_relink, "gallery_m": args.gallery_range}
+            "live_relink": args.live_relink, "gallery_m": args.gallery_range,
+            "route_m": args.route_range}
 
 
 def check_reid_model(config) -> None:

@@ -178,10 +178,11 @@ def run(args) -> int:
     if args.ablation and args.live_relink:
         raise ArgumentError("--ablation with --live-relink: the error budget's tracking stage "
                             "is the tracker's own ids (give --live-relink without it)")
-    if args.ablation and args.gallery_range is not None:
-        raise ArgumentError("--ablation with --gallery-range: the error budget's stages are "
-                            "measured with the paper's gallery (give --gallery-range "
-                            "without it)")
+    for flag, value in (("--gallery-range", args.gallery_range),
+                        ("--route-range", args.route_range)):
+        if args.ablation and value is not None:
+            raise ArgumentError(f"--ablation with {flag}: the error budget's stages are "
+                                f"measured with the paper's 15 m (give {flag} without it)")
     if args.ablation and reid != "appearance":
         raise ArgumentError(f"--ablation with --reid {reid}: the ablation's last stage is "
                             "appearance ReID (leave --reid out)")

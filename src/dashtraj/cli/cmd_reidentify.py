@@ -59,6 +59,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="the gallery and the sightings: detections estimated this close, "
                         "metres, at least --max-distance (default: --max-distance); the "
                         "query stays the track's first crop within --max-distance")
+    p.add_argument("--route-range", type=positive_float, default=None, metavar="M",
+                   help="the accepted tracks' detections out to M metres join the sightings "
+                        "written (at least the gallery's range; default: none farther)")
     p.add_argument("--sample", type=positive_float, default=0.5, metavar="S",
                    help="one sighting per track every S seconds (default 0.5)")
     p.add_argument("--vehicle", type=int, default=None, metavar="ID",
@@ -94,7 +97,8 @@ def run_reidentify(args: argparse.Namespace) -> int:
                         embedder=ReidEmbedder(model, threads=2),
                         threshold=th.calibration.threshold, recipe=th.calibration.recipe,
                         gate=not args.no_gate, max_distance_m=args.max_distance,
-                        sample_s=args.sample, gallery_m=args.gallery_range)
+                        sample_s=args.sample, gallery_m=args.gallery_range,
+                        route_m=args.route_range)
     s = tt.summary
     if s["query"] is None:
         raise DashtrajError(f"--track {args.track[0]}:{args.track[1]} has no crop within "

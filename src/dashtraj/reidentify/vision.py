@@ -352,7 +352,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
                    stages=None, pin_anchor: bool = PIN_ANCHOR,
                    split: bool = SPLIT_TRACKS,
                    min_score: float = SIGHTING_MIN_SCORE,
-                   gallery_m: float | None = None) -> TargetTracks:
+                   gallery_m: float | None = None,
+                   route_m: float | None = None) -> TargetTracks:
     """The target's sightings from one perception run's database.
 
     Args:
@@ -391,13 +392,19 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
             estimated this close, metres, at least `max_distance_m` (None: that); the
             query stays the first crop within `max_distance_m`. Crops farther than
             perceive's ``reid_range_m`` were never stored.
+        route_m: the accepted tracks' detections out to this range, metres, at least the
+            gallery's, join the target's sightings (one every `sample_s` per track, beyond
+            the gallery's range), so the route is rebuilt from where those tracks were
+            seen farther away too; which tracks are the target's is decided as without
+            it (None: no more sightings).
 
     Returns:
         `TargetTracks`.
 
     Raises:
         VisionReidError: appearance ReID without an embedder or a threshold, true
-            positions without `positions_of`, or a `gallery_m` under `max_distance_m`.
+            positions without `positions_of`, a `gallery_m` under `max_distance_m`, or
+            a `route_m` under the gallery's range.
     """
     from dashtraj.store import SightingsDB
 
@@ -409,6 +416,9 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
         raise VisionReidError(f"the gallery's range ({gallery_m!r} m) must be at least the "
                               f"query's ({max_distance_m:g} m)")
     gallery_m = max_distance_m if gallery_m is None else float(gallery_m)
+    if route_m is not None and not route_m >= gallery_m:
+        raise VisionReidError(f"the route's range ({route_m!r} m) must be at least the "
+                              f"gallery's ({gallery_m:g} m)")
     by_truth = switches.tracks == "truth"
     recipe = recipe if recipe is not None else Recipe(aggregate)
     aggregate = recipe.aggregate
@@ -571,8 +581,25 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
                                              for c in ("threshold", "gate", "no_usable_crop")}
     for k in candidates:
         truth.setdefault(k, None)
-    sightings = sorted((s for k in accepted
-                        for s in (*tracks[k], *([track_end[k]] if k in track_end else ()))),
+    farther: list[Sighting] = []
+    if route_m is not None and route_m > gallery_m and accepted:
+        # the accepted tracks seen beyond the gallery's range: more of the route
+        kept_keys = set(accepted)
+        beyond = sorted(((key_of(d), d) for d in every
+                         if gallery_m < d.distance_m <= route_m and d.track_id is not None
+                         and not by_truth and key_of(d) in kept_keys),
+                        key=lambda r: (r[0], r[1].t, r[1].idx))
+        for k, d in _sample(beyond, sample_s):
+            p = poses[(d.observer_id, d.frame)]
+            farther.append(Sighting(t=d.t, observer_id=d.observer_id, observer_x=p.cam_x,
+                                    observer_y=p.cam_y, observer_yaw=p.cam_yaw, x=d.x, y=d.y,
+                                    orientation=d.orientation, vehicle_class=d.vehicle_class,
+                                    track_id=k[1], distance=d.distance_m,
+                                    bearing=d.bearing_deg))
+        extra["route_sightings_beyond"] = len(farther)
+    sightings = sorted((*(s for k in accepted
+                          for s in (*tracks[k], *([track_end[k]] if k in track_end else ()))),
+                        *farther),
                        key=lambda s: (s.t, s.observer_id))
     scores: dict = {}
     if target_vehicle_id is not None:  # no truth (a drive): nothing to score against
