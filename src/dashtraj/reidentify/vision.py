@@ -514,7 +514,15 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
         for k, v in shown:
             votes.setdefault(k, Counter())[v] += 1
         truth = {k: _majority(c) for k, c in votes.items()}
-    placed = rows + ends
+    # with `route_m`, each track's detections beyond the gallery's range, sampled the
+    # same way: sightings of the route for the tracks that will be accepted
+    far: list = []
+    if route_m is not None and route_m > gallery_m and not by_truth:
+        far = _sample(sorted(((key_of(d), d) for d in every
+                              if gallery_m < d.distance_m <= route_m
+                              and d.track_id is not None and key_of(d) in last_kept),
+                             key=lambda r: (r[0], r[1].t, r[1].idx)), sample_s)
+    placed = rows + ends + far
     if positions_of is not None and switches.positions == "truth" and placed:
         xy = np.zeros((len(placed), 2))
         vids = np.array([d.truth_vehicle_id if d.truth_vehicle_id is not None else -1
@@ -528,6 +536,7 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
         xy = np.array([[d.x, d.y] for _, d in placed]).reshape(-1, 2)
     tracks: dict[Hashable, list[Sighting]] = {}
     track_end: dict[Hashable, Sighting] = {}
+    beyond: dict[Hashable, list[Sighting]] = {}
     for i, ((k, d), (x, y)) in enumerate(zip(placed, xy, strict=True)):
         p = poses[(d.observer_id, d.frame)]
         s = Sighting(t=d.t, observer_id=d.observer_id, observer_x=p.cam_x, observer_y=p.cam_y,
@@ -536,8 +545,10 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
                      bearing=d.bearing_deg)
         if i < len(rows):
             tracks.setdefault(k, []).append(s)
-        else:
+        elif i < len(rows) + len(ends):
             track_end[k] = s
+        else:
+            beyond.setdefault(k, []).append(s)
     anchor = key_of(query) if query is not None else None
     extra: dict = {"reid_tracks": len(tracks), "reid_min_score": min_score, **extra_split,
                    "query": None if query is None else
@@ -581,21 +592,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
                                              for c in ("threshold", "gate", "no_usable_crop")}
     for k in candidates:
         truth.setdefault(k, None)
-    farther: list[Sighting] = []
+    farther = [s for k in accepted for s in beyond.get(k, ())]
     if route_m is not None and route_m > gallery_m and accepted:
-        # the accepted tracks seen beyond the gallery's range: more of the route
-        kept_keys = set(accepted)
-        beyond = sorted(((key_of(d), d) for d in every
-                         if gallery_m < d.distance_m <= route_m and d.track_id is not None
-                         and not by_truth and key_of(d) in kept_keys),
-                        key=lambda r: (r[0], r[1].t, r[1].idx))
-        for k, d in _sample(beyond, sample_s):
-            p = poses[(d.observer_id, d.frame)]
-            farther.append(Sighting(t=d.t, observer_id=d.observer_id, observer_x=p.cam_x,
-                                    observer_y=p.cam_y, observer_yaw=p.cam_yaw, x=d.x, y=d.y,
-                                    orientation=d.orientation, vehicle_class=d.vehicle_class,
-                                    track_id=k[1], distance=d.distance_m,
-                                    bearing=d.bearing_deg))
         extra["route_sightings_beyond"] = len(farther)
     sightings = sorted((*(s for k in accepted
                           for s in (*tracks[k], *([track_end[k]] if k in track_end else ()))),
