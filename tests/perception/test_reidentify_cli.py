@@ -7,13 +7,17 @@ import itertools
 import json
 import shutil
 
+import pytest
+
 from dashtraj.cli import main
 from dashtraj.store import SightingsDB
 from dashtraj.trajectory.io import write_sightings
 
 
-def test_reidentify_a_pointed_track_as_the_experiments_do(small_run, small_db, tmp_path,
-                                                          capsys):
+@pytest.fixture
+def copied_run(small_run, small_db, tmp_path):
+    """(a copy of `small_db`, the target's id, ``run(**kw)``: `target_from_db` on that copy
+    as the experiments call it, with the shipped ReID model and its threshold)."""
     from dashtraj.reid.embed import ReidEmbedder, shipped_model_path
     from dashtraj.reidentify.vision import load_threshold, target_from_db
     from dashtraj.roads import RoadMap
@@ -22,10 +26,21 @@ def test_reidentify_a_pointed_track_as_the_experiments_do(small_run, small_db, t
     shutil.copy(small_db[0], db)
     target = int(small_run.meta["target_vehicle_id"])
     th = load_threshold(shipped_model_path())
-    ref = target_from_db(db, RoadMap.from_file(small_run.map_path), target,
-                         embedder=ReidEmbedder(shipped_model_path(), threads=2),
-                         threshold=th.calibration.threshold, recipe=th.calibration.recipe,
-                         sample_s=0.5)
+    road_map = RoadMap.from_file(small_run.map_path)
+    emb = ReidEmbedder(shipped_model_path(), threads=2)
+
+    def run(**kw):
+        return target_from_db(db, road_map, target, embedder=emb,
+                              threshold=th.calibration.threshold, recipe=th.calibration.recipe,
+                              sample_s=0.5, **kw)
+
+    return db, target, run
+
+
+def test_reidentify_a_pointed_track_as_the_experiments_do(copied_run, small_run, tmp_path,
+                                                          capsys):
+    db, target, run = copied_run
+    ref = run()
     q = ref.summary["query"]
     with SightingsDB.open(db) as d:
         (tid,) = {x.track_id for x in d.detections(q["observer_id"]) if x.frame == q["frame"]
@@ -56,29 +71,14 @@ def test_reidentify_refuses_a_missing_track_in_one_line(small_run, small_db, tmp
     assert not out.exists()
 
 
-def test_a_wider_gallery_adds_far_sightings_and_keeps_the_query(small_run, small_db, tmp_path,
-                                                                capsys):
+def test_a_wider_gallery_adds_far_sightings_and_keeps_the_query(copied_run, small_run,
+                                                                tmp_path, capsys):
     """``gallery_m``: the sightings (and the gallery) reach farther, the query stays the
     target's first crop within ``max_distance_m``; a gallery nearer than the query's range
     is refused (and by ``reidentify --gallery-range``, in one line)."""
-    import pytest
+    from dashtraj.reidentify.vision import VisionReidError
 
-    from dashtraj.reid.embed import ReidEmbedder, shipped_model_path
-    from dashtraj.reidentify.vision import VisionReidError, load_threshold, target_from_db
-    from dashtraj.roads import RoadMap
-
-    db = tmp_path / "run.db"
-    shutil.copy(small_db[0], db)
-    target = int(small_run.meta["target_vehicle_id"])
-    th = load_threshold(shipped_model_path())
-    road_map = RoadMap.from_file(small_run.map_path)
-    emb = ReidEmbedder(shipped_model_path(), threads=2)
-
-    def run(**kw):
-        return target_from_db(db, road_map, target, embedder=emb,
-                              threshold=th.calibration.threshold, recipe=th.calibration.recipe,
-                              sample_s=0.5, **kw)
-
+    db, target, run = copied_run
     base, same, wide = run(), run(gallery_m=15.0), run(gallery_m=40.0)
     assert same.sightings == base.sightings and same.summary == base.summary
     assert wide.summary["query"] == base.summary["query"]
@@ -102,29 +102,13 @@ def test_a_wider_gallery_adds_far_sightings_and_keeps_the_query(small_run, small
     assert err.count("\n") == 1 and not out.exists()
 
 
-def test_a_route_range_adds_the_accepted_tracks_farther_sightings(small_run, small_db,
-                                                                  tmp_path):
+def test_a_route_range_adds_the_accepted_tracks_farther_sightings(copied_run):
     """``route_m``: the same decisions, and the accepted tracks' detections beyond 15 m
     (one every ``sample_s`` per track) join the sightings; a route range under the
     gallery's is refused."""
-    import pytest
+    from dashtraj.reidentify.vision import VisionReidError
 
-    from dashtraj.reid.embed import ReidEmbedder, shipped_model_path
-    from dashtraj.reidentify.vision import VisionReidError, load_threshold, target_from_db
-    from dashtraj.roads import RoadMap
-
-    db = tmp_path / "run.db"
-    shutil.copy(small_db[0], db)
-    target = int(small_run.meta["target_vehicle_id"])
-    th = load_threshold(shipped_model_path())
-    road_map = RoadMap.from_file(small_run.map_path)
-    emb = ReidEmbedder(shipped_model_path(), threads=2)
-
-    def run(**kw):
-        return target_from_db(db, road_map, target, embedder=emb,
-                              threshold=th.calibration.threshold, recipe=th.calibration.recipe,
-                              sample_s=0.5, **kw)
-
+    run = copied_run[2]
     base, wide = run(), run(route_m=40.0)
     assert set(wide.true_match) == set(base.true_match)  # the same accepted tracks
     for k in ("reid_precision", "reid_recall", "reid_candidates", "query"):
