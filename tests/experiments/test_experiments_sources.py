@@ -165,9 +165,15 @@ def test_gallery_range_reaches_perception_and_is_checked(perceived, tmp_path):
 
 
 def test_route_range_is_a_vision_setting_at_least_the_gallerys():
+    ap = vision_parser()
     cfg = ExperimentConfig(reid="appearance",
-                           **vision_settings(vision_parser().parse_args(["--route-range", "20"])))
-    assert cfg.route_m == 20.0 and cfg.gallery_m is None
+                           **vision_settings(ap.parse_args(["--route-range", "30"])))
+    assert cfg.route_m == 30.0 and cfg.gallery_m is None
+    # the default: 20 m from pixels (or the gallery's range where farther), none otherwise
+    for argv, want in (([], 20.0), (["--gallery-range", "25"], 25.0),
+                       (["--route-range", "15"], 15.0), (["--sightings", "detections"], None),
+                       (["--sightings", "oracle"], None)):
+        assert vision_settings(ap.parse_args(argv))["route_m"] == want, argv
     assert ExperimentConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
     with pytest.raises(ExperimentError, match=r"--route-range 20.0: must be a number of "
                                               r"metres, at least the gallery's range \(25 m\)"):

@@ -56,6 +56,8 @@ def test_demo_from_pixels_finds_the_target_and_writes_every_file(tmp_path, gl_av
     s = json.loads((out / "summary.json").read_text())
     assert s["config"]["sightings"] == "vision" and s["config"]["detector"] == "shipped"
     assert s["config"]["every_s"] == 0.2 and s["config"]["image_size"] == [640, 360]
+    # the accepted tracks' detections out to 20 m join the route (--route-range's default)
+    assert s["config"]["route_m"] == 20.0 and s["route_sightings_beyond"] >= 0
     # the threshold and recipe are the ones calibrated on training recordings, beside the
     # shipped model
     th = load_threshold(shipped_model_path())

@@ -129,6 +129,43 @@ def test_box_relations_two_vehicles_from_separate_boxes():
         box_relations(rows, min_frames=0)
 
 
+def test_seen_spans_let_box_relations_see_a_track_just_beyond_the_range():
+    """The look-alike case of the town01 seed 4 run with twins: observer 3 follows the
+    target (track 71) 16-17 m ahead, just beyond the 15 m of the sightings, while a twin
+    (track 72) passes it within 15 m; the target's sightings start 2 s after the twin's
+    end. Over the sightings' spans the two are never seen at once; widened over the
+    detections out to 20 m (`seen_spans`) they are two vehicles."""
+    import dataclasses
+
+    from dashtraj.reidentify.vision import seen_spans
+
+    def at(obs, frame, track, box, dist):
+        return dataclasses.replace(_row(obs, frame, track, box), distance_m=dist)
+
+    target = [at(3, f, 71, (300.0, 180.0, 350.0, 222.0), 16.5) for f in range(255, 278)]
+    target += [at(3, f, 71, (290.0, 170.0, 350.0, 225.0), 14.5) for f in range(278, 300)]
+    twin = [at(3, f, 72, (160.0, 175.0, 230.0, 230.0), 12.0) for f in range(258, 266)]
+    far = [at(3, f, 71, (305.0, 185.0, 345.0, 220.0), 31.0) for f in range(245, 255)]
+    rows = [*far, *target, *twin]
+    spans = {(3, 71): (278 * 0.2, 299 * 0.2), (3, 72): (258 * 0.2, 265 * 0.2)}
+    assert box_relations(rows, spans).apart == set()
+    def key(d):
+        return d.observer_id, d.track_id
+
+    wide = seen_spans(rows, spans, key, 20.0)
+    # back over the detections at 16.5 m, not over those at 31 m
+    assert wide[(3, 71)] == pytest.approx((255 * 0.2, 299 * 0.2))
+    assert wide[(3, 72)] == spans[(3, 72)]
+    assert box_relations(rows, wide).apart == {frozenset({(3, 71), (3, 72)})}
+    # a gap longer than max_gap_s stops the widening
+    gappy = [d for d in rows if not 270 <= d.frame < 277]
+    assert seen_spans(gappy, spans, key, 20.0)[(3, 71)] == pytest.approx((277 * 0.2,
+                                                                         299 * 0.2))
+    assert seen_spans(rows, spans, key, 40.0)[(3, 71)] == pytest.approx((245 * 0.2,
+                                                                        299 * 0.2))
+    assert seen_spans(rows, spans, key, 15.0) == spans
+
+
 def test_box_relations_one_vehicle_from_overlapping_boxes():
     """Real boxes of the town10 seed 9 development run: observer 3 follows the target, a
     motorcycle (track 75, its whole box) and the detector also boxes its rider's upper

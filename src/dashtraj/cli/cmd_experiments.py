@@ -165,6 +165,7 @@ def run(args) -> int:
     vision = vision_settings(args)
     if args.ablation:
         vision["sightings"] = "vision"
+        vision["route_m"] = None  # the error budget's stages: the paper's 15 m
         if args.every is None:
             vision["every_s"] = VISION_EVERY_S
     reid = args.reid or ("appearance" if vision["sightings"] == "vision" else "identity")

@@ -335,6 +335,49 @@ def _sample(rows: list, sample_s: float) -> list:
     return kept
 
 
+def seen_spans(detections, spans: dict, key_of: Callable, range_m: float,
+               max_gap_s: float = 1.0) -> dict:
+    """Each track's span of sightings, (first t, last t), widened over the detections of
+    that track estimated within `range_m` metres that continue it: backwards from its
+    first sighting and forwards from its last, as long as no two of them are more than
+    `max_gap_s` seconds apart (a track coasting out of sight, or lost and restarted on
+    another vehicle, stops the widening).
+
+    `box_relations` counts only frames inside both tracks' spans: with the widened spans
+    a camera that saw the target just beyond the ReID range in the same frames as a
+    look-alike within it shows the two as two vehicles.
+
+    Args:
+        detections: rows with track_id, t and distance_m (`SightingsDB.detections()`).
+        spans: (first t, last t) by track key.
+        key_of: a detection's track key (the keys of `spans`).
+        range_m: detections estimated this close count, metres.
+        max_gap_s: the longest gap between two detections of a continued span, seconds.
+
+    Returns:
+        {key: (first t, last t)} for every key of `spans`.
+    """
+    times: dict[Hashable, list[float]] = {}
+    for d in detections:
+        if d.track_id is not None and d.distance_m <= range_m:
+            k = key_of(d)
+            if k in spans:
+                times.setdefault(k, []).append(d.t)
+    out = {}
+    for k, (lo, hi) in spans.items():
+        ts = sorted(set(times.get(k, ())))
+        i = bisect.bisect_left(ts, lo)
+        while i > 0 and lo - ts[i - 1] <= max_gap_s:
+            i -= 1
+            lo = ts[i]
+        j = bisect.bisect_right(ts, hi)
+        while j < len(ts) and ts[j] - hi <= max_gap_s:
+            hi = ts[j]
+            j += 1
+        out[k] = (lo, hi)
+    return out
+
+
 def _majority(votes: Counter):
     """The most frequent value (None = a detection of no vehicle counts); ties go to a
     vehicle id, then to the smaller id."""
@@ -395,8 +438,10 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
         route_m: the accepted tracks' detections out to this range, metres, at least the
             gallery's, join the target's sightings (one every `sample_s` per track, beyond
             the gallery's range), so the route is rebuilt from where those tracks were
-            seen farther away too; which tracks are the target's is decided as without
-            it (None: no more sightings).
+            seen farther away too; and the box relations count the frames where two
+            tracks were seen out to this range (`seen_spans`): a look-alike seen by a
+            camera in the same frames as the target just beyond the gallery's range is
+            then another vehicle (None: neither).
 
     Returns:
         `TargetTracks`.
@@ -561,9 +606,12 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
     else:
         # two tracks of one camera with separate boxes in the same frames, within
         # their sightings' spans, are two vehicles (the gate keeps at most one); with
-        # overlapping boxes, one vehicle seen twice
-        rel = (box_relations(every, {k: (v[0].t, v[-1].t) for k, v in tracks.items()},
-                             key=key_of)
+        # overlapping boxes, one vehicle seen twice. With `route_m` the spans reach over
+        # each track's detections out to that range (`seen_spans`)
+        spans = {k: (v[0].t, v[-1].t) for k, v in tracks.items()}
+        if route_m is not None and route_m > gallery_m:
+            spans = seen_spans(every, spans, key_of, route_m)
+        rel = (box_relations(every, spans, key=key_of)
                if not by_truth and gate else BoxRelations(frozenset(), frozenset()))
         sel = select_target_tracks(road_map, dists, keys, tracks, float(threshold),
                                    aggregate=aggregate, anchor=anchor,
