@@ -58,6 +58,9 @@ def test_demo_from_pixels_finds_the_target_and_writes_every_file(tmp_path, gl_av
     assert s["config"]["every_s"] == 0.2 and s["config"]["image_size"] == [640, 360]
     # the accepted tracks' detections out to 20 m join the route (--route-range's default)
     assert s["config"]["route_m"] == 20.0 and s["route_sightings_beyond"] >= 0
+    if s["route_sightings_beyond"]:
+        assert (f"{s['route_sightings_beyond']} of them beyond 15 m, within the route range "
+                "20 m") in printed
     # the threshold and recipe are the ones calibrated on training recordings, beside the
     # shipped model
     th = load_threshold(shipped_model_path())

@@ -156,6 +156,10 @@ def run(args) -> int:
           f"simulated, {arrived}, true route {summary['true_route_m']:.0f} m")
     src = (f"noise: {config.noise}" if config.sightings == "oracle" else
            f"from pixels, detector {config.detector if config.sightings == 'vision' else 'oracle'}")
+    if summary.get("route_sightings_beyond"):
+        src += (f"; {summary['route_sightings_beyond']} of them beyond "
+                f"{config.gallery_m or config.max_distance_m:g} m, within the route range "
+                f"{config.route_m:g} m")
     print(f"{summary['sightings']} sightings of the target by "
           f"{summary['observers_that_saw_target']} observers ({src})")
     if config.sightings == "vision" and config.reid == "appearance":
