@@ -37,7 +37,8 @@ whole pipeline from pixels: perceive every observer
 (--detector: the shipped ONNX model, or oracle) into OUT/<run>/sightings.db, embed every
 crop with the ReID model, take the target's first crop within 15 m as the query, decide
 per observer track with the threshold calibrated on TRAINING recordings (beside the model;
-`dashtraj reid-threshold`), gate on the lane graph, then reconstruct and score as above.
+`dashtraj reid-threshold`), gate on the lane graph, then reconstruct and score as above,
+with the accepted tracks' detections out to 20 m in the route (--route-range; 15 m: none).
 ReID precision/recall are then measured against each track's true identity.
 
 --ablation runs the error budget instead (the paper's Table IV with numbers): each
