@@ -40,7 +40,7 @@ def copied_run(small_run, small_db, tmp_path):
 def test_reidentify_a_pointed_track_as_the_experiments_do(copied_run, small_run, tmp_path,
                                                           capsys):
     db, target, run = copied_run
-    ref = run()
+    ref = run(route_m=20.0)  # the experiments' default route range, and reidentify's
     q = ref.summary["query"]
     with SightingsDB.open(db) as d:
         (tid,) = {x.track_id for x in d.detections(q["observer_id"]) if x.frame == q["frame"]

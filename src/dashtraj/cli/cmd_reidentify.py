@@ -22,6 +22,7 @@ def _track(text: str) -> tuple[int, int]:
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `reidentify` command."""
     from dashtraj.cli._args import positive_float
+    from dashtraj.cli._vision_args import VISION_ROUTE_M
     from dashtraj.outputs import add_output_args
 
     p = subparsers.add_parser(
@@ -60,8 +61,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "metres, at least --max-distance (default: --max-distance); the "
                         "query stays the track's first crop within --max-distance")
     p.add_argument("--route-range", type=positive_float, default=None, metavar="M",
-                   help="the accepted tracks' detections out to M metres join the sightings "
-                        "written (at least the gallery's range; default: none farther)")
+                   help=f"the accepted tracks' detections out to M metres join the sightings "
+                        f"written, and a camera's tracks seen at once within M metres are two "
+                        f"vehicles; at least the gallery's range (default {VISION_ROUTE_M:g}, "
+                        f"as experiments, or the gallery's range where farther; the gallery's "
+                        f"range turns it off)")
     p.add_argument("--sample", type=positive_float, default=0.5, metavar="S",
                    help="one sighting per track every S seconds (default 0.5)")
     p.add_argument("--vehicle", type=int, default=None, metavar="ID",
@@ -74,6 +78,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run_reidentify(args: argparse.Namespace) -> int:
     from dashtraj.cli._args import load_map
+    from dashtraj.cli._vision_args import VISION_ROUTE_M
     from dashtraj.errors import DashtrajError
     from dashtraj.outputs import atomic_output, check_output
     from dashtraj.reid.embed import ReidEmbedder, shipped_model_path
@@ -98,7 +103,8 @@ def run_reidentify(args: argparse.Namespace) -> int:
                         threshold=th.calibration.threshold, recipe=th.calibration.recipe,
                         gate=not args.no_gate, max_distance_m=args.max_distance,
                         sample_s=args.sample, gallery_m=args.gallery_range,
-                        route_m=args.route_range)
+                        route_m=(args.route_range if args.route_range is not None else
+                                 max(VISION_ROUTE_M, args.gallery_range or args.max_distance)))
     s = tt.summary
     if s["query"] is None:
         raise DashtrajError(f"--track {args.track[0]}:{args.track[1]} has no crop within "
