@@ -139,10 +139,12 @@ class ExperimentConfig:
             ``max_distance_m``, the paper's 15 m); the query stays the target's first crop
             within ``max_distance_m``, and perception keeps crops to this range
             (`dashtraj.reidentify.vision.target_from_db`'s ``gallery_m``).
-        route_m: ``vision``: the accepted tracks' detections out to this range, metres
-            (at least the gallery's), join the target's sightings that the route is
-            rebuilt from; the decisions are unchanged (None: none beyond the gallery's
-            range; `target_from_db`'s ``route_m``).
+        route_m: ``vision``: the tracks' detections out to this range, metres (at least
+            the gallery's), count where the gallery's range leaves them out: the accepted
+            tracks' join the target's sightings that the route is rebuilt from, and the
+            box relations see a camera's tracks that far (None: neither;
+            `target_from_db`'s ``route_m``). The CLI's default is 20 m
+            (`dashtraj.cli._vision_args.VISION_ROUTE_M`).
     """
 
     town: str = "town10"

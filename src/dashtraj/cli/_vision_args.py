@@ -123,15 +123,17 @@ def vision_settings(args) -> dict:
             "confirm_score": args.confirm_score, "localizer": args.localizer,
             "pose_noise": args.pose_noise, "calibrate_pitch": args.calibrate_pitch,
             "live_relink": args.live_relink, "gallery_m": args.gallery_range,
-            "route_m": route_range_of(args)}
+            "route_m": (route_range(args.route_range, args.gallery_range)
+                        if args.sightings == "vision" else args.route_range)}
 
 
-def route_range_of(args) -> float | None:
-    """``--route-range``, or its default for ``--sightings vision`` (`VISION_ROUTE_M`, or
-    the gallery's range where that is farther); None for the other sources."""
-    if args.route_range is not None or args.sightings != "vision":
-        return args.route_range
-    return max(VISION_ROUTE_M, args.gallery_range or 0.0)
+def route_range(given: float | None, gallery_m: float | None,
+                query_m: float = 15.0) -> float:
+    """``--route-range``: the one given, or its default, `VISION_ROUTE_M` or the gallery's
+    range (``gallery_m``, else the query's ``query_m``) where that is farther, metres."""
+    if given is not None:
+        return given
+    return max(VISION_ROUTE_M, gallery_m if gallery_m is not None else query_m)
 
 
 def check_reid_model(config) -> None:

@@ -78,7 +78,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run_reidentify(args: argparse.Namespace) -> int:
     from dashtraj.cli._args import load_map
-    from dashtraj.cli._vision_args import VISION_ROUTE_M
+    from dashtraj.cli._vision_args import route_range
     from dashtraj.errors import DashtrajError
     from dashtraj.outputs import atomic_output, check_output
     from dashtraj.reid.embed import ReidEmbedder, shipped_model_path
@@ -103,8 +103,8 @@ def run_reidentify(args: argparse.Namespace) -> int:
                         threshold=th.calibration.threshold, recipe=th.calibration.recipe,
                         gate=not args.no_gate, max_distance_m=args.max_distance,
                         sample_s=args.sample, gallery_m=args.gallery_range,
-                        route_m=(args.route_range if args.route_range is not None else
-                                 max(VISION_ROUTE_M, args.gallery_range or args.max_distance)))
+                        route_m=route_range(args.route_range, args.gallery_range,
+                                            args.max_distance))
     s = tt.summary
     if s["query"] is None:
         raise DashtrajError(f"--track {args.track[0]}:{args.track[1]} has no crop within "
