@@ -132,7 +132,7 @@ def test_box_relations_two_vehicles_from_separate_boxes():
 def test_seen_spans_let_box_relations_see_a_track_just_beyond_the_range():
     """The look-alike case of the town01 seed 4 run with twins: observer 3 follows the
     target (track 71) 16-17 m ahead, just beyond the 15 m of the sightings, while a twin
-    (track 72) passes it within 15 m; the target's sightings start 2 s after the twin's
+    (track 72) passes it within 15 m; the target's sightings start 2.6 s after the twin's
     end. Over the sightings' spans the two are never seen at once; widened over the
     detections out to 20 m (`seen_spans`) they are two vehicles."""
     import dataclasses
@@ -149,6 +149,7 @@ def test_seen_spans_let_box_relations_see_a_track_just_beyond_the_range():
     rows = [*far, *target, *twin]
     spans = {(3, 71): (278 * 0.2, 299 * 0.2), (3, 72): (258 * 0.2, 265 * 0.2)}
     assert box_relations(rows, spans).apart == set()
+
     def key(d):
         return d.observer_id, d.track_id
 
