@@ -464,6 +464,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
     if route_m is not None and not route_m >= gallery_m:
         raise VisionReidError(f"the route's range ({route_m!r} m) must be at least the "
                               f"gallery's ({gallery_m:g} m)")
+    # the route's range where it reaches beyond the gallery's, else None (nothing farther)
+    route_m = route_m if route_m is not None and route_m > gallery_m else None
     by_truth = switches.tracks == "truth"
     recipe = recipe if recipe is not None else Recipe(aggregate)
     aggregate = recipe.aggregate
@@ -562,7 +564,7 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
     # with `route_m`, each track's detections beyond the gallery's range, sampled the
     # same way: sightings of the route for the tracks that will be accepted
     far: list = []
-    if route_m is not None and route_m > gallery_m and not by_truth:
+    if route_m is not None and not by_truth:
         far = _sample(sorted(((key_of(d), d) for d in every
                               if gallery_m < d.distance_m <= route_m
                               and d.track_id is not None and key_of(d) in last_kept),
@@ -609,7 +611,7 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
         # overlapping boxes, one vehicle seen twice. With `route_m` the spans reach over
         # each track's detections out to that range (`seen_spans`)
         spans = {k: (v[0].t, v[-1].t) for k, v in tracks.items()}
-        if route_m is not None and route_m > gallery_m:
+        if route_m is not None:
             spans = seen_spans(every, spans, key_of, route_m)
         rel = (box_relations(every, spans, key=key_of)
                if not by_truth and gate else BoxRelations(frozenset(), frozenset()))
@@ -641,7 +643,7 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
     for k in candidates:
         truth.setdefault(k, None)
     farther = [s for k in accepted for s in beyond.get(k, ())]
-    if route_m is not None and route_m > gallery_m and accepted:
+    if route_m is not None and accepted:
         extra["route_sightings_beyond"] = len(farther)
     sightings = sorted((*(s for k in accepted
                           for s in (*tracks[k], *([track_end[k]] if k in track_end else ()))),
