@@ -112,7 +112,12 @@ def timing_line(timing: dict) -> str:
 
 def run(args) -> int:
     from dashtraj.cli._vision_args import check_reid_model, vision_settings
-    from dashtraj.experiments import ExperimentConfig, plot_experiment, run_experiment
+    from dashtraj.experiments import (
+        ExperimentConfig,
+        plot_experiment,
+        reid_range_of,
+        run_experiment,
+    )
     from dashtraj.outputs import atomic_output, check_output
 
     out = check_output(args.output, overwrite=args.overwrite, kind="dir")
@@ -158,7 +163,7 @@ def run(args) -> int:
            f"from pixels, detector {config.detector if config.sightings == 'vision' else 'oracle'}")
     if summary.get("route_sightings_beyond"):
         src += (f"; {summary['route_sightings_beyond']} of them beyond "
-                f"{config.gallery_m or config.max_distance_m:g} m, within the route range "
+                f"{reid_range_of(config):g} m, within the route range "
                 f"{config.route_m:g} m")
     print(f"{summary['sightings']} sightings of the target by "
           f"{summary['observers_that_saw_target']} observers ({src})")
