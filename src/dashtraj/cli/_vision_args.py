@@ -73,18 +73,25 @@ def add_vision_args(p: argparse.ArgumentParser, default_sightings: str | None = 
                    help="detections/vision: perceive re-links ego's tracks by appearance as "
                         "the frames come (dashtraj perceive --live-relink; the ReID model "
                         "is --reid-model's)")
-    p.add_argument("--gallery-range", type=positive_float, default=None, metavar="M",
-                   help="vision: the gallery and the target's sightings are the crops "
-                        "estimated within M metres (default: the query's 15 m, the paper's); "
-                        "the query stays the target's first crop within 15 m")
-    p.add_argument("--route-range", type=positive_float, default=None, metavar="M",
-                   help=f"vision: the route is rebuilt from the accepted tracks' sightings "
-                        f"within M metres, and a camera's tracks seen at once within M "
-                        f"metres are two vehicles; at least the gallery's range (default "
-                        f"{VISION_ROUTE_M:g}, or the gallery's range where farther; the "
-                        f"gallery's range turns it off)")
+    add_range_args(p, "the query's 15 m", scope="vision: ")
     add_detector_filter_args(p)
     add_pose_noise_args(p, with_seed=False)
+
+
+def add_range_args(p: argparse.ArgumentParser, query: str, scope: str = "") -> None:
+    """``--gallery-range`` and ``--route-range`` (`target_from_db`'s ``gallery_m`` and
+    ``route_m``; `route_range` resolves the latter's default); ``query`` names the query's
+    range in their help, ``scope`` starts it."""
+    p.add_argument("--gallery-range", type=positive_float, default=None, metavar="M",
+                   help=f"{scope}the gallery and the target's sightings are the detections "
+                        f"estimated within M metres, at least {query} (default: {query}); "
+                        f"the query stays the first crop within that")
+    p.add_argument("--route-range", type=positive_float, default=None, metavar="M",
+                   help=f"{scope}the accepted tracks' detections out to M metres join the "
+                        f"target's sightings that the route is rebuilt from, and a camera's "
+                        f"tracks seen at once within M metres are two vehicles; at least the "
+                        f"gallery's range (default {VISION_ROUTE_M:g}, or the gallery's range "
+                        f"where farther; the gallery's range turns it off)")
 
 
 def vision_settings(args) -> dict:

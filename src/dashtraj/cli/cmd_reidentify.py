@@ -22,7 +22,7 @@ def _track(text: str) -> tuple[int, int]:
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `reidentify` command."""
     from dashtraj.cli._args import positive_float
-    from dashtraj.cli._vision_args import VISION_ROUTE_M
+    from dashtraj.cli._vision_args import add_range_args
     from dashtraj.outputs import add_output_args
 
     p = subparsers.add_parser(
@@ -56,16 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="appearance only (the paper): no road-network gate")
     p.add_argument("--max-distance", type=positive_float, default=15.0, metavar="M",
                    help="ReID range: detections estimated this close, metres (default 15)")
-    p.add_argument("--gallery-range", type=positive_float, default=None, metavar="M",
-                   help="the gallery and the sightings: detections estimated this close, "
-                        "metres, at least --max-distance (default: --max-distance); the "
-                        "query stays the track's first crop within --max-distance")
-    p.add_argument("--route-range", type=positive_float, default=None, metavar="M",
-                   help=f"the accepted tracks' detections out to M metres join the sightings "
-                        f"written, and a camera's tracks seen at once within M metres are two "
-                        f"vehicles; at least the gallery's range (default {VISION_ROUTE_M:g}, "
-                        f"as experiments, or the gallery's range where farther; the gallery's "
-                        f"range turns it off)")
+    add_range_args(p, "--max-distance")
     p.add_argument("--sample", type=positive_float, default=0.5, metavar="S",
                    help="one sighting per track every S seconds (default 0.5)")
     p.add_argument("--vehicle", type=int, default=None, metavar="ID",
