@@ -10,7 +10,7 @@ folder first (the embeddings of MODEL are added to the copy, never to EXP).
 Usage:
     python scripts/reid_rescore.py EXP --reid-model M.onnx [--reid-threshold F.json]
         [--gate | --no-gate] [--same-camera-m M] [--slack-m M] [--radius-m M] [--max-speed-mps V]
-        [--co-observed-m M]
+        [--co-observed-m M] [--heading-min-m M] [--heading-window-s S]
         [--pin-anchor | --no-pin-anchor]
         [--split | --no-split] [--min-score S] [--no-pose-sigma] [--gallery-range M]
         [--route-range M] [--json]
@@ -71,6 +71,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--co-observed-m", type=float, default=None,
                     help="the gate's GateConfig.co_observed_m (default: the library's "
                          "VISION_GATE; 0: the rule before 2026-11-29, no cross-camera groups)")
+    ap.add_argument("--heading-min-m", type=float, default=None,
+                    help="the gate's GateConfig.heading_min_m (default: the library's "
+                         "VISION_GATE; inf: no track shows its way)")
+    ap.add_argument("--heading-window-s", type=float, default=None,
+                    help="the gate's GateConfig.heading_window_s (default: the library's "
+                         "VISION_GATE)")
     ap.add_argument("--pin-anchor", action=argparse.BooleanOptionalAction, default=PIN_ANCHOR,
                     help="the gate keeps the query's own track whatever the others say "
                          "(default: the library's, dashtraj.reidentify.vision.PIN_ANCHOR)")
@@ -101,7 +107,9 @@ def main(argv: list[str] | None = None) -> int:
     changes = {k: v for k, v in (("same_camera_m", args.same_camera_m),
                                  ("slack_m", args.slack_m), ("radius_m", args.radius_m),
                                  ("max_speed_mps", args.max_speed_mps),
-                                 ("co_observed_m", args.co_observed_m))
+                                 ("co_observed_m", args.co_observed_m),
+                                 ("heading_min_m", args.heading_min_m),
+                                 ("heading_window_s", args.heading_window_s))
                if v is not None}
     gate_cfg = replace(VISION_GATE, **changes) if changes else None
     embedder = ReidEmbedder(args.reid_model, threads=1)

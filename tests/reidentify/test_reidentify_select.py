@@ -226,3 +226,30 @@ def test_the_vision_gate_allows_less_slack_than_the_oracles(town01):
         assert reachable(town01, a, b, GateConfig()) is default
         assert reachable(town01, a, b, VISION_GATE) is vision
     assert VISION_GATE.slack_m == 5.0 and GateConfig().slack_m == 20.0
+
+
+def test_the_vision_gate_reads_a_crawling_cars_way(town01):
+    """A look-alike crawling in a queue (5 m in 5 s along road 12's lane -1, driving +x),
+    seen by one camera until it pulls away; 2.5 s later the same camera sees the target
+    6 m behind where the look-alike was last seen. One car would have backed up 6 m. The
+    oracle's gate (a way shown by 8 m within 3 s) gives the crawler no way, so the
+    opposite lane is one of its readings, on which the target's sighting lies ahead: one
+    car. `target_from_db`'s gate reads its way from 3 m within 5 s: two vehicles; 4 m
+    behind is still localization slack (5 m)."""
+    from dataclasses import replace
+
+    from dashtraj.reidentify.vision import VISION_GATE
+    from dashtraj.trajectory.gating import GateConfig, gate_tracks
+
+    crawler = [sight(town01, 60.0 + 0.5 * i, 12, 100.0 + 0.5 * i, obs=4, track=51,
+                     orientation="side") for i in range(11)]
+    old_way = replace(VISION_GATE, heading_min_m=8.0, heading_window_s=3.0)
+    for back, two in ((4.0, False), (6.0, True), (8.0, True)):
+        target = [sight(town01, 67.5 + 0.5 * i, 12, 105.0 - back + 0.5 * i, obs=4,
+                        track=55, orientation="side") for i in range(11)]
+        vision = gate_tracks(town01, [crawler, target], anchor=1, config=VISION_GATE)
+        assert vision.accepted == ((1,) if two else (0, 1))
+        for lenient in (GateConfig(), old_way):
+            assert gate_tracks(town01, [crawler, target], anchor=1,
+                               config=lenient).accepted == (0, 1)
+    assert (VISION_GATE.heading_min_m, VISION_GATE.heading_window_s) == (3.0, 5.0)
