@@ -29,6 +29,18 @@ import tempfile
 from dataclasses import replace
 from pathlib import Path
 
+GATE_OPTIONS = {
+    "same_camera_m": "0: the rule before 2026-11-27, any two time-overlapping tracks of one "
+                     "camera are two vehicles",
+    "slack_m": "",
+    "radius_m": "",
+    "max_speed_mps": "",
+    "co_observed_m": "0: the rule before 2026-11-29, no cross-camera groups",
+    "heading_min_m": "inf: no track shows its way",
+    "heading_window_s": "",
+}
+"""The gate's settings this script can change (`GateConfig` fields), with a note for --help."""
+
 
 def main(argv: list[str] | None = None) -> int:
     from dashtraj.experiments import (
@@ -57,26 +69,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="its threshold JSON (default: beside the model)")
     ap.add_argument("--gate", action=argparse.BooleanOptionalAction, default=None,
                     help="the road-network gate on or off (default: as each run was made)")
-    ap.add_argument("--same-camera-m", type=float, default=None,
-                    help="the gate's GateConfig.same_camera_m (default: the library's; 0: the "
-                         "rule before 2026-11-27, any two time-overlapping tracks of one "
-                         "camera are two vehicles)")
-    ap.add_argument("--slack-m", type=float, default=None,
-                    help="the gate's GateConfig.slack_m (default: the library's VISION_GATE)")
-    ap.add_argument("--radius-m", type=float, default=None,
-                    help="the gate's GateConfig.radius_m (default: the library's VISION_GATE)")
-    ap.add_argument("--max-speed-mps", type=float, default=None,
-                    help="the gate's GateConfig.max_speed_mps (default: the library's "
-                         "VISION_GATE)")
-    ap.add_argument("--co-observed-m", type=float, default=None,
-                    help="the gate's GateConfig.co_observed_m (default: the library's "
-                         "VISION_GATE; 0: the rule before 2026-11-29, no cross-camera groups)")
-    ap.add_argument("--heading-min-m", type=float, default=None,
-                    help="the gate's GateConfig.heading_min_m (default: the library's "
-                         "VISION_GATE; inf: no track shows its way)")
-    ap.add_argument("--heading-window-s", type=float, default=None,
-                    help="the gate's GateConfig.heading_window_s (default: the library's "
-                         "VISION_GATE)")
+    for field, note in GATE_OPTIONS.items():  # each a GateConfig field of VISION_GATE
+        ap.add_argument("--" + field.replace("_", "-"), type=float, default=None,
+                        help=f"the gate's GateConfig.{field} (default: the library's "
+                             f"VISION_GATE{'; ' + note if note else ''})")
     ap.add_argument("--pin-anchor", action=argparse.BooleanOptionalAction, default=PIN_ANCHOR,
                     help="the gate keeps the query's own track whatever the others say "
                          "(default: the library's, dashtraj.reidentify.vision.PIN_ANCHOR)")
@@ -104,13 +100,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{args.exp}: no runs with summary.json and sightings.db", file=sys.stderr)
         return 2
     th = load_threshold(args.reid_model, args.reid_threshold)
-    changes = {k: v for k, v in (("same_camera_m", args.same_camera_m),
-                                 ("slack_m", args.slack_m), ("radius_m", args.radius_m),
-                                 ("max_speed_mps", args.max_speed_mps),
-                                 ("co_observed_m", args.co_observed_m),
-                                 ("heading_min_m", args.heading_min_m),
-                                 ("heading_window_s", args.heading_window_s))
-               if v is not None}
+    changes = {k: getattr(args, k) for k in GATE_OPTIONS if getattr(args, k) is not None}
     gate_cfg = replace(VISION_GATE, **changes) if changes else None
     embedder = ReidEmbedder(args.reid_model, threads=1)
     summaries, rows = [], []
