@@ -26,20 +26,16 @@ import json
 import shutil
 import sys
 import tempfile
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 
-GATE_OPTIONS = {
+GATE_NOTES = {
     "same_camera_m": "0: the rule before 2026-11-27, any two time-overlapping tracks of one "
                      "camera are two vehicles",
-    "slack_m": "",
-    "radius_m": "",
-    "max_speed_mps": "",
     "co_observed_m": "0: the rule before 2026-11-29, no cross-camera groups",
     "heading_min_m": "inf: no track shows its way",
-    "heading_window_s": "",
 }
-"""The gate's settings this script can change (`GateConfig` fields), with a note for --help."""
+"""What --help adds for some of the gate's settings (every `GateConfig` field is an option)."""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -60,6 +56,7 @@ def main(argv: list[str] | None = None) -> int:
         target_from_db,
     )
     from dashtraj.roads import RoadMap
+    from dashtraj.trajectory.gating import GateConfig
     from dashtraj.world.recording import Recording
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -69,7 +66,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="its threshold JSON (default: beside the model)")
     ap.add_argument("--gate", action=argparse.BooleanOptionalAction, default=None,
                     help="the road-network gate on or off (default: as each run was made)")
-    for field, note in GATE_OPTIONS.items():  # each a GateConfig field of VISION_GATE
+    gate_fields = [f.name for f in fields(GateConfig)]
+    for field in gate_fields:  # --slack-m M etc.: VISION_GATE with that field replaced
+        note = GATE_NOTES.get(field)
         ap.add_argument("--" + field.replace("_", "-"), type=float, default=None,
                         help=f"the gate's GateConfig.{field} (default: the library's "
                              f"VISION_GATE{'; ' + note if note else ''})")
@@ -100,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{args.exp}: no runs with summary.json and sightings.db", file=sys.stderr)
         return 2
     th = load_threshold(args.reid_model, args.reid_threshold)
-    changes = {k: getattr(args, k) for k in GATE_OPTIONS if getattr(args, k) is not None}
+    changes = {k: getattr(args, k) for k in gate_fields if getattr(args, k) is not None}
     gate_cfg = replace(VISION_GATE, **changes) if changes else None
     embedder = ReidEmbedder(args.reid_model, threads=1)
     summaries, rows = [], []
