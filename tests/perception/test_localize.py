@@ -404,7 +404,8 @@ def test_a_strip_above_a_nearer_car_lies_between_it_and_the_far_reading(strip_sc
     def err(loc):
         return float(np.hypot(loc.x[far] - tx, loc.y[far] - ty))
 
-    raw = FusedLocalizer(strip_px=None).localize(d.boxes, d.class_ids, SPEC, frame.pose)
+    raw = FusedLocalizer(strip_px=None, width_cap=False).localize(d.boxes, d.class_ids, SPEC,
+                                                                  frame.pose)
     out = build_localizer("fused").localize(d.boxes, d.class_ids, SPEC, frame.pose)
     assert out.evidence[far] & CUT_RIGHT and out.evidence[far] & HIDDEN_BOTTOM
     assert raw.distance_m[far] > 30.0 and err(raw) > 15.0
@@ -418,3 +419,72 @@ def test_a_strip_above_a_nearer_car_lies_between_it_and_the_far_reading(strip_sc
     blind = Localized(out.distance_m, out.bearing_deg, out.x, out.y, out.sigma_m, out.valid,
                       out.evidence & ~HIDDEN_BOTTOM)
     assert err(fit_cut_boxes(road, SPEC, frame.pose, d.boxes, d.class_ids, blind)) > 2.0
+
+
+def test_class_diagonals_are_the_catalogs_largest():
+    """`width_bound` holds for every vehicle only while each class's diagonal is its
+    largest model's."""
+    import math
+
+    from dashtraj.perception.localize import CLASS_DIAGONAL_MAX_M
+    from dashtraj.world import catalog
+
+    for k, name in enumerate(catalog.VEHICLE_CLASSES):
+        diag = max(math.hypot(m.length_m, m.width_m) for m in catalog.models(name))
+        assert CLASS_DIAGONAL_MAX_M[k] == pytest.approx(diag, abs=0.01), name
+
+
+@pytest.fixture(scope="module")
+def broadside(gl_available):
+    """Cars seen from the side, 35° right of the camera axis (camera at (-95, 0), yaw 0):
+    the catalog's widest car, the Ford ambulance (6.70 x 2.30 m), at 6, 10 and 20 m with
+    its diagonal across the ray (its widest look), and a car of common size (car 1 of
+    `car_identities`) broadside at 27 m."""
+    from dashtraj.world import catalog
+    from perception_scenes import car_identities
+
+    amb = catalog.identities()[33]
+    assert amb.model.blueprint_id == "vehicle.ford.ambulance"
+    cars = {1: car_identities()[1], 5: amb}
+    b = np.radians(35.0)
+    widest = 125.0 - np.degrees(np.arctan2(2.30, 6.70))
+    at = {("amb", d): (5, -95.0 + d * np.cos(b), d * np.sin(b), widest) for d in (6.0, 10.0, 20.0)}
+    at["car"] = (1, -95.0 + 27.0 * np.cos(b), 27.0 * np.sin(b), 125.0)
+    frames = [(0.0, (-95.0, 0.0, 0.0), [v]) for v in at.values()]
+    return dict(zip(at, render_scene(frames, SPEC, cars), strict=True)), at
+
+
+def test_a_box_wider_than_its_class_allows_has_its_bottom_hidden(broadside):
+    """A hedge hides a car's lower part and leaves its top 12 px above it (e12, observer
+    1): the bottom row is the hedge's top and the box is short, so both cues read the car
+    about three times too far. No car looks as wide as the box there, so the distance is
+    cut to the farthest one that could (`width_bound`), flagged `TOO_WIDE`, with the
+    rules' σ. Measured: the 27 m car reads 101.1 m (74 m off), cut to 44.2 m (17 m off).
+    The catalog's widest car at its widest look is never cut (6 m, cut by the border, 10
+    and 20 m: read 19.2 m, the bound 21.0 m)."""
+    from dashtraj.perception.localize import TOO_WIDE, FusedLocalizer, width_bound
+
+    frames, at = broadside
+    free = FusedLocalizer(width_cap=False)
+    fused = build_localizer("fused")
+    for key, f in frames.items():
+        d = OracleDetector().detect(f)
+        assert len(d.boxes) == 1
+        if key == "car":
+            continue
+        a, b = fused.localize(d.boxes, d.class_ids, SPEC, f.pose), \
+            free.localize(d.boxes, d.class_ids, SPEC, f.pose)
+        assert a.distance_m[0] == b.distance_m[0] and not a.evidence[0] & TOO_WIDE, key
+        assert a.distance_m[0] < width_bound(d.boxes, d.class_ids, SPEC, a.bearing_deg)[0]
+    f = frames["car"]
+    d = OracleDetector().detect(f)
+    d.boxes[0, 3] = d.boxes[0, 1] + 12.0  # the hedge: only the top 12 px show
+    _, tx, ty, _ = at["car"]
+    raw = free.localize(d.boxes, d.class_ids, SPEC, f.pose)
+    out = fused.localize(d.boxes, d.class_ids, SPEC, f.pose)
+    assert raw.distance_m[0] > 80.0 and not raw.evidence[0] & TOO_WIDE
+    bound = width_bound(d.boxes, d.class_ids, SPEC, out.bearing_deg)[0]
+    assert out.distance_m[0] == pytest.approx(bound) and out.evidence[0] & TOO_WIDE
+    assert out.sigma_m[0] == pytest.approx(HIDDEN_SIGMA_REL * bound)
+    assert np.hypot(raw.x[0] - tx, raw.y[0] - ty) > 60.0
+    assert np.hypot(out.x[0] - tx, out.y[0] - ty) < 20.0

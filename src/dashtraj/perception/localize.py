@@ -42,7 +42,10 @@ Estimators (`LOCALIZERS`, chosen by name with `build_localizer`):
   distance from the box width replaces both, and where the box is also cut sideways and
   its lowest row is a nearer box's top (a strip of a vehicle above a nearer one), the
   log-uniform median of the occluder's range and the far reading (see
-  `FusedLocalizer._occluded_bottoms`); a distance either rule moved has σ = 30 % of it
+  `FusedLocalizer._occluded_bottoms`); a distance beyond the farthest at which any
+  vehicle of the box's class looks as wide as the box (`width_bound`) is cut to it,
+  flagged `TOO_WIDE` (its lower part is hidden by something no detector reports: a
+  hedge, a wall); a distance any of these rules moved has σ = 30 % of it
   (`HIDDEN_SIGMA_REL`).
   Its output carries each box's truncation/occlusion evidence (`box_evidence`).
 - ``tracked``: track-level (`TrackedLocalizer`, sequential: one per camera, fed every
@@ -87,11 +90,14 @@ CLASS_WHEELBASE_M: tuple[float, ...] = (2.85, 4.15, 5.72, 1.43, 1.06)
 CLASS_LENGTH_M: tuple[float, ...] = (4.76, 7.32, 11.2, 2.07, 1.77)
 CLASS_WIDTH_M: tuple[float, ...] = (1.87, 2.38, 2.52, 0.77, 0.56)
 CLASS_CLEARANCE_M: tuple[float, ...] = (0.16, 0.28, 0.30, 0.14, 0.30)
+CLASS_DIAGONAL_MAX_M: tuple[float, ...] = (7.08, 9.05, 12.37, 2.53, 1.95)
 """Typical wheelbase and width per vehicle class, metres (means of the vehicle catalog):
 the lowest pixel of a vehicle is where its nearest wheels touch the road, half a
 wheelbase from its centre along its length and half a width across it, or, seen from
 nearer than about 11 m (a car), the lower edge of its body (the ground clearance above
-the road, half a length from the centre)."""
+the road, half a length from the centre). `CLASS_DIAGONAL_MAX_M`: the longest diagonal
+of the class's footprint in the catalog (its largest model; a test keeps them in step), the
+widest any vehicle of the class can look from any side (`width_bound`)."""
 
 PAPER_MU_H: float = 583.96
 """μ_h of Eq. 3 for our 1280 x 720 camera (scaled with the image height), calibrated the
@@ -157,6 +163,11 @@ HIDDEN_BOTTOM, HIDDEN_SIDE = 16, 32
 border (truncated: the vehicle goes on outside the image); a nearer detection covers
 part of its bottom edge; a nearer detection overlaps one of its side edges (then its
 centre column and width are not the vehicle's either)."""
+TOO_WIDE = 64
+"""Bit of ``fused``'s evidence (not `box_evidence`'s: it needs the distance): the box is
+wider than any vehicle of its class could look at the distance its cues read
+(`width_bound`), so its lower part is hidden by something no detector reports (a hedge,
+a wall, a kerb) and the distance was cut to the bound."""
 
 
 def box_evidence(boxes, spec: CameraSpec, border_px: float = 1.0,
@@ -186,6 +197,19 @@ def box_evidence(boxes, spec: CameraSpec, border_px: float = 1.0,
     has_r = (b[None, :, 2] >= b[:, None, 2] - tol_px) & (b[None, :, 0] < b[:, None, 2])
     ev |= np.where((nearer & cols & rows & (has_l | has_r)).any(1), HIDDEN_SIDE, 0)
     return ev
+
+
+def width_bound(boxes, class_ids, spec: CameraSpec, bearing_deg) -> np.ndarray:
+    """The farthest ground distance (metres) at which a vehicle of each box's class can
+    show a box that wide: no vehicle looks wider than its footprint's diagonal D
+    (`CLASS_DIAGONAL_MAX_M`), whose nearest point lies at most D/2 before its centre, so
+    the centre's depth is at most f·D/w + D/2 (w the box width in pixels; a box cut by
+    the border or an occluder is narrower than the vehicle, and the bound still holds),
+    over the cosine of the bearing for the ground distance."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 4)
+    diag = np.asarray(CLASS_DIAGONAL_MAX_M)[VEHICLE_CLASS_INDEX[np.asarray(class_ids)]]
+    w = np.maximum(b[:, 2] - b[:, 0], 1.0)
+    return (spec.focal_px * diag / w + diag / 2.0) / np.cos(np.radians(bearing_deg))
 
 
 def pixel_rays(spec: CameraSpec, pose: CameraPose, u, v):
@@ -309,6 +333,7 @@ class FusedLocalizer:
     border_px: float = 1.0
     cover_frac: float = 0.6
     strip_px: float | None = 4.0
+    width_cap: bool = True
 
     def localize(self, boxes, class_ids, spec: CameraSpec, pose: CameraPose,
                  rel_deg=None) -> Localized:
@@ -328,14 +353,19 @@ class FusedLocalizer:
                          PAPER_SIGMA_REL * p_dist)
         cues = d
         d = self._occluded_bottoms(boxes, class_ids, spec, p.bearing_deg, d)
+        evidence = box_evidence(boxes, spec, self.border_px)
+        if self.width_cap:  # wider than its class allows there: the bottom is hidden
+            cap = width_bound(boxes, class_ids, spec, p.bearing_deg)
+            wide = d > cap
+            d = np.where(wide, cap, d)
+            evidence = np.where(wide, evidence | TOO_WIDE, evidence)
         # a distance the hidden-bottom rules moved carries their error, not the cues' σ;
         # a tracker gates with the cues' σ still, and keeps it unless told (`HIDDEN_SIGMA_REL`)
         ruled = np.abs(d - cues) > 1e-9
         x, y = place(pose, d, p.bearing_deg)
         return Localized(d, p.bearing_deg, x, y,
                          np.where(ruled, np.maximum(sigma, HIDDEN_SIGMA_REL * d), sigma),
-                         np.ones(len(d), bool), box_evidence(boxes, spec, self.border_px),
-                         sigma if ruled.any() else None)
+                         np.ones(len(d), bool), evidence, sigma if ruled.any() else None)
 
 
     def _occluded_bottoms(self, boxes, class_ids, spec, bearing_deg, d):
@@ -698,8 +728,9 @@ def fit_cut_boxes(road_map, spec: CameraSpec, pose: CameraPose, boxes, class_ids
     ``prior_rel`` × distance). A cut box's centre column is not the vehicle's and its
     bottom row is wherever the vehicle's near side leaves the image, so the
     per-detection cues misread it; the lane says how the vehicle stands. Where a nearer
-    box hides the bottom edge (`HIDDEN_BOTTOM`), the box's lowest row is that box's edge,
-    not the vehicle's: the model's bottom row only has to lie at or below it. Other
+    box hides the bottom edge (`HIDDEN_BOTTOM`), or the box is too wide for its range
+    (`TOO_WIDE`: something else hides it), the box's lowest row is not the vehicle's:
+    the model's bottom row only has to lie at or below it. Other
     boxes, and cut boxes no candidate explains, are unchanged."""
     ev = np.asarray(loc.evidence)
     cut = (ev & (CUT_LEFT | CUT_RIGHT)) != 0
@@ -724,7 +755,7 @@ def fit_cut_boxes(road_map, spec: CameraSpec, pose: CameraPose, boxes, class_ids
         inner, seen = (umax, b[2]) if ev[i] & CUT_LEFT else (umin, b[0])
         prior = prior_m + prior_rel * math.hypot(x[i] - pose.x, y[i] - pose.y)
         dv = vbot - b[3]
-        if ev[i] & HIDDEN_BOTTOM:  # the vehicle's lowest pixel is at or below the box's
+        if ev[i] & (HIDDEN_BOTTOM | TOO_WIDE):  # its lowest pixel is at or below the box's
             dv = np.minimum(dv, 0.0)
         with np.errstate(invalid="ignore"):
             cost = (((inner - seen) / (2.0 + 0.05 * w)) ** 2
