@@ -27,10 +27,17 @@ unassigned). Ids start at 1 and are never reused within a tracker.
   predicted boxes with the image. Association: Hungarian on 1 − IoU(predicted box,
   detection) plus the squared Mahalanobis distance of the detection's position to the
   track's over a χ² gate; a pair is allowed when IoU ≥ `iou_min` or it is inside the
-  gate. A track ages only while its prediction lies inside the image: a vehicle the
-  camera has turned away from is remembered (up to `out_of_view_s`) and picked up again
-  where the odometry says it should reappear. Tracks unseen for more than `coast_s` are
-  matched in a second stage, to the detections the recent tracks left, on the ground-plane
+  gate. The predicted boxes are clipped to the image for the IoU, and a detection at the
+  left or right border lying mostly within the columns of a prediction that crosses that
+  border may match it (`clip_iou`: a vehicle leaving or entering the image). A cut or
+  hidden box matched although its range lies beyond the gate (allowed by the IoU), or a
+  box too wide for its range (`TOO_WIDE`), updates a track that had a clean box with its
+  bearing alone (`robust_range`: a box whose lower part a hedge hides reads tens of metres
+  too far). A
+  track ages only while its prediction lies inside the image: a vehicle the camera has
+  turned away from is remembered (up to `out_of_view_s`) and picked up again where the
+  odometry says it should reappear. Tracks unseen for more than `coast_s` are matched in
+  a second stage, to the detections the recent tracks left, on the ground-plane
   Mahalanobis distance alone and the same vehicle class (not on their predicted box).
   A track is reported once it has `min_hits` hits, one of them a confident detection
   (score ≥ `confirm_score`, ByteTrack's rule): weak boxes extend tracks but never make one.
@@ -57,7 +64,7 @@ from dashtraj.perception.detections import (
     Detections,
     iou_matrix,
 )
-from dashtraj.perception.localize import PAPER_MU_H, CameraPose, FusedLocalizer
+from dashtraj.perception.localize import PAPER_MU_H, TOO_WIDE, CameraPose, FusedLocalizer
 from dashtraj.world.camera import CameraSpec
 
 
@@ -195,6 +202,33 @@ class SortTracker:
 
 
 # ------------------------------------------------------------------------------ ego
+BEARING_ONLY_SIGMA_REL = 10.0
+"""Range σ, as a share of the range, of a detection that updates a track with its bearing
+alone (`EgoTracker.robust_range`: a box too wide for its range, `TOO_WIDE`)."""
+
+
+def _border_iou(boxes, pred, spec: CameraSpec, iou_min: float,
+                inside_min: float = 0.5) -> np.ndarray:
+    """(N, M) IoU of detections with predicted boxes clipped to the image (a detection
+    ends at the border; the prediction of a vehicle half out of view does not), raised
+    to ``iou_min`` where a detection touching the left or right border has at least
+    ``inside_min`` of its columns inside a prediction crossing that border, and rows in
+    common with it: the part of a vehicle still in view as it leaves or enters the
+    image, whose box narrows against the border (and whose lower part a hedge or a
+    parked car may hide) while the prediction keeps the whole vehicle's shape."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 4)
+    p = np.asarray(pred, np.float64).reshape(-1, 4)
+    w = spec.width_px
+    iou = iou_matrix(b, np.clip(p, 0.0, [w, spec.height_px, w, spec.height_px]))
+    cols = np.clip(np.minimum(b[:, None, 2], p[None, :, 2])
+                   - np.maximum(b[:, None, 0], p[None, :, 0]), 0.0, None)
+    inside = cols / np.maximum(b[:, 2] - b[:, 0], 1e-9)[:, None]
+    rows = (b[:, None, 1] < p[None, :, 3]) & (p[None, :, 1] < b[:, None, 3])
+    border = (((b[:, 0] <= 1.0)[:, None] & (p[:, 0] < 0.0)[None, :])
+              | ((b[:, 2] >= w - 1.0)[:, None] & (p[:, 2] > w)[None, :]))
+    return np.where(border & rows & (inside >= inside_min), np.maximum(iou, iou_min), iou)
+
+
 @dataclass
 class EgoTracker:
     """Ground-plane tracker using the observer's odometry (module docstring).
@@ -231,6 +265,18 @@ class EgoTracker:
             σ of the cues it replaced. The smoothed localizers' filters do (a misread
             box then moves a track's position less); the tracker that reports ids does
             not (on e11-e15 its IDF1 fell 0.782 -> 0.777 with it).
+        clip_iou: the predicted boxes are clipped to the image before their IoU with the
+            detections (which the image border clips), and a box at the border lying
+            mostly inside a prediction that crosses that border may match it whatever
+            their IoU (`_border_iou`): a vehicle leaving or entering the image keeps its
+            track while its box shrinks against the border.
+        robust_range: a detection whose box is cut or hidden (`box_evidence`), matched on
+            its overlap with a track although its range lies beyond the gate (squared
+            Mahalanobis distance > ``gate_chi2``), or whose box is too wide for its range
+            (`TOO_WIDE`: the range is only a bound), updates a track that had a clean box
+            (whose range it can trust more) with its bearing alone (range σ
+            `BEARING_ONLY_SIGMA_REL` of it); and a track's last box is scaled to later
+            frames from the filter's range when it was seen, not the detection's.
     """
 
     spec: CameraSpec = field(default_factory=CameraSpec)
@@ -248,6 +294,8 @@ class EgoTracker:
     coast_chi2: float = 16.0
     confirm_score: float = CONFIRM_SCORE
     rule_sigma: bool = False
+    clip_iou: bool = True
+    robust_range: bool = True
     name: str = "ego"
     _x: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)), repr=False)
     _p: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)), repr=False)
@@ -258,6 +306,7 @@ class EgoTracker:
     _since: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
     _hits: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
     _strong: np.ndarray = field(default_factory=lambda: np.zeros(0, bool), repr=False)
+    _clean: np.ndarray = field(default_factory=lambda: np.zeros(0, bool), repr=False)
     _last: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     _hidden: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     _t: float | None = None
@@ -301,7 +350,8 @@ class EgoTracker:
 
     SETTINGS = ("spec", "max_age_s", "min_hits", "iou_min", "accel_mps2", "class_penalty",
                 "gate_chi2", "cross_px", "out_of_view_s", "view_margin_px", "mu_h", "coast_s",
-                "coast_chi2", "confirm_score", "rule_sigma")
+                "coast_chi2", "confirm_score", "rule_sigma", "clip_iou",
+                "robust_range")
     """The fields that set its behaviour (the rest is state)."""
 
     def same_settings(self, other: EgoTracker) -> bool:
@@ -336,7 +386,11 @@ class EgoTracker:
                  else r_det)
         if n and m:
             pbox, _, front = self.predicted_boxes(pose)
-            iou = np.where(front[None, :], iou_matrix(det.boxes, pbox), 0.0)
+            if self.clip_iou:
+                iou = _border_iou(det.boxes, pbox, self.spec, self.iou_min)
+            else:
+                iou = iou_matrix(det.boxes, pbox)
+            iou = np.where(front[None, :], iou, 0.0)
             v = zx[:, None, :] - self._x[None, :, :2]
             S = self._p[None, :, :2, :2] + r_det[:, None]
             d2 = np.einsum("nmi,nmij,nmj->nm", v, np.linalg.inv(S), v)  # Mahalanobis²
@@ -358,6 +412,21 @@ class EgoTracker:
                     ud = ud[ud2]
         else:
             matches, ud = np.zeros((0, 2), np.int64), np.arange(n)
+        if len(matches) and self.robust_range:
+            # a box cut or hidden (`box_evidence`) matched on its overlap although its range
+            # lies beyond the gate (its bottom or height misleads), or too wide for its
+            # range (`TOO_WIDE`: the range is only a bound): its bearing alone updates the
+            # track (a clean box's range stands: the track may be the one that is wrong)
+            d, k = matches[:, 0], matches[:, 1]
+            ev = np.asarray(loc.evidence)[d]
+            blind = np.zeros(n, bool)
+            blind[d] = (((d2[d, k] > self.gate_chi2) & (ev != 0)) | ((ev & TOO_WIDE) != 0)) \
+                & self._clean[k]  # a track that never had a clean box knows no better
+            if blind.any():
+                sig = loc.sigma_m if r_upd is not r_det else (
+                    loc.sigma_m if loc.gate_sigma_m is None else loc.gate_sigma_m)
+                r_upd = self._meas_cov(loc, pose, np.where(
+                    blind, BEARING_ONLY_SIGMA_REL * loc.distance_m, sig))
         if len(matches):
             d, k = matches[:, 0], matches[:, 1]
             x, p = self._x[k], self._p[k]
@@ -366,10 +435,14 @@ class EgoTracker:
             self._x[k] = x + np.einsum("nij,nj->ni", gain, zx[d] - x[:, :2])
             self._p[k] = (np.eye(4) - gain @ np.eye(2, 4)) @ p
             self._box[k] = det.boxes[d]
-            self._dist[k] = loc.distance_m[d]
+            # the range the box was seen at, to scale it by later: the filter's (an
+            # outlying range would scale the predicted box off the vehicle)
+            self._dist[k] = (np.hypot(self._x[k, 0] - pose.x, self._x[k, 1] - pose.y)
+                             if self.robust_range else loc.distance_m[d])
             self._since[k] = 0
             self._hits[k] += 1
             self._strong[k] |= strong[d]
+            self._clean[k] |= np.asarray(loc.evidence)[d] == 0
             self._votes[k, eta[d]] += 1
         if len(ud):
             k = len(ud)
@@ -390,6 +463,7 @@ class EgoTracker:
             self._since = np.concatenate([self._since, np.zeros(k, np.int64)])
             self._hits = np.concatenate([self._hits, np.ones(k, np.int64)])
             self._strong = np.concatenate([self._strong, strong[ud]])
+            self._clean = np.concatenate([self._clean, np.asarray(loc.evidence)[ud] == 0])
             self._last = np.concatenate([self._last, np.full(k, self._t)])
             self._hidden = np.concatenate([self._hidden, np.zeros(k)])
         self.measured = loc
@@ -415,6 +489,7 @@ class EgoTracker:
         keep = ((self._hidden <= self.max_age_s + 1e-9)
                 & ((self._t - self._last) <= max(self.max_age_s, self.out_of_view_s) + 1e-9))
         for a in ("_x", "_p", "_box", "_dist", "_ids", "_votes", "_since", "_hits", "_strong",
+                  "_clean",
                   "_last", "_hidden"):
             setattr(self, a, getattr(self, a)[keep])
         return out
