@@ -27,9 +27,9 @@ unassigned). Ids start at 1 and are never reused within a tracker.
   predicted boxes with the image. Association: Hungarian on 1 − IoU(predicted box,
   detection) plus the squared Mahalanobis distance of the detection's position to the
   track's over a χ² gate; a pair is allowed when IoU ≥ `iou_min` or it is inside the
-  gate. The predicted boxes are clipped to the image for the IoU, and a detection at the
-  left or right border lying mostly within the columns of a prediction that crosses that
-  border may match it (`clip_iou`: a vehicle leaving or entering the image). A cut or
+  gate. A detection at the left or right border meets a prediction crossing that border
+  clipped to the image, and may match it when it lies mostly within its columns
+  (`clip_iou`: a vehicle leaving or entering the image). A cut or
   hidden box matched although its range lies beyond the gate (allowed by the IoU), or a
   box too wide for its range (`TOO_WIDE`), updates a track that had a clean box with its
   bearing alone (`robust_range`: a box whose lower part a hedge hides reads tens of metres
@@ -209,24 +209,31 @@ alone (`EgoTracker.robust_range`: a box too wide for its range, `TOO_WIDE`)."""
 
 def _border_iou(boxes, pred, spec: CameraSpec, iou_min: float,
                 inside_min: float = 0.5) -> np.ndarray:
-    """(N, M) IoU of detections with predicted boxes clipped to the image (a detection
-    ends at the border; the prediction of a vehicle half out of view does not), raised
-    to ``iou_min`` where a detection touching the left or right border has at least
-    ``inside_min`` of its columns inside a prediction crossing that border, and rows in
-    common with it: the part of a vehicle still in view as it leaves or enters the
+    """(N, M) IoU of detections with predicted boxes, where a detection touching the left
+    or right border meets a prediction crossing that border: then the prediction is
+    clipped to the image first (the detection ends at the border; the prediction of a
+    vehicle half out of view does not), and the pair counts ``iou_min`` at least when at
+    least ``inside_min`` of the detection's columns lie inside the prediction and they
+    have rows in common: the part of a vehicle still in view as it leaves or enters the
     image, whose box narrows against the border (and whose lower part a hedge or a
-    parked car may hide) while the prediction keeps the whole vehicle's shape."""
+    parked car may hide) while the prediction keeps the whole vehicle's shape. Other
+    pairs keep their plain IoU (a prediction clipped to a sliver at the border would
+    overlap any small box near it)."""
     b = np.asarray(boxes, np.float64).reshape(-1, 4)
     p = np.asarray(pred, np.float64).reshape(-1, 4)
     w = spec.width_px
-    iou = iou_matrix(b, np.clip(p, 0.0, [w, spec.height_px, w, spec.height_px]))
+    iou = iou_matrix(b, p)
+    border = (((b[:, 0] <= 1.0)[:, None] & (p[:, 0] < 0.0)[None, :])
+              | ((b[:, 2] >= w - 1.0)[:, None] & (p[:, 2] > w)[None, :]))
+    if not border.any():
+        return iou
+    clipped = iou_matrix(b, np.clip(p, 0.0, [w, spec.height_px, w, spec.height_px]))
     cols = np.clip(np.minimum(b[:, None, 2], p[None, :, 2])
                    - np.maximum(b[:, None, 0], p[None, :, 0]), 0.0, None)
     inside = cols / np.maximum(b[:, 2] - b[:, 0], 1e-9)[:, None]
     rows = (b[:, None, 1] < p[None, :, 3]) & (p[None, :, 1] < b[:, None, 3])
-    border = (((b[:, 0] <= 1.0)[:, None] & (p[:, 0] < 0.0)[None, :])
-              | ((b[:, 2] >= w - 1.0)[:, None] & (p[:, 2] > w)[None, :]))
-    return np.where(border & rows & (inside >= inside_min), np.maximum(iou, iou_min), iou)
+    clipped = np.where(rows & (inside >= inside_min), np.maximum(clipped, iou_min), clipped)
+    return np.where(border, clipped, iou)
 
 
 @dataclass
@@ -265,11 +272,10 @@ class EgoTracker:
             σ of the cues it replaced. The smoothed localizers' filters do (a misread
             box then moves a track's position less); the tracker that reports ids does
             not (on e11-e15 its IDF1 fell 0.782 -> 0.777 with it).
-        clip_iou: the predicted boxes are clipped to the image before their IoU with the
-            detections (which the image border clips), and a box at the border lying
-            mostly inside a prediction that crosses that border may match it whatever
-            their IoU (`_border_iou`): a vehicle leaving or entering the image keeps its
-            track while its box shrinks against the border.
+        clip_iou: a detection at the left or right border meets a prediction crossing
+            that border clipped to the image, and may match it whatever their IoU when
+            it lies mostly within its columns (`_border_iou`): a vehicle leaving or
+            entering the image keeps its track while its box shrinks against the border.
         robust_range: a detection whose box is cut or hidden (`box_evidence`), matched on
             its overlap with a track although its range lies beyond the gate (squared
             Mahalanobis distance > ``gate_chi2``), or whose box is too wide for its range
