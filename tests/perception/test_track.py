@@ -462,12 +462,12 @@ def hedge10(gl_available):
 
 
 def test_ego_follows_a_car_behind_a_hedge_out_of_the_image(hedge10):
-    """Measured: with the hedge's boxes matched on their bearing alone (`robust_range`:
-    the boxes too wide for their range, then, cut by the border, beyond the gate) the
-    filter stays within 2.4 m of the car to its last box (the boxes read 38-109 m for
-    20-29 m); updated with their ranges it drifts 20 m off, and with the predicted box
-    unclipped as well (`clip_iou`) the last box, 24 px at the border, starts a new track
-    80 m off."""
+    """The smoothed localizers' filters (`SMOOTHING_FILTER`). Measured: with the hedge's
+    boxes matched on their bearing alone (`robust_range`: the boxes too wide for their
+    range, then, cut by the border, beyond the gate) the filter stays within 2.4 m of the
+    car to its last box (the boxes read 38-109 m for 20-29 m); updated with their ranges
+    it drifts 20 m off; with the id tracker's settings (no width bound, the predicted box
+    unclipped: `clip_iou`) the last box, 24 px at the border, starts a new track 80 m off."""
     rendered, dets, truth = hedge10
 
     def run(**kw):
@@ -479,9 +479,11 @@ def test_ego_follows_a_car_behind_a_hedge_out_of_the_image(hedge10):
             err.append(float(np.hypot(tr.positions[0, 0] - tx, tr.positions[0, 1] - ty)))
         return ids, err
 
-    ids, err = run()
+    from dashtraj.perception.localize import SMOOTHING_FILTER
+
+    ids, err = run(**SMOOTHING_FILTER)  # the smoothed localizers' filters
     assert len(set(ids)) == 1 and max(err) < 3.0
-    ids, err = run(robust_range=False)
+    ids, err = run(**{**SMOOTHING_FILTER, "robust_range": False})
     assert len(set(ids)) == 1 and max(err) > 15.0
-    ids, err = run(robust_range=False, clip_iou=False)
+    ids, err = run(rule_sigma=True)  # the id tracker's settings
     assert len(set(ids)) == 2 and err[-1] > 50.0

@@ -509,6 +509,12 @@ def _pass_of(tracker) -> _Pass:
                  tracker.innovation_d2.copy())
 
 
+SMOOTHING_FILTER = {"rule_sigma": True, "width_cap": True, "clip_iou": True,
+                    "robust_range": True}
+"""`EgoTracker` settings of the smoothed localizers' own filters (forward, run again
+offline, and backward): the online tracker that reports the ids keeps its defaults."""
+
+
 @dataclass
 class SmoothedLocalizer(TrackedLocalizer):
     """Forward-backward (offline) track-level estimation of one camera's sequence.
@@ -562,7 +568,7 @@ class SmoothedLocalizer(TrackedLocalizer):
             return [], []
         frames = self._recalibrated()
         back = EgoTracker(spec=self._tracker.spec, mu_h=self.mu_h,  # the forward one's camera
-                          rule_sigma=True)
+                          **SMOOTHING_FILTER)
         backward: list[_Pass] = []
         for boxes, class_ids, pose, t, _, _ in reversed(frames):
             n = len(boxes)
@@ -574,11 +580,11 @@ class SmoothedLocalizer(TrackedLocalizer):
                         for (_, _, pose, _, m, f), b in zip(frames, backward, strict=True)]
 
     def _recalibrated(self) -> list:
-        """The kept frames, localized forward again by a filter that updates with the
-        hidden-bottom rules' σ (`EgoTracker.rule_sigma`; the online one, which reports
-        the ids, does not), from the poses with the pitch calibrator's offline estimate
-        where there is one. Unchanged where neither would change anything (no distance
-        set by a rule, and no calibrator or the estimate `localize` had)."""
+        """The kept frames, localized forward again by the smoothing filter
+        (`SMOOTHING_FILTER`: it updates with the hidden-bottom rules' σ and bounds a box's
+        range by its width, and a box cut or hidden beyond its track's gate updates it with
+        its bearing alone; the online one, which reports the ids, does none of these), from
+        the poses with the pitch calibrator's offline estimate where there is one."""
         from dashtraj.perception.detections import Detections
         from dashtraj.perception.track import EgoTracker
 
@@ -586,10 +592,7 @@ class SmoothedLocalizer(TrackedLocalizer):
         delta = np.zeros(len(self._frames))
         if cal is not None and len(cal.applied) == len(self._frames):
             delta = cal.offsets([fr[3] for fr in self._frames]) - np.asarray(cal.applied)
-        ruled = any(fr[4].gate_sigma_m is not None for fr in self._frames)
-        if not ruled and np.all(np.abs(delta) < 1e-9):
-            return self._frames
-        fwd = EgoTracker(spec=self._tracker.spec, mu_h=self.mu_h, rule_sigma=True)
+        fwd = EgoTracker(spec=self._tracker.spec, mu_h=self.mu_h, **SMOOTHING_FILTER)
         out = []
         for (boxes, class_ids, pose, t, _, _), d in zip(self._frames, delta, strict=True):
             pose = replace(pose, pitch_deg=min(max(pose.pitch_deg + float(d), -89.0), 89.0))

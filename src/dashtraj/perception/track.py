@@ -27,9 +27,10 @@ unassigned). Ids start at 1 and are never reused within a tracker.
   predicted boxes with the image. Association: Hungarian on 1 − IoU(predicted box,
   detection) plus the squared Mahalanobis distance of the detection's position to the
   track's over a χ² gate; a pair is allowed when IoU ≥ `iou_min` or it is inside the
-  gate. A detection at the left or right border meets a prediction crossing that border
-  clipped to the image, and may match it when it lies mostly within its columns
-  (`clip_iou`: a vehicle leaving or entering the image). A cut or
+  gate. Optionally (`clip_iou`, `robust_range`, `width_cap`: on in the smoothed
+  localizers' filters) a detection at the left or right border meets a prediction crossing
+  that border clipped to the image, and may match it when it lies mostly within its
+  columns (a vehicle leaving or entering the image). A cut or
   hidden box matched although its range lies beyond the gate (allowed by the IoU), or a
   box too wide for its range (`TOO_WIDE`), updates a track that had a clean box with its
   bearing alone (`robust_range`: a box whose lower part a hedge hides reads tens of metres
@@ -272,6 +273,10 @@ class EgoTracker:
             σ of the cues it replaced. The smoothed localizers' filters do (a misread
             box then moves a track's position less); the tracker that reports ids does
             not (on e11-e15 its IDF1 fell 0.782 -> 0.777 with it).
+        width_cap: measure with ``fused``'s width bound (`FusedLocalizer.width_cap`).
+            This and the next two are off in the tracker that reports ids (its ids and
+            `tracked` stay as they were measured) and on in the smoothed localizers' own
+            filters (`SmoothedLocalizer`), which their positions come from.
         clip_iou: a detection at the left or right border meets a prediction crossing
             that border clipped to the image, and may match it whatever their IoU when
             it lies mostly within its columns (`_border_iou`): a vehicle leaving or
@@ -300,8 +305,9 @@ class EgoTracker:
     coast_chi2: float = 16.0
     confirm_score: float = CONFIRM_SCORE
     rule_sigma: bool = False
-    clip_iou: bool = True
-    robust_range: bool = True
+    width_cap: bool = False
+    clip_iou: bool = False
+    robust_range: bool = False
     name: str = "ego"
     _x: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)), repr=False)
     _p: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)), repr=False)
@@ -356,8 +362,8 @@ class EgoTracker:
 
     SETTINGS = ("spec", "max_age_s", "min_hits", "iou_min", "accel_mps2", "class_penalty",
                 "gate_chi2", "cross_px", "out_of_view_s", "view_margin_px", "mu_h", "coast_s",
-                "coast_chi2", "confirm_score", "rule_sigma", "clip_iou",
-                "robust_range")
+                "coast_chi2", "confirm_score", "rule_sigma", "width_cap",
+                "clip_iou", "robust_range")
     """The fields that set its behaviour (the rest is state)."""
 
     def same_settings(self, other: EgoTracker) -> bool:
@@ -368,7 +374,8 @@ class EgoTracker:
     def update(self, det: Detections, t: float, pose: CameraPose) -> np.ndarray:
         """Feed one frame; returns (N,) confirmed track id per detection or −1."""
         n = len(det)
-        loc = FusedLocalizer(self.mu_h).localize(det.boxes, det.class_ids, self.spec, pose)
+        loc = FusedLocalizer(self.mu_h, width_cap=self.width_cap).localize(
+            det.boxes, det.class_ids, self.spec, pose)
         zx = np.column_stack([loc.x, loc.y])
         dt = 0.0 if self._t is None else max(float(t) - self._t, 0.0)
         self._t = float(t)
