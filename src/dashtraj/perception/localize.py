@@ -520,10 +520,10 @@ class SmoothedLocalizer(TrackedLocalizer):
     """Forward-backward (offline) track-level estimation of one camera's sequence.
 
     `localize` is `TrackedLocalizer`'s (the forward, causal estimate; fed every frame in
-    time order with ``t``) and keeps the frame. `smoothed` then runs the same ``ego``
-    filter backward in time (the frames reversed, time negated: the constant-velocity
-    model holds either way; the observer's odometry is its pose in each frame) and
-    combines, per detection:
+    time order with ``t``) and keeps the frame. `smoothed` then runs its own ``ego``
+    filters (`SMOOTHING_FILTER`) forward again and backward in time (the frames
+    reversed, time negated: the constant-velocity model holds either way; the observer's
+    odometry is its pose in each frame) and combines, per detection:
 
     - the ``fused`` position where the box is clean (`box_evidence` 0) and consistent
       with its track in both directions (squared Mahalanobis distance to each

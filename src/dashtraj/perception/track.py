@@ -27,19 +27,19 @@ unassigned). Ids start at 1 and are never reused within a tracker.
   predicted boxes with the image. Association: Hungarian on 1 − IoU(predicted box,
   detection) plus the squared Mahalanobis distance of the detection's position to the
   track's over a χ² gate; a pair is allowed when IoU ≥ `iou_min` or it is inside the
-  gate. Optionally (`clip_iou`, `robust_range`, `width_cap`: on in the smoothed
-  localizers' filters) a detection at the left or right border meets a prediction crossing
-  that border clipped to the image, and may match it when it lies mostly within its
-  columns (a vehicle leaving or entering the image). A cut or
-  hidden box matched although its range lies beyond the gate (allowed by the IoU), or a
-  box too wide for its range (`TOO_WIDE`), updates a track that had a clean box with its
-  bearing alone (`robust_range`: a box whose lower part a hedge hides reads tens of metres
-  too far). A
-  track ages only while its prediction lies inside the image: a vehicle the camera has
-  turned away from is remembered (up to `out_of_view_s`) and picked up again where the
-  odometry says it should reappear. Tracks unseen for more than `coast_s` are matched in
-  a second stage, to the detections the recent tracks left, on the ground-plane
-  Mahalanobis distance alone and the same vehicle class (not on their predicted box).
+  gate. Three options are off in the tracker that reports ids and on in the smoothed
+  localizers' own filters: a detection at the left or right border meets a prediction
+  crossing that border clipped to the image, and may match it when it lies mostly within
+  its columns (`clip_iou`: a vehicle leaving or entering the image); a cut or hidden box
+  matched although its range lies beyond the gate, or a box too wide for its range
+  (`TOO_WIDE`, measured with `width_cap`), updates a track that had a clean box with its
+  bearing alone (`robust_range`: a box whose lower part a hedge hides reads tens of
+  metres too far). A track ages only while its prediction lies inside the image: a
+  vehicle the camera has turned away from is remembered (up to `out_of_view_s`) and picked
+  up again where the odometry says it should reappear. Tracks unseen for more than
+  `coast_s` are matched in a second stage, to the detections the recent tracks left, on
+  the ground-plane Mahalanobis distance alone and the same vehicle class (not on their
+  predicted box).
   A track is reported once it has `min_hits` hits, one of them a confident detection
   (score ≥ `confirm_score`, ByteTrack's rule): weak boxes extend tracks but never make one.
 
@@ -205,7 +205,8 @@ class SortTracker:
 # ------------------------------------------------------------------------------ ego
 BEARING_ONLY_SIGMA_REL = 10.0
 """Range σ, as a share of the range, of a detection that updates a track with its bearing
-alone (`EgoTracker.robust_range`: a box too wide for its range, `TOO_WIDE`)."""
+alone (`EgoTracker.robust_range`: a cut or hidden box beyond the gate, a box too wide for
+its range)."""
 
 
 def _border_iou(boxes, pred, spec: CameraSpec, iou_min: float,
@@ -502,8 +503,7 @@ class EgoTracker:
         keep = ((self._hidden <= self.max_age_s + 1e-9)
                 & ((self._t - self._last) <= max(self.max_age_s, self.out_of_view_s) + 1e-9))
         for a in ("_x", "_p", "_box", "_dist", "_ids", "_votes", "_since", "_hits", "_strong",
-                  "_clean",
-                  "_last", "_hidden"):
+                  "_clean", "_last", "_hidden"):
             setattr(self, a, getattr(self, a)[keep])
         return out
 
