@@ -16,7 +16,7 @@ from dashtraj.perception.localize import (
     place,
 )
 from dashtraj.world.camera import CameraSpec
-from perception_scenes import render_scene
+from perception_scenes import car_identities, render_scene
 
 SPEC = CameraSpec()  # 1280 x 720, FOV 90°, the paper's camera
 BEARINGS = (-30.0, -15.0, 0.0, 15.0, 30.0)
@@ -441,7 +441,6 @@ def broadside(gl_available):
     its diagonal across the ray (its widest look), and a car of common size (car 1 of
     `car_identities`) broadside at 27 m."""
     from dashtraj.world import catalog
-    from perception_scenes import car_identities
 
     amb = catalog.identities()[33]
     assert amb.model.blueprint_id == "vehicle.ford.ambulance"

@@ -395,9 +395,11 @@ class EgoTracker:
         eta = VEHICLE_CLASS_INDEX[det.class_ids] if n else np.zeros(0, np.int64)
         strong = np.asarray(det.scores, np.float64) >= self.confirm_score
         lost = self._hidden > self.max_age_s + 1e-9
+        evidence = np.asarray(loc.evidence)
+        own = self.rule_sigma and loc.gate_sigma_m is not None  # the update's σ: the rules'
+        sig_upd = loc.sigma_m if own or loc.gate_sigma_m is None else loc.gate_sigma_m
         r_det = self._meas_cov(loc, pose, loc.gate_sigma_m)  # the gate's; the update's:
-        r_upd = (self._meas_cov(loc, pose) if self.rule_sigma and loc.gate_sigma_m is not None
-                 else r_det)
+        r_upd = self._meas_cov(loc, pose) if own else r_det
         if n and m:
             pbox, _, front = self.predicted_boxes(pose)
             if self.clip_iou:
@@ -432,15 +434,13 @@ class EgoTracker:
             # range (`TOO_WIDE`: the range is only a bound): its bearing alone updates the
             # track (a clean box's range stands: the track may be the one that is wrong)
             d, k = matches[:, 0], matches[:, 1]
-            ev = np.asarray(loc.evidence)[d]
+            ev = evidence[d]
             blind = np.zeros(n, bool)
             blind[d] = (((d2[d, k] > self.gate_chi2) & (ev != 0)) | ((ev & TOO_WIDE) != 0)) \
                 & self._clean[k]  # a track that never had a clean box knows no better
             if blind.any():
-                sig = loc.sigma_m if r_upd is not r_det else (
-                    loc.sigma_m if loc.gate_sigma_m is None else loc.gate_sigma_m)
                 r_upd = self._meas_cov(loc, pose, np.where(
-                    blind, BEARING_ONLY_SIGMA_REL * loc.distance_m, sig))
+                    blind, BEARING_ONLY_SIGMA_REL * loc.distance_m, sig_upd))
         if len(matches):
             d, k = matches[:, 0], matches[:, 1]
             x, p = self._x[k], self._p[k]
@@ -456,7 +456,7 @@ class EgoTracker:
             self._since[k] = 0
             self._hits[k] += 1
             self._strong[k] |= strong[d]
-            self._clean[k] |= np.asarray(loc.evidence)[d] == 0
+            self._clean[k] |= evidence[d] == 0
             self._votes[k, eta[d]] += 1
         if len(ud):
             k = len(ud)
@@ -477,7 +477,7 @@ class EgoTracker:
             self._since = np.concatenate([self._since, np.zeros(k, np.int64)])
             self._hits = np.concatenate([self._hits, np.ones(k, np.int64)])
             self._strong = np.concatenate([self._strong, strong[ud]])
-            self._clean = np.concatenate([self._clean, np.asarray(loc.evidence)[ud] == 0])
+            self._clean = np.concatenate([self._clean, evidence[ud] == 0])
             self._last = np.concatenate([self._last, np.full(k, self._t)])
             self._hidden = np.concatenate([self._hidden, np.zeros(k)])
         self.measured = loc
