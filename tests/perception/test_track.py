@@ -357,6 +357,21 @@ def test_live_relink_joins_as_the_frames_come_within_the_rules():
     assert out.tolist() == [-1, 2]  # tracks 1 and 2 became identities 1 and 2
 
 
+def test_live_relink_joins_a_vehicle_met_again_within_45_s():
+    """`LiveRelink`'s longest gap is 45 s, not `Relink`'s 30: track 2 (frames 40-45) has
+    track 1's look 38 s after 1's last box and joins it; with a 30 s gap it stays apart.
+    Track 3 comes 52 s after 2's last box and joins nothing (1-2 is forgotten then)."""
+    look = _unit([1, 0, 0, 0])
+    rows = [(1, 0, 2, (0, 0), look, 0), (2, 40, 45, (0, 0), look, 0),
+            (3, 97, 100, (0, 0), look, 0)]
+    assert LiveRelink().max_gap_s == 45.0 and Relink().max_gap_s == 30.0
+    ids = {k: [o for _, o in v] for k, v in _live(rows, 101).items()}
+    assert ids[2] == [ids[2][0]] * 2 + [ids[1][0]] * 4 and ids[2][0] != ids[1][0]
+    assert set(ids[3]) == {ids[3][0]} and ids[3][0] not in (ids[1][0], ids[2][0])
+    ids = {k: [o for _, o in v] for k, v in _live(rows, 101, max_gap_s=30.0).items()}
+    assert all(len(set(v)) == 1 for v in ids.values()) and len({v[0] for v in ids.values()}) == 3
+
+
 def test_live_relink_cuts_a_swapped_track_and_joins_its_parts():
     """`test_relink_cuts_a_track_where_its_look_changes_and_joins_the_parts`' swap, live:
     track 1 takes car B's boxes at frame 10; the cut comes at frame 12, when the last 5
