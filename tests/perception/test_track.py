@@ -314,7 +314,7 @@ def test_relink_cuts_a_track_where_its_look_changes_and_joins_the_parts():
 
 def _live(rows, n_frames, **settings):
     """`LiveRelink` fed `_feed`'s tracks (every box reported, the tracker's track = its
-    id): {track id: [(frame, id reported)]}."""
+    id): {track id: [id reported, frame by frame]}."""
     live = LiveRelink(**settings)
     got: dict = {}
     for f in range(n_frames):
@@ -325,7 +325,7 @@ def _live(rows, n_frames, **settings):
                           np.array([[r[3][0] + (f - r[1]), r[3][1]] for r in here],
                                    np.float64).reshape(-1, 2), emb.reshape(len(here), 4))
         for i, o in zip(k.tolist(), out.tolist(), strict=True):
-            got.setdefault(i, []).append((f, o))
+            got.setdefault(i, []).append(o)
     return got
 
 
@@ -344,7 +344,7 @@ def test_live_relink_joins_as_the_frames_come_within_the_rules():
             (5, 5, 8, (31, 0), look_a, truck), (6, 20, 23, (0, 0), look_b, car),
             (7, 30, 31, (0, 0), _unit([0, 0, 1, 0]), car),
             (8, 40, 47, (0, 0), lambda f: look_a if f >= 45 else nan, car)]
-    ids = {k: [o for _, o in v] for k, v in _live(rows, 48).items()}
+    ids = _live(rows, 48)
     first = {k: v[0] for k, v in ids.items()}  # each track starts as an identity of its own
     assert len(set(first.values())) == 8
     assert ids[1] == [first[1]] * 3
@@ -365,10 +365,10 @@ def test_live_relink_joins_a_vehicle_met_again_within_45_s():
     rows = [(1, 0, 2, (0, 0), look, 0), (2, 40, 45, (0, 0), look, 0),
             (3, 97, 100, (0, 0), look, 0)]
     assert LiveRelink().max_gap_s == 45.0 and Relink().max_gap_s == 30.0
-    ids = {k: [o for _, o in v] for k, v in _live(rows, 101).items()}
+    ids = _live(rows, 101)
     assert ids[2] == [ids[2][0]] * 2 + [ids[1][0]] * 4 and ids[2][0] != ids[1][0]
     assert set(ids[3]) == {ids[3][0]} and ids[3][0] not in (ids[1][0], ids[2][0])
-    ids = {k: [o for _, o in v] for k, v in _live(rows, 101, max_gap_s=30.0).items()}
+    ids = _live(rows, 101, max_gap_s=30.0)
     assert all(len(set(v)) == 1 for v in ids.values()) and len({v[0] for v in ids.values()}) == 3
 
 
@@ -381,11 +381,11 @@ def test_live_relink_cuts_a_swapped_track_and_joins_its_parts():
     look_a, look_b = _unit([1, 0, 0, 0]), _unit([0, 1, 0, 0])
     rows = [(1, 0, 19, (0, 0), lambda f: look_a if f < 10 else look_b, 0),
             (2, 24, 30, (24, 0), look_a, 0), (3, 0, 4, (3, 0), look_b, 0)]
-    ids = {k: [o for _, o in v] for k, v in _live(rows, 31).items()}
+    ids = _live(rows, 31)
     first = {k: v[0] for k, v in ids.items()}
     assert ids[1] == [first[1]] * 12 + [first[3]] * 8
     assert ids[2] == [first[2]] * 2 + [first[1]] * 5
-    ids = {k: [o for _, o in v] for k, v in _live(rows, 31, split_distance=None).items()}
+    ids = _live(rows, 31, split_distance=None)
     assert len({v[0] for v in ids.values()}) == 3
     assert all(len(set(v)) == 1 for v in ids.values())
 
