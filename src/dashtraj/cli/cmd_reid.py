@@ -48,10 +48,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     t.add_argument("--batch-size", type=positive_int, default=None, help="override the batch size")
     t.add_argument("--lr", type=positive_float, default=None, help="override the learning rate")
     t.add_argument("--triplet", action="store_true", help="add the batch-hard triplet loss")
+    t.add_argument("--lowres", type=fraction, default=None, metavar="P",
+                   help="shrink this share of the training images to 12-48 px high and back "
+                        "(dashcam crops are that small; default: the recipe's, 0)")
     t.add_argument("--resume", action="store_true", help="continue the run in DIR")
-    t.add_argument("--init", default=None, metavar="CKPT.pt",
+    t.add_argument("--init", default=None, metavar="CKPT.pt|M.onnx",
                    help="start from another run's weights (a second stage with its own "
-                   "schedule, e.g. --epochs 3 --lr 1e-3)")
+                   "schedule, e.g. --epochs 3 --lr 1e-3), or from an exported model (the "
+                   "shipped ONNX: its folded BatchNorms are rebuilt, its classifier set from "
+                   "the class means)")
     t.add_argument("--extra-train", action="append", default=[], metavar="FOLDER",
                    help="another folder of DATA whose images join image_train's (repeatable; "
                         "e.g. image_train_moving from 'dashtraj reid moving-train')")
@@ -168,7 +173,8 @@ def run_train(args: argparse.Namespace) -> int:
     from dashtraj.reid.train import recipe_for, train
 
     recipe = recipe_for(args.recipe, args.model, epochs=args.epochs, batch_size=args.batch_size,
-                        lr=args.lr, triplet=True if args.triplet else None)
+                        lr=args.lr, triplet=True if args.triplet else None,
+                        lowres=args.lowres)
     cmd = "dashtraj " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     s = train(args.data, args.output, recipe, seed=args.seed, resume=args.resume,
               overwrite=args.overwrite, max_hours=args.max_hours, threads=args.threads,

@@ -74,6 +74,10 @@ class Recipe:
         checkpoint_every: steps between checkpoints.
         frozen_blocks: EfficientNet-Lite0's first blocks kept at their ImageNet weights
             (``dashtraj.train.reid_nets.Lite0Trunk``); None: the backbone's default (5).
+        lowres: the share of images shrunk to a height drawn from ``lowres_px`` (area
+            average, as a camera samples a far vehicle) and enlarged back (bilinear, as
+            `dashtraj.reid.preprocess` enlarges a small crop): dashcam crops are 10–40 px
+            high where the ring's are 100 or more. 0: off (no draw is made).
     """
 
     name: str
@@ -96,6 +100,8 @@ class Recipe:
     translate: float = 0.0625
     checkpoint_every: int = 100
     frozen_blocks: int | None = None
+    lowres: float = 0.0
+    lowres_px: tuple[int, int] = (12, 48)
 
 
 RECIPES = {
@@ -234,9 +240,21 @@ def epoch_batches(labels: np.ndarray, recipe: Recipe, seed: int, epoch: int) -> 
 
 
 def augment(images: np.ndarray, recipe: Recipe, rng: np.random.Generator) -> np.ndarray:
-    """Random horizontal flip and translation (edge-replicated), (N, H, W, 3) uint8."""
+    """Random low resolution (``Recipe.lowres``), horizontal flip and translation
+    (edge-replicated), (N, H, W, 3) uint8."""
     out = np.array(images)
     n, h, w, _ = out.shape
+    if recipe.lowres > 0:
+        from PIL import Image
+
+        lo, hi = recipe.lowres_px
+        shrink = rng.random(n) < recipe.lowres
+        heights = rng.integers(lo, hi + 1, n)
+        for i in np.flatnonzero(shrink & (heights < h)):
+            hh = int(heights[i])
+            small = Image.fromarray(out[i]).resize((max(1, round(w * hh / h)), hh),
+                                                   Image.Resampling.BOX)
+            out[i] = np.asarray(small.resize((w, h), Image.Resampling.BILINEAR))
     if recipe.flip:
         f = rng.random(n) < 0.5
         out[f] = out[f, :, ::-1]
@@ -359,7 +377,10 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
         threads: torch intra-op threads (None: torch's default).
         init: start from the weights of another run's checkpoint (``last.pt``/``best.pt``
             of the same model on the same identities): a second stage with its own
-            schedule; the optimizer starts afresh. Ignored when resuming.
+            schedule; the optimizer starts afresh. Ignored when resuming. An ``.onnx``
+            (``reid export``'s, e.g. the shipped model) is rebuilt into training weights
+            by `dashtraj.train.reid_onnx.init_from_onnx` (its classifier from the class
+            means of the training images).
         extra_train: more training folders of DATA (e.g. ``image_train_moving`` from
             ``dashtraj reid moving-train``), their images added to ``image_train``'s; every
             identity in them must be one of ``image_train``'s (the classes stay those).
@@ -409,9 +430,15 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
                              "identities")
         extra_splits.append(sp)
     init_ck = None
+    init_onnx = bool(init) and not resume and Path(init).suffix.lower() == ".onnx"
     if init and not resume:
         if not Path(init).is_file():
             raise TrainError(f"--init: {init}: no such checkpoint")
+    if init_onnx:
+        from dashtraj.train.reid_onnx import check_onnx
+
+        check_onnx(init, recipe.model, recipe.height, recipe.width)
+    elif init and not resume:
         try:
             init_ck = torch.load(init, map_location="cpu", weights_only=False)
         except Exception as e:  # torch raises pickle, zip and runtime errors alike
@@ -486,6 +513,12 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
 
     torch.manual_seed(seed)
     model = build_model(recipe.model, len(pids), frozen_blocks=recipe.frozen_blocks)
+    if init_onnx:
+        from dashtraj.train.reid_onnx import init_from_onnx
+
+        run_info["init_onnx"] = init_from_onnx(model, init, x_train, labels, recipe.model,
+                                               recipe.height, recipe.width, seed=seed, log=log)
+        _write_json(out / "run.json", run_info)
     model = model.to(dev, memory_format=torch.channels_last if recipe.channels_last
                      else torch.preserve_format)
     opt = torch.optim.Adam(model.parameters(), lr=recipe.lr, weight_decay=recipe.weight_decay)
