@@ -55,8 +55,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     t.add_argument("--init", default=None, metavar="CKPT.pt|M.onnx",
                    help="start from another run's weights (a second stage with its own "
                    "schedule, e.g. --epochs 3 --lr 1e-3), or from an exported model (the "
-                   "shipped ONNX: its folded BatchNorms are rebuilt, its classifier set from "
-                   "the class means)")
+                   "shipped ONNX: its folded BatchNorms are rebuilt, its classifier fitted "
+                   "to the training images' embeddings)")
     t.add_argument("--extra-train", action="append", default=[], metavar="FOLDER",
                    help="another folder of DATA whose images join image_train's (repeatable; "
                         "e.g. image_train_moving from 'dashtraj reid moving-train')")

@@ -379,8 +379,8 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
             of the same model on the same identities): a second stage with its own
             schedule; the optimizer starts afresh. Ignored when resuming. An ``.onnx``
             (``reid export``'s, e.g. the shipped model) is rebuilt into training weights
-            by `dashtraj.train.reid_onnx.init_from_onnx` (its classifier from the class
-            means of the training images).
+            by `dashtraj.train.reid_onnx.init_from_onnx` (its classifier fitted to the
+            training images' embeddings).
         extra_train: more training folders of DATA (e.g. ``image_train_moving`` from
             ``dashtraj reid moving-train``), their images added to ``image_train``'s; every
             identity in them must be one of ``image_train``'s (the classes stay those).

@@ -15,14 +15,14 @@ that produced it:
    σ² of W·x over the calibration images, γ = √(σ² + ε), β = μ + b. In eval mode that is
    exactly W·x + b (the ONNX's), and in training mode, where a BatchNorm normalises by its
    batch's statistics, nearly so (the batch's μ, σ are those of the calibration images).
-3. The classifier, which no ONNX keeps, starts as the unit mean embedding of each identity's
+3. The rebuilt network's embeddings are checked against onnxruntime's on the calibration
+   images (cosine ≥ 0.999, the float16 weights' rounding): a mismatch raises `TrainError`.
+4. The classifier, which no ONNX keeps, starts as the unit mean embedding of each identity's
    images (``per_class`` of them), scaled so that the median image gives logits of ±10 (a
    nearest-class-mean classifier), and is then fitted on the embeddings of every training
    image (``fit_classifier``: full-batch L-BFGS on the label-smoothed cross-entropy, the
    rest of the network fixed), so training goes on from a trained head as it would from a
    checkpoint, not from a loss of ln N.
-4. The rebuilt network's embeddings are checked against onnxruntime's on the calibration
-   images (cosine ≥ 0.999, the float16 weights' rounding): a mismatch raises `TrainError`.
 """
 
 from __future__ import annotations
@@ -225,7 +225,7 @@ def init_from_onnx(model, path: str | Path, images: np.ndarray, labels: np.ndarr
             bn.running_var.copy_(var)
             bn.weight.copy_((var + bn.eps).sqrt())
             bn.bias.copy_(mu + b)
-    # 4. the check against onnxruntime
+    # 3. the check against onnxruntime
     ours = _embed(model, x_cal)
     ours /= np.linalg.norm(ours, axis=1, keepdims=True) + 1e-12
     ref = ReidEmbedder(path, threads=1).embed(list(x_cal))
@@ -233,7 +233,7 @@ def init_from_onnx(model, path: str | Path, images: np.ndarray, labels: np.ndarr
     if cos < 0.999:
         raise TrainError(f"--init: {path}: the rebuilt {model_name} embeds the calibration "
                          f"images differently from onnxruntime (worst cosine {cos:.4f})")
-    # 3. the classifier: each class's unit mean embedding
+    # 4. the classifier: each class's unit mean embedding, then fitted
     labels = np.asarray(labels)
     if fit_classifier:
         log(f"embedding {len(images)} training images to fit the classifier ...")
