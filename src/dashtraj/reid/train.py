@@ -431,9 +431,8 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
         extra_splits.append(sp)
     init_ck = None
     init_onnx = bool(init) and not resume and Path(init).suffix.lower() == ".onnx"
-    if init and not resume:
-        if not Path(init).is_file():
-            raise TrainError(f"--init: {init}: no such checkpoint")
+    if init and not resume and not Path(init).is_file():
+        raise TrainError(f"--init: {init}: no such checkpoint")
     if init_onnx:
         from dashtraj.train.reid_onnx import check_onnx
 

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dashtraj.reid.train import TrainError
+from dashtraj.reid.train import TrainError, embed_array
 
 
 def _onnx_tensors(path: Path):
@@ -106,19 +106,6 @@ def _conv_bn_pairs(model, height: int, width: int):
             h.remove()
         model.train(was)
     return [(c, bn_of.get(c)) for c in order]
-
-
-def _embed(model, images: np.ndarray, batch: int = 64) -> np.ndarray:
-    import torch
-
-    from dashtraj.reid.train import _to_tensor
-
-    model.eval()
-    out = []
-    with torch.no_grad():
-        for i in range(0, len(images), batch):
-            out.append(model(_to_tensor(images[i:i + batch], False)).numpy())
-    return np.concatenate(out)
 
 
 def _fit_classifier(model, feats: np.ndarray, labels: np.ndarray, label_smoothing: float,
@@ -213,7 +200,7 @@ def init_from_onnx(model, path: str | Path, images: np.ndarray, labels: np.ndarr
                 s[2] = s[2] + (o * o).sum((0, 2, 3))
             hooks.append(conv.register_forward_hook(hook))
         try:
-            _embed(model, x_cal)
+            embed_array(model, x_cal, False)
         finally:
             for h in hooks:
                 h.remove()
@@ -226,7 +213,7 @@ def init_from_onnx(model, path: str | Path, images: np.ndarray, labels: np.ndarr
             bn.weight.copy_((var + bn.eps).sqrt())
             bn.bias.copy_(mu + b)
     # 3. the check against onnxruntime
-    ours = _embed(model, x_cal)
+    ours = embed_array(model, x_cal, False)
     ours /= np.linalg.norm(ours, axis=1, keepdims=True) + 1e-12
     ref = ReidEmbedder(path, threads=1).embed(list(x_cal))
     cos = float(np.min(np.sum(ours * ref, axis=1)))
@@ -237,15 +224,14 @@ def init_from_onnx(model, path: str | Path, images: np.ndarray, labels: np.ndarr
     labels = np.asarray(labels)
     if fit_classifier:
         log(f"embedding {len(images)} training images to fit the classifier ...")
-        v_all = np.concatenate([_embed(model, np.asarray(images[i:i + 2048]))
-                                for i in range(0, len(images), 2048)])
+        v_all = embed_array(model, images, False)
     pick = []
     for c in range(model.head.classifier.out_features):
         idx = np.flatnonzero(labels == c)
         if len(idx):
             pick.extend(rng.choice(idx, min(per_class, len(idx)), replace=False).tolist())
     pick = np.sort(np.asarray(pick, np.int64))
-    v = v_all[pick] if fit_classifier else _embed(model, np.asarray(images[pick]))
+    v = v_all[pick] if fit_classifier else embed_array(model, images[pick], False)
     norm = float(np.median(np.linalg.norm(v, axis=1)))
     w = np.zeros((model.head.classifier.out_features, v.shape[1]), np.float32)
     np.add.at(w, labels[pick], v)
