@@ -75,10 +75,9 @@ def test_onnx_rebuilds_the_network_it_was_exported_from(tmp_path):
                           atol=1e-5)
     # in training mode each BatchNorm normalises by its batch's statistics: on the
     # calibration images those are the ones it holds, so the backbone computes the same
-    xc = _to_tensor(imgs[calib_idx], False)
     with torch.no_grad():
-        ev = m.backbone.eval()(xc)
-        tr = m.backbone.train()(xc)
+        ev = m.backbone.eval()(x)
+        tr = m.backbone.train()(x)
     assert torch.allclose(tr, ev, rtol=1e-3, atol=1e-3)
     # the classifier's rows: each class's unit mean embedding (its 10 images:
     # per_class=10), scaled so that the median image gives logits of 10
