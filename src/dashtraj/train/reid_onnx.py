@@ -109,9 +109,9 @@ def _conv_bn_pairs(model, height: int, width: int):
 
 
 def _fit_classifier(model, feats: np.ndarray, labels: np.ndarray, label_smoothing: float,
-                    iters: int) -> tuple[float, float]:
+                    iters: int) -> tuple[float, float, float]:
     """The classifier fitted on fixed embeddings (full-batch L-BFGS); returns the loss
-    before and after."""
+    before and after, and the training accuracy after."""
     import torch
     import torch.nn.functional as F
 
@@ -131,8 +131,10 @@ def _fit_classifier(model, feats: np.ndarray, labels: np.ndarray, label_smoothin
         before = float(F.cross_entropy(clf(v), y, label_smoothing=label_smoothing))
     opt.step(loss_fn)
     with torch.no_grad():
-        after = float(F.cross_entropy(clf(v), y, label_smoothing=label_smoothing))
-    return before, after
+        logits = clf(v)
+        after = float(F.cross_entropy(logits, y, label_smoothing=label_smoothing))
+        acc = float((logits.argmax(1) == y).float().mean())
+    return before, after, acc
 
 
 def init_from_onnx(model, path: str | Path, images: np.ndarray, labels: np.ndarray,
@@ -244,10 +246,8 @@ def init_from_onnx(model, path: str | Path, images: np.ndarray, labels: np.ndarr
             "calibration_images": len(x_cal), "classifier_images": len(pick),
             "worst_cosine": round(cos, 6)}
     if fit_classifier:
-        before, after = _fit_classifier(model, v_all, labels, label_smoothing, fit_iters)
-        with torch.no_grad():
-            acc = float((model.head.classifier(torch.from_numpy(v_all)).argmax(1).numpy()
-                         == labels).mean())
+        before, after, acc = _fit_classifier(model, v_all, labels, label_smoothing,
+                                             fit_iters)
         info.update(classifier_images=len(v_all), classifier_loss=[round(before, 4),
                                                                    round(after, 4)],
                     classifier_train_acc=round(acc, 4))
