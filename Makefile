@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 export MPLBACKEND := Agg
 
-.PHONY: setup demo test lint bench clean weights train-env reid-data reid-train reid-osnet reid-threshold results
+.PHONY: setup demo test lint bench clean weights train-env reid-data reid-train reid-join reid-osnet reid-threshold results
 
 $(STAMP): pyproject.toml scripts/install_render_deps.sh scripts/fetch_mesa.sh
 	bash scripts/install_render_deps.sh || echo "warning: could not install the EGL/Mesa packages; rendering tests will skip"
@@ -95,6 +95,24 @@ reid-train: train-env
 		--extra-train image_train_moving $$(test -f $(REID_RUN)_stage6/last.pt && echo --resume)
 	$(VENV)/bin/dashtraj reid export $(REID_RUN)_stage6/best.pt \
 		-o $(REID_RUN)_stage6/efficientnet_lite0_cpu.onnx --fp16-weights --overwrite
+
+# The track-join model (efficientnet_lite0_join.onnx, `tracker eval`'s offline re-linking): the
+# shipped model (its ONNX, rebuilt in torch by --init) trained 2 more epochs from lr 1.5e-4 on
+# the same images and dashcam crops as stage 6, three images in ten shrunk to 12-48 px high and
+# scaled back up (--lowres 0.3: the small boxes that a camera's tracks are joined by); one
+# thread, about 25 min to rebuild and 48 min to train here; exported with float16 weights.
+REID_JOIN_RUN ?= runs/reid/efficientnet_lite0_join
+reid-join: train-env
+	test -d $(REID_DATA)/image_train_moving || $(MAKE) reid-data
+	grep -q '_mtrain/town01_s$(lastword $(MTRAIN6_SEEDS))"' $(REID_DATA)/reid.json \
+		|| $(VENV)/bin/dashtraj reid moving-train $(REID_DATA) --append \
+		$(foreach s,$(MTRAIN6_SEEDS),$(REID_DATA)_mtrain/town01_s$(s))
+	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_JOIN_RUN) --recipe cpu --seed 0 \
+		--threads 1 --init src/dashtraj/data/reid/efficientnet_lite0_cpu.onnx --epochs 2 \
+		--lr 1.5e-4 --extra-train image_train_moving --lowres 0.3 \
+		$$(test -f $(REID_JOIN_RUN)/last.pt && echo --resume)
+	$(VENV)/bin/dashtraj reid export $(REID_JOIN_RUN)/best.pt \
+		-o $(REID_JOIN_RUN)/efficientnet_lite0_join.onnx --fp16-weights --overwrite
 
 # One of the paper's six backbones on the same set (its Table II row in the README): osnet_x1_0
 # from random init (no pretrained OSNet can be had here), the cpu_osnet schedule (128x128,

@@ -184,6 +184,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("tracker-eval-size", ["tracker", "eval", "{REC}", "--size", "4x4"], "argument --size"),
     ("tracker-eval-reid-model", ["tracker", "eval", "{REC}", "--reid-model", "{MISSING}"],
      "--reid-model"),
+    ("tracker-eval-relink-model", ["tracker", "eval", "{REC}", "--relink-model", "{MISSING}"],
+     "--relink-model"),
     ("tracker-eval-relink-cut", ["tracker", "eval", "{REC}", "--relink-cut", "-1"],
      "argument --relink-cut: expected a number > 0"),
     ("localization-eval-missing", ["localization", "eval", "{MISSING}"], "is not a directory"),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 from dashtraj.cli import main
 from dashtraj.perception.track import Relink
@@ -37,6 +38,9 @@ def test_tracker_eval_json_has_the_metrics_per_tracker(small_run, gl_available, 
     # and re-linked by appearance (tracks cut where their look changes, the tracks of one
     # vehicle that a gap split joined): on this short run nothing is cut or joined
     assert r["reid_model"].endswith(".onnx") and r["relink_cut"] == Relink().split_distance
+    # the live re-linking embeds with the shipped model, the offline one with the join model
+    assert Path(r["reid_model"]).name == "efficientnet_lite0_cpu.onnx"
+    assert Path(r["relink_model"]).name == "efficientnet_lite0_join.onnx"
     # (and online, live: the same as it comes, `LiveRelink`)
     for n, base in (("ego+relink", r["ego"]), ("ego+backfill+relink", off),
                     ("ego+live-relink", r["ego"])):

@@ -41,7 +41,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "tracks of one vehicle that a gap split joined, by appearance (every "
                         "box >= 10 px high at 720 rows embedded by the ReID model; default on)")
     e.add_argument("--reid-model", default=None, metavar="M.onnx",
-                   help="--relink's ReID model (default: the shipped one)")
+                   help="--relink's ReID model: the live re-linking's, and the offline one's "
+                        "unless --relink-model is given (default: the shipped model)")
+    e.add_argument("--relink-model", default=None, metavar="M.onnx",
+                   help="the offline re-linking's (+relink, +backfill+relink) ReID model "
+                        "(default: the shipped track-join model, efficientnet_lite0_join.onnx; "
+                        "--reid-model's when only that is given)")
     e.add_argument("--relink-cut", type=_cut_distance, default=None, metavar="D|none",
                    help="--relink cuts a track where the mean looks of its two parts are more "
                         "than D apart (default: Relink's, 0.8; none: never cut, only join)")
@@ -77,25 +82,29 @@ def run_eval(args: argparse.Namespace) -> int:
         raise ArgumentError(f"--peers {unknown[0]!r} is not a BoxMOT peer; valid: "
                             f"{', '.join(PEER_NAMES)}")
     recs = [open_recording(r) for r in args.recordings]
-    embedder = None
+    embedder = relink_embedder = None
     settings = ({} if args.relink_cut is None else
                 {"split_distance": None if args.relink_cut == "none" else args.relink_cut})
     if args.relink:
         from dashtraj.cli._args import require_file
-        from dashtraj.reid.embed import ReidEmbedder
+        from dashtraj.reid.embed import ReidEmbedder, join_model_path
 
         require_file("--reid-model", args.reid_model)
+        require_file("--relink-model", args.relink_model)
         embedder = ReidEmbedder(args.reid_model)
+        off = args.relink_model or args.reid_model or join_model_path()
+        relink_embedder = None if off == args.reid_model else ReidEmbedder(off)
     peers, why = boxmot_peers(wanted) if wanted else ({}, None)
     res = tracker_eval(recs, args.trackers, peers, args.detector, args.every, size,
                        args.agnostic_nms, args.min_score, args.confirm_score,
                        pose_noise=args.pose_noise, pose_noise_seed=args.pose_noise_seed,
                        calibrate_pitch=args.calibrate_pitch, embedder=embedder,
-                       relink_settings=settings)
+                       relink_settings=settings, relink_embedder=relink_embedder)
     res["pose_noise"] = None if args.pose_noise is None else list(args.pose_noise)
     res["calibrate_pitch"] = args.calibrate_pitch
     res["detector"] = args.detector
     res["reid_model"] = None if embedder is None else str(embedder.path)
+    res["relink_model"] = None if embedder is None else str((relink_embedder or embedder).path)
     if embedder is not None:
         from dashtraj.perception.track import Relink
 

@@ -145,7 +145,8 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
                  min_score: float = DEFAULT_MIN_SCORE,
                  confirm_score: float = CONFIRM_SCORE, pose_noise=None,
                  pose_noise_seed: int = 0, calibrate_pitch: bool = False,
-                 embedder=None, relink_settings: dict | None = None) -> dict:
+                 embedder=None, relink_settings: dict | None = None,
+                 relink_embedder=None) -> dict:
     """HOTA / IDF1 / MOTA per tracker over every observer of every recording.
 
     Args:
@@ -165,6 +166,9 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
             ``"<name>+live-relink"``, its output re-linked online as it comes
             (`dashtraj.perception.track.LiveRelink`, with ``relink_settings``' join and
             cut settings).
+        relink_embedder: the offline re-linking's (``+relink``, ``+backfill+relink``)
+            own `ReidEmbedder`, or None: ``embedder`` for both. ``+live-relink`` always
+            uses ``embedder``.
 
     Returns:
         {tracker: {"hota", "deta", "assa", "idf1", "mota", "idsw", ..., "updates",
@@ -254,6 +258,9 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
             on_ignored = np.isin(d.truth_ids, ignored)
             emb = (embedder.embed_boxes(ef.rgb, d.boxes, min_px * spec.height_px / 720.0)
                    if embedder is not None else None)
+            emb_off = (relink_embedder.embed_boxes(ef.rgb, d.boxes,
+                                                   min_px * spec.height_px / 720.0)
+                       if embedder is not None and relink_embedder is not None else emb)
             for n in names:
                 t0 = time.perf_counter()
                 if n in peers:
@@ -264,7 +271,7 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
                 if n in kept:
                     kept[n].append((gt, sc, on_ignored, d.boxes, ids, state[n].track_of.copy()))
                 if n in relinks:
-                    relinks[n].add(ef.t, d.class_ids, state[n].positions, emb)
+                    relinks[n].add(ef.t, d.class_ids, state[n].positions, emb_off)
                 if n in lives:
                     live, a, b = lives[n]
                     x = live.update(ef.t, state[n].track_of, ids, d.class_ids,

@@ -599,7 +599,9 @@ class Relink:
 
     Settings chosen on development recordings with the shipped ReID model (README,
     "Re-linking tracks by appearance"): the tracks of one vehicle are a median 0.39 apart
-    there, those of two vehicles of one class 0.97 (boxes ≥ 12 px high).
+    there, those of two vehicles of one class 0.97 (boxes ≥ 12 px high). `tracker eval`
+    embeds for it with the shipped track-join model (`dashtraj.reid.embed.JOIN_MODEL`,
+    trained on with shrunk images), which joins better with the same settings.
     """
 
     max_distance: float = 0.6

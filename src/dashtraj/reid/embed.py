@@ -27,6 +27,12 @@ from dashtraj.reid.preprocess import resize_uint8
 SHIPPED_MODEL = "efficientnet_lite0_cpu.onnx"
 """File name of the shipped model in ``dashtraj/data/reid/``."""
 
+JOIN_MODEL = "efficientnet_lite0_join.onnx"
+"""File name of the shipped track-join model in ``dashtraj/data/reid/``: the shipped model
+trained two more epochs on images shrunk to dashcam sizes (``--lowres 0.3``). It joins one
+camera's tracks of one vehicle offline (`dashtraj.perception.track.Relink`, `tracker eval`'s
+``+relink``) better than the shipped model and finds the target worse; its card says why."""
+
 
 class ModelFileError(DashtrajError):
     """An ONNX model file is missing or not a dashtraj ReID model."""
@@ -35,6 +41,11 @@ class ModelFileError(DashtrajError):
 def shipped_model_path() -> Path:
     """Path of the ONNX ReID model shipped inside the package."""
     return Path(str(resources.files("dashtraj") / "data" / "reid" / SHIPPED_MODEL))
+
+
+def join_model_path() -> Path:
+    """Path of the ONNX track-join model shipped inside the package (`JOIN_MODEL`)."""
+    return Path(str(resources.files("dashtraj") / "data" / "reid" / JOIN_MODEL))
 
 
 class ReidEmbedder:
