@@ -94,3 +94,26 @@ def test_loading_processes_give_the_same_weights_and_val_every_skips_epochs(tmp_
             == [2]
     for k, v in runs[0]["model"].items():
         assert torch.equal(v, runs[2]["model"][k]), k
+
+
+def test_box_classifier_trains_resumes_and_exports(tmp_path):
+    from dashtraj.perception.detect import BoxClassifier
+    from dashtraj.train.box_classifier import export_onnx, extract_crops, train
+
+    data = tmp_path / "set"
+    _tiny_set(data)
+    (data / "data.yaml").write_text(
+        "names:\n" + "".join(f"  {i}: c{i}\n" for i in range(15)), encoding="utf-8")
+    d = extract_crops(data)
+    assert d["x"].shape == (16, 76, 76, 3) and sorted(set(d["split"].tolist())) == [0, 1]
+    run = tmp_path / "run"
+    s = train(data, run, epochs=1, batch=2, blocks=3, threads=1, log=lambda m: None)
+    assert s["epoch"] == 1 and 0 <= s["val"]["acc"] <= 1 and s["val"]["n"] == 8
+    s2 = train(data, run, epochs=2, batch=2, blocks=3, threads=1, log=lambda m: None)
+    assert s2["epoch"] == 2  # resumed: one more epoch, not two
+    assert len((run / "log.jsonl").read_text().splitlines()) == 2
+    export_onnx(run / "last.pt", tmp_path / "c.onnx")
+    c = BoxClassifier(tmp_path / "c.onnx", threads=1)
+    assert c.names == tuple(f"c{i}" for i in range(15)) and c.input_px == 64
+    pr = c.probs(np.zeros((360, 640, 3), np.uint8), np.array([[10.0, 10, 60, 40]]))
+    assert pr.shape == (1, 15) and abs(pr.sum() - 1) < 1e-6

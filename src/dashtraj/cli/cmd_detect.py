@@ -17,6 +17,27 @@ non_negative_int = int_at_least(0)
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp")
 
 
+def add_classifier_arg(p) -> None:
+    """``--classifier shipped|M.onnx|none``: the detector's second stage."""
+    p.add_argument("--classifier", default="none", metavar="shipped|M.onnx|none",
+                   help="second stage: each box's class read from its crop by a box "
+                        "classifier (shipped: the one beside the shipped detector; default "
+                        "none: the detector's own classes)")
+
+
+def classifier_from_arg(value: str):
+    """The `BoxClassifier` that ``--classifier`` names, or None."""
+    from dashtraj.cli._args import require_file
+    from dashtraj.perception.detect import BoxClassifier, default_classifier_path
+
+    if value == "none":
+        return None
+    if value == "shipped":
+        return BoxClassifier(default_classifier_path())
+    require_file("--classifier", value)
+    return BoxClassifier(value)
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `detect` and `detector` commands."""
     d = subparsers.add_parser(
@@ -39,6 +60,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     d.add_argument("--batch", type=positive_int, default=8, help="images per run (8)")
     d.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
     d.add_argument("--preview", action="store_true", help="also draw the boxes")
+    add_classifier_arg(d)
     d.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_output_args(d)
     d.set_defaults(func=run_detect)
@@ -75,6 +97,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    "same batches for any count)")
     t.add_argument("--json", action="store_true", help="print the summary as JSON")
     t.set_defaults(func=run_train)
+
+    c = sub.add_parser(
+        "train-classifier", help="train the second stage, a box classifier (needs '.[train]')",
+        description=(
+            "Train the box classifier (dashtraj.train.box_classifier: each labelled box's "
+            "crop, an EfficientNet-Lite0 from its ImageNet weights, every layer trained) on a "
+            "set made by 'dashtraj detection-dataset' (render it at the frames' size, e.g. "
+            "--size 1280x720). Writes DIR/last.pt after every epoch (a rerun resumes from "
+            "it), DIR/log.jsonl, DIR/crops.npz and, at the end, DIR/classifier.onnx."),
+    )
+    c.add_argument("data", metavar="DATA", help="YOLO set folder (data.yaml, images/, labels/)")
+    c.add_argument("-o", "--output", required=True, metavar="DIR", help="run folder")
+    c.add_argument("--epochs", type=positive_int, default=8, help="epochs (default 8)")
+    c.add_argument("--seed", type=seed, default=0, help="seed (default 0)")
+    c.add_argument("--threads", type=positive_int, default=2, help="torch threads (default 2)")
+    c.add_argument("--blocks", type=int_at_least(1), default=None, metavar="N",
+                   help="EfficientNet-Lite0 blocks kept, of 16 (default: "
+                        "dashtraj.train.box_classifier.BLOCKS)")
+    c.add_argument("--json", action="store_true", help="print the summary as JSON")
+    c.set_defaults(func=run_train_classifier)
 
     e = sub.add_parser("export", help="export a checkpoint to ONNX",
                        description="Write a training checkpoint's EMA weights as ONNX "
@@ -117,6 +159,42 @@ def run_train(args: argparse.Namespace) -> int:
     else:
         print(f"{args.output}: {s['epochs']} epochs, {s['steps']} steps, best val mAP50-95 "
               f"{s['best_map50_95']:.3f}, {s['wall_s'] / 60:.1f} min")
+    return 0
+
+
+def run_train_classifier(args: argparse.Namespace) -> int:
+    """Train (or resume) the box classifier and export it; prints a summary."""
+    from dashtraj.errors import DashtrajError
+
+    if not (Path(args.data) / "labels" / "train").is_dir():
+        raise DashtrajError(f"{args.data}: no labels/train/ (expected a YOLO set made by "
+                            "'dashtraj detection-dataset')")
+    try:
+        from dashtraj.train.box_classifier import export_onnx, train
+    except ImportError as exc:
+        raise DashtrajError(f"detector train-classifier needs the training extra ({exc.name} "
+                            "is missing): pip install -e '.[train]'") from None
+    out = Path(args.output)
+    from dashtraj.train.box_classifier import BLOCKS
+
+    if args.blocks is not None and args.blocks > 16:
+        from dashtraj.cli._args import ArgumentError
+
+        raise ArgumentError(f"--blocks {args.blocks}: EfficientNet-Lite0 has 16 blocks")
+    s = train(args.data, out, epochs=args.epochs, seed=args.seed, threads=args.threads,
+              blocks=args.blocks or BLOCKS,
+              log=lambda m: print(m, file=sys.stderr, flush=True))
+    tmp = out / "classifier.tmp.onnx"
+    export_onnx(out / "last.pt", tmp)
+    tmp.replace(out / "classifier.onnx")
+    s["onnx"] = str(out / "classifier.onnx")
+    if args.json:
+        print(json.dumps(s))
+    else:
+        v = s.get("val", {})
+        print(f"{out / 'classifier.onnx'}: {s.get('epoch')} epochs, validation accuracy "
+              f"{v.get('acc', float('nan')):.3f} (vehicle {v.get('vehicle_acc', float('nan')):.3f},"
+              f" orientation {v.get('orientation_acc', float('nan')):.3f})")
     return 0
 
 
@@ -165,7 +243,7 @@ def run_detect(args: argparse.Namespace) -> int:
 
     check_output(args.output, overwrite=args.overwrite, kind="dir")
     det = YoloDetector(args.model, names=args.names, conf=args.conf, iou=args.iou,
-                       batch=args.batch)
+                       batch=args.batch, classifier=classifier_from_arg(args.classifier))
     images = _list_images(Path(args.source))
     summary = {"images": 0, "detections": 0, "per_class": {}}
     with atomic_output(args.output, overwrite=args.overwrite, kind="dir") as tmp:
@@ -191,7 +269,8 @@ def run_detect(args: argparse.Namespace) -> int:
                 if args.preview:
                     draw_detections(rgb, d).save(tmp / "preview" / f"{p.stem}.jpg", quality=90)
         (tmp / "detections.json").write_text(
-            json.dumps({"model": str(det.path), "names": list(det.names), "conf": args.conf,
+            json.dumps({"model": str(det.path), "classifier": None if det.classifier is None
+                        else str(det.classifier.path), "names": list(det.names), "conf": args.conf,
                         "iou": args.iou, "images": records}, indent=1) + "\n",
             encoding="utf-8")
     summary["output"] = args.output
@@ -250,6 +329,7 @@ def register_eval(sub) -> None:
                    help="write DIR/eval.json (and DIR/ap_per_class.png with --plot)")
     v.add_argument("--plot", action="store_true",
                    help="bar chart of AP50 per class (needs -o)")
+    add_classifier_arg(v)
     v.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     v.add_argument("--json", action="store_true", help="print the results as JSON")
     add_output_args(v)
@@ -274,9 +354,11 @@ def run_eval(args: argparse.Namespace) -> int:
     w = size[0] if size else recs[0].config.camera.width_px
     cfg = EvalConfig(every_s=args.every, size=size, min_box_height_px=10.0 * w / 640,
                      small_px=args.small_px * w / 1280, conf=args.conf)
-    det = YoloDetector(args.model, names=args.names, conf=0.001, iou=0.6)
+    det = YoloDetector(args.model, names=args.names, conf=0.001, iou=0.6,
+                       classifier=classifier_from_arg(args.classifier))
     with progress_bar(args.quiet, unit="frame") as progress:
         res = evaluate_recordings(recs, det, cfg, progress=progress)
+    res["classifier"] = None if det.classifier is None else str(det.classifier.path)
     if args.output:
         with atomic_output(args.output, overwrite=args.overwrite, kind="dir") as tmp:
             (tmp / "eval.json").write_text(json.dumps(res, indent=1) + "\n", encoding="utf-8")

@@ -314,6 +314,9 @@ class YoloDetector:
         conf: smallest kept score. iou: class-aware NMS IoU threshold.
         threads: onnxruntime intra-op threads. batch: frames per run (a model with a
             fixed batch of 1 runs one frame at a time).
+        classifier: a second stage (`BoxClassifier` or its ONNX path; None: none): the
+            best ``classify_top`` boxes of each frame get their classes from their crops
+            (`reclassify`); the others are dropped.
 
     Raises:
         DetectorError: unreadable model, no names, or a class count that does not
@@ -321,7 +324,8 @@ class YoloDetector:
     """
 
     def __init__(self, model=None, names=None, conf: float = DEFAULT_MIN_SCORE, iou: float = 0.6,
-                 threads: int = 2, batch: int = 8, max_det: int = 300):
+                 threads: int = 2, batch: int = 8, max_det: int = 300, classifier=None,
+                 classify_top: int = 100):
         import onnxruntime as ort
 
         self.path = Path(model) if model is not None else default_model_path()
@@ -366,6 +370,12 @@ class YoloDetector:
             raise DetectorError(f"{self.path}: output has shape {out_shape}; expected "
                                 "(B, 4 + nc, N) (ultralytics v8/11 layout)")
         self.conf, self.iou, self.max_det = conf, iou, max_det
+        if classifier is not None and not isinstance(classifier, BoxClassifier):
+            classifier = BoxClassifier(classifier, threads=threads)
+        if classifier is not None and tuple(classifier.names) != self.names:
+            raise DetectorError(f"{classifier.path}: its classes ({', '.join(classifier.names[:3])}"
+                                f"...) are not the detector's ({', '.join(self.names[:3])}...)")
+        self.classifier, self.classify_top = classifier, classify_top
         if isinstance(out_shape[1], int):
             self._check_nc(out_shape[1])
         else:  # a symbolic class dimension: run one blank frame to learn it
@@ -403,9 +413,119 @@ class YoloDetector:
             boxed = [letterbox(np.asarray(f), self.input_hw) for f in chunk]
             raw = self.run_raw(np.stack([b[0] for b in boxed]))
             dets = postprocess(raw, self.conf, self.iou, self.max_det)
-            for d, (_, lb) in zip(dets, boxed, strict=True):
+            for d, (_, lb), frame in zip(dets, boxed, chunk, strict=True):
                 img = lb.boxes_to_image(d)
+                if self.classifier is not None and len(img):
+                    top = img[:self.classify_top]
+                    img = reclassify(top, self.classifier.probs(np.asarray(frame), top[:, :4]),
+                                     iou=self.iou, max_det=self.max_det)
                 results.append(Detections(boxes=img[:, :4], scores=img[:, 4],
                                           class_ids=img[:, 5].astype(np.int64),
                                           names=self.names))
         return results
+
+
+# ----------------------------------------------------------------------------- second stage
+CLASSIFIER_FILE = "classifier.onnx"
+"""The shipped box classifier, beside the shipped detector (`default_classifier_path`)."""
+
+
+def default_classifier_path(name: str = "shipped") -> Path:
+    """The box classifier shipped beside a shipped detector (``SHIPPED_DETECTORS``)."""
+    return default_model_path(name).parent / CLASSIFIER_FILE
+
+
+def box_crops(rgb: np.ndarray, boxes: np.ndarray, margin: float, crop_px: int,
+              input_px: int) -> np.ndarray:
+    """(K, input_px, input_px, 3) uint8 crops of boxes (x0, y0, x1, y1, frame pixels): each
+    box grown by ``margin`` of its width and height on every side (black beyond the frame),
+    squashed to ``crop_px`` square (bilinear), and its centre ``input_px`` square kept. The
+    box classifier's training crops (`dashtraj.train.box_classifier`) are made the same way,
+    the centre then drawn at random."""
+    from PIL import Image
+
+    img = Image.fromarray(np.asarray(rgb, np.uint8))
+    o = (crop_px - input_px) // 2
+    out = np.zeros((len(boxes), input_px, input_px, 3), np.uint8)
+    for k, (x0, y0, x1, y1) in enumerate(np.asarray(boxes, np.float64).reshape(-1, 4)):
+        w, h = x1 - x0, y1 - y0
+        box = tuple(round(float(v)) for v in (x0 - margin * w, y0 - margin * h,
+                                              x1 + margin * w, y1 + margin * h))
+        if box[2] <= box[0] or box[3] <= box[1]:
+            continue
+        c = np.asarray(img.crop(box).resize((crop_px, crop_px), Image.BILINEAR))
+        out[k] = c[o:o + input_px, o:o + input_px]
+    return out
+
+
+class BoxClassifier:
+    """The detector's second stage: a crop classifier that reads each box's class and
+    orientation from the frame's pixels (`dashtraj.train.box_classifier` trains it).
+
+    Args:
+        model: its ONNX file (input ``images`` (N, 3, S, S) RGB, /255, ImageNet mean/std;
+            output (N, C) logits; metadata ``names``, ``crop_px``, ``input_px``,
+            ``margin``). threads: onnxruntime intra-op threads.
+
+    Raises:
+        DetectorError: an unreadable model or one without that metadata.
+    """
+
+    def __init__(self, model=None, threads: int = 2):
+        import json
+
+        import onnxruntime as ort
+
+        self.path = Path(model) if model is not None else default_classifier_path()
+        if not self.path.is_file():
+            raise DetectorError(f"{self.path}: no such classifier model file")
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = threads
+        opts.inter_op_num_threads = 1
+        opts.log_severity_level = 3
+        try:
+            self.session = ort.InferenceSession(str(self.path), opts,
+                                                providers=["CPUExecutionProvider"])
+            meta = self.session.get_modelmeta().custom_metadata_map
+            self.names = tuple(json.loads(meta["names"]))
+            self.crop_px, self.input_px = int(meta["crop_px"]), int(meta["input_px"])
+            self.margin = float(meta["margin"])
+        except (KeyError, ValueError) as exc:
+            raise DetectorError(f"{self.path}: not a dashtraj box classifier (its metadata "
+                                f"lacks {exc})") from exc
+        except Exception as exc:  # onnxruntime raises its own untyped errors
+            raise DetectorError(f"{self.path}: not a usable ONNX model ({exc})") from exc
+        self._input = self.session.get_inputs()[0].name
+
+    def probs(self, rgb: np.ndarray, boxes: np.ndarray, batch: int = 64) -> np.ndarray:
+        """(K, C) class probabilities of the boxes (x0, y0, x1, y1, frame pixels)."""
+        crops = box_crops(rgb, boxes, self.margin, self.crop_px, self.input_px)
+        mean = np.array([0.485, 0.456, 0.406], np.float32)
+        std = np.array([0.229, 0.224, 0.225], np.float32)
+        out = []
+        for i in range(0, len(crops), batch):
+            x = ((crops[i:i + batch].astype(np.float32) / 255.0 - mean) / std)
+            logits = self.session.run(None, {self._input: np.ascontiguousarray(
+                x.transpose(0, 3, 1, 2))})[0].astype(np.float64)
+            e = np.exp(logits - logits.max(1, keepdims=True))
+            out.append(e / e.sum(1, keepdims=True))
+        return np.concatenate(out) if out else np.zeros((0, len(self.names)))
+
+
+def reclassify(det: np.ndarray, probs: np.ndarray, min_prob: float = 0.1,
+               iou: float = 0.6, max_det: int = 300) -> np.ndarray:
+    """A frame's detector boxes (K, 6) [x0, y0, x1, y1, score, class] given their classes
+    by the box classifier: each box once per class of probability ≥ ``min_prob`` (its most
+    probable always), scored detector score × probability, then class-aware NMS at
+    ``iou``; best first, at most ``max_det``."""
+    det = np.asarray(det, np.float64).reshape(-1, 6)
+    if not len(det):
+        return det
+    rows = []
+    for i in range(len(det)):
+        p = probs[i]
+        for c in sorted(set(np.flatnonzero(p >= min_prob).tolist()) | {int(p.argmax())}):
+            rows.append([*det[i, :4], det[i, 4] * p[c], c])
+    out = np.array(rows, np.float64)
+    keep = nms(out[:, :4], out[:, 4], iou, out[:, 5], max_keep=max_det)
+    return out[keep]
