@@ -129,18 +129,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     register_eval_external(sub)
 
 
-def run_train(args: argparse.Namespace) -> int:
-    """Train or resume; prints a summary."""
+def _training_module(data, subdir: str, command: str, module: str):
+    """``module`` (a `dashtraj.train` module) for a command that trains on a YOLO set, once
+    the set has ``subdir``/train/ and the training extra imports; DashtrajError otherwise."""
+    import importlib
+
     from dashtraj.errors import DashtrajError
 
-    if not (Path(args.data) / "images" / "train").is_dir():
-        raise DashtrajError(f"{args.data}: no images/train/ (expected a YOLO set made by "
+    if not (Path(data) / subdir / "train").is_dir():
+        raise DashtrajError(f"{data}: no {subdir}/train/ (expected a YOLO set made by "
                             "'dashtraj detection-dataset')")
     try:
-        from dashtraj.train.detector_train import train
+        importlib.import_module("torch")
+        return importlib.import_module(module)
     except ImportError as exc:
-        raise DashtrajError(f"detector train needs the training extra ({exc.name} is "
+        raise DashtrajError(f"{command} needs the training extra ({exc.name} is "
                             "missing): pip install -e '.[train]'") from None
+
+
+def run_train(args: argparse.Namespace) -> int:
+    """Train or resume; prints a summary."""
+    train = _training_module(args.data, "images", "detector train",
+                             "dashtraj.train.detector_train").train
     from dashtraj.train.detector_recipes import get_recipe
 
     recipe = get_recipe(args.recipe)
@@ -164,28 +174,18 @@ def run_train(args: argparse.Namespace) -> int:
 
 def run_train_classifier(args: argparse.Namespace) -> int:
     """Train (or resume) the box classifier and export it; prints a summary."""
-    from dashtraj.errors import DashtrajError
-
-    if not (Path(args.data) / "labels" / "train").is_dir():
-        raise DashtrajError(f"{args.data}: no labels/train/ (expected a YOLO set made by "
-                            "'dashtraj detection-dataset')")
-    try:
-        from dashtraj.train.box_classifier import export_onnx, train
-    except ImportError as exc:
-        raise DashtrajError(f"detector train-classifier needs the training extra ({exc.name} "
-                            "is missing): pip install -e '.[train]'") from None
-    out = Path(args.output)
-    from dashtraj.train.box_classifier import BLOCKS
-
     if args.blocks is not None and args.blocks > 16:
         from dashtraj.cli._args import ArgumentError
 
         raise ArgumentError(f"--blocks {args.blocks}: EfficientNet-Lite0 has 16 blocks")
-    s = train(args.data, out, epochs=args.epochs, seed=args.seed, threads=args.threads,
-              blocks=args.blocks or BLOCKS,
-              log=lambda m: print(m, file=sys.stderr, flush=True))
+    bc = _training_module(args.data, "labels", "detector train-classifier",
+                          "dashtraj.train.box_classifier")
+    out = Path(args.output)
+    s = bc.train(args.data, out, epochs=args.epochs, seed=args.seed, threads=args.threads,
+                 blocks=args.blocks or bc.BLOCKS,
+                 log=lambda m: print(m, file=sys.stderr, flush=True))
     tmp = out / "classifier.tmp.onnx"
-    export_onnx(out / "last.pt", tmp)
+    bc.export_onnx(out / "last.pt", tmp)
     tmp.replace(out / "classifier.onnx")
     s["onnx"] = str(out / "classifier.onnx")
     if args.json:

@@ -304,6 +304,20 @@ class Detections:
         return out
 
 
+def _session(path: Path, threads: int):
+    """An onnxruntime CPU session of an ONNX file (DetectorError when it cannot load)."""
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = threads
+    opts.inter_op_num_threads = 1
+    opts.log_severity_level = 3
+    try:
+        return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime raises its own untyped errors
+        raise DetectorError(f"{path}: not a usable ONNX model ({exc})") from exc
+
+
 class YoloDetector:
     """An ultralytics-layout YOLO ONNX model run with onnxruntime.
 
@@ -326,20 +340,10 @@ class YoloDetector:
     def __init__(self, model=None, names=None, conf: float = DEFAULT_MIN_SCORE, iou: float = 0.6,
                  threads: int = 2, batch: int = 8, max_det: int = 300, classifier=None,
                  classify_top: int = 100):
-        import onnxruntime as ort
-
         self.path = Path(model) if model is not None else default_model_path()
         if not self.path.is_file():
             raise DetectorError(f"{self.path}: no such model file")
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = threads
-        opts.inter_op_num_threads = 1
-        opts.log_severity_level = 3
-        try:
-            self.session = ort.InferenceSession(str(self.path), opts,
-                                                providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime raises its own untyped errors
-            raise DetectorError(f"{self.path}: not a usable ONNX model ({exc})") from exc
+        self.session = _session(self.path, threads)
         meta = self.session.get_modelmeta().custom_metadata_map
         self.metadata = dict(meta)
         inp = self.session.get_inputs()[0]
@@ -474,27 +478,18 @@ class BoxClassifier:
     def __init__(self, model=None, threads: int = 2):
         import json
 
-        import onnxruntime as ort
-
         self.path = Path(model) if model is not None else default_classifier_path()
         if not self.path.is_file():
             raise DetectorError(f"{self.path}: no such classifier model file")
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = threads
-        opts.inter_op_num_threads = 1
-        opts.log_severity_level = 3
+        self.session = _session(self.path, threads)
+        meta = self.session.get_modelmeta().custom_metadata_map
         try:
-            self.session = ort.InferenceSession(str(self.path), opts,
-                                                providers=["CPUExecutionProvider"])
-            meta = self.session.get_modelmeta().custom_metadata_map
             self.names = tuple(json.loads(meta["names"]))
             self.crop_px, self.input_px = int(meta["crop_px"]), int(meta["input_px"])
             self.margin = float(meta["margin"])
         except (KeyError, ValueError) as exc:
             raise DetectorError(f"{self.path}: not a dashtraj box classifier (its metadata "
                                 f"lacks {exc})") from exc
-        except Exception as exc:  # onnxruntime raises its own untyped errors
-            raise DetectorError(f"{self.path}: not a usable ONNX model ({exc})") from exc
         self._input = self.session.get_inputs()[0].name
 
     def probs(self, rgb: np.ndarray, boxes: np.ndarray, batch: int = 64) -> np.ndarray:

@@ -230,7 +230,7 @@ def export_onnx(checkpoint, path, fp16_weights: bool = True) -> None:
     import onnx
     import torch
 
-    from dashtraj.train.detector_model import store_weights_fp16
+    from dashtraj.train.detector_model import finish_onnx
 
     state = torch.load(checkpoint, map_location="cpu", weights_only=False)
     names, s = state["names"], int(state["input_px"])
@@ -246,11 +246,4 @@ def export_onnx(checkpoint, path, fp16_weights: bool = True) -> None:
     m = onnx.load(str(path))
     info = {"names": json.dumps(names), "crop_px": str(CROP_PX), "input_px": str(s),
             "margin": str(MARGIN), "description": "dashtraj box classifier (detector stage 2)"}
-    if fp16_weights:
-        store_weights_fp16(m)
-        info["weights"] = "float16 storage, float32 inference"
-    del m.metadata_props[:]
-    for k, v in info.items():
-        p = m.metadata_props.add()
-        p.key, p.value = k, v
-    onnx.save(m, str(path))
+    finish_onnx(m, path, info, fp16_weights)

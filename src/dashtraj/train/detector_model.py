@@ -266,9 +266,17 @@ def export_onnx(model: Detector, path, imgsz: tuple[int, int], names: list[str],
     info = {"names": repr(dict(enumerate(names))), "imgsz": repr([h, w]),
             "stride": "32", "task": "detect", "description": "dashtraj vehicle detector"}
     info.update({k: str(v) for k, v in (meta or {}).items()})
+    finish_onnx(m, path, info, fp16_weights)
+
+
+def finish_onnx(m, path, info: dict[str, str], fp16_weights: bool = True) -> None:
+    """Store a loaded ONNX model's weights as float16 (`store_weights_fp16`, when asked),
+    set its metadata to ``info`` (replacing any) and save it to ``path``."""
+    import onnx
+
     if fp16_weights:
         store_weights_fp16(m)
-        info["weights"] = "float16 storage, float32 inference"
+        info = {**info, "weights": "float16 storage, float32 inference"}
     del m.metadata_props[:]
     for k, v in info.items():
         p = m.metadata_props.add()
