@@ -11,6 +11,9 @@ installed (it is not in ``.[bench]``: it pulls a 6 GB CUDA torch). Without it th
 against the figure recorded on this machine in ``../shared/VISION_FACTS.md`` (YOLO11n,
 384×640, onnxruntime, 2 threads: 44 ms a frame, inference only) and says so.
 
+The detector with its second stage, the shipped box classifier (``--classifier shipped``),
+is timed on the same frames too.
+
 Frames: the synthetic straight town of `dashtraj.render.synthetic` with 20 vehicles when a
 GL context can be made, otherwise noise frames (NMS then sees fewer candidates).
 
@@ -121,6 +124,20 @@ def main(argv=None) -> int:
           f"observer, batch 1; {1 / s4:.1f} at batch 4), CPU {c1 * 1e3:.1f} ms/frame (all "
           f"threads) -> {args.threads / c1:.1f} frames/s on {args.threads} free cores "
           f"(target >= 20); load average {os.getloadavg()[0]:.1f}")
+    # the second stage: the shipped box classifier on the same frames' boxes (opt-in)
+    from dashtraj.perception.detect import BoxClassifier
+
+    detc = YoloDetector(args.model, conf=0.25, threads=args.threads, batch=1,
+                        classifier=BoxClassifier(threads=args.threads))
+    sc, cc = time_detector(detc, frames, 1)
+    boxes = sum(len(d) for d in det.detect(frames)) / len(frames)
+    res.update({"with_classifier_wall_ms_b1": round(sc * 1e3, 2),
+                "with_classifier_cpu_ms_b1": round(cc * 1e3, 2),
+                "with_classifier_fps_2cores_from_cpu": round(args.threads / cc, 1),
+                "boxes_per_frame": round(boxes, 1)})
+    print(f"with the box classifier (--classifier shipped): wall {sc * 1e3:.1f} ms/frame, CPU "
+          f"{cc * 1e3:.1f} ms/frame -> {args.threads / cc:.1f} frames/s on {args.threads} free "
+          f"cores ({boxes:.1f} boxes a frame)")
     with tempfile.TemporaryDirectory() as tmp:
         peer = yolo11n_onnx(Path(tmp))
         if peer is not None:

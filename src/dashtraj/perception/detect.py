@@ -304,14 +304,18 @@ class Detections:
         return out
 
 
-def _session(path: Path, threads: int):
-    """An onnxruntime CPU session of an ONNX file (DetectorError when it cannot load)."""
+def _session(path: Path, threads: int, spin: bool = True):
+    """An onnxruntime CPU session of an ONNX file (DetectorError when it cannot load).
+    ``spin=False``: idle worker threads sleep instead of spinning (a second session run
+    right after another, whose spinning threads would hold the cores)."""
     import onnxruntime as ort
 
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = threads
     opts.inter_op_num_threads = 1
     opts.log_severity_level = 3
+    if not spin:
+        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
     try:
         return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
     except Exception as exc:  # onnxruntime raises its own untyped errors
@@ -481,7 +485,7 @@ class BoxClassifier:
         self.path = Path(model) if model is not None else default_classifier_path()
         if not self.path.is_file():
             raise DetectorError(f"{self.path}: no such classifier model file")
-        self.session = _session(self.path, threads)
+        self.session = _session(self.path, threads, spin=False)
         meta = self.session.get_modelmeta().custom_metadata_map
         try:
             self.names = tuple(json.loads(meta["names"]))
