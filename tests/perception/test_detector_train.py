@@ -112,6 +112,12 @@ def test_box_classifier_trains_resumes_and_exports(tmp_path):
     s2 = train(data, run, epochs=2, batch=2, blocks=3, threads=1, log=lambda m: None)
     assert s2["epoch"] == 2  # resumed: one more epoch, not two
     assert len((run / "log.jsonl").read_text().splitlines()) == 2
+    again = train(data, run, epochs=2, batch=2, blocks=3, threads=1, log=lambda m: None)
+    assert again["epoch"] == 2 and again["val"] == s2["val"]  # done: nothing more, the last line
+    from dashtraj.errors import DashtrajError
+
+    with pytest.raises(DashtrajError, match="trained with 3 blocks"):
+        train(data, run, epochs=3, batch=2, blocks=4, threads=1, log=lambda m: None)
     export_onnx(run / "last.pt", tmp_path / "c.onnx")
     c = BoxClassifier(tmp_path / "c.onnx", threads=1)
     assert c.names == tuple(f"c{i}" for i in range(15)) and c.input_px == 64

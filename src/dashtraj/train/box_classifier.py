@@ -183,11 +183,19 @@ def train(data, out, epochs: int = 8, seed: int = 0, threads: int = 2, lr: float
     ckpt = out / "last.pt"
     if ckpt.is_file():
         state = torch.load(ckpt, map_location="cpu", weights_only=False)
+        if (int(state.get("blocks", BLOCKS)), int(state["input_px"])) != (blocks, input_px):
+            from dashtraj.errors import DashtrajError
+
+            raise DashtrajError(f"{ckpt}: trained with {state.get('blocks', BLOCKS)} blocks at "
+                                f"{state['input_px']} px, not {blocks} at {input_px}; resume "
+                                "with those or train into another folder")
         net.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         start, wall0 = state["epoch"] + 1, state["wall_s"]
     t0 = time.time()
-    line: dict = {}
+    done = (out / "log.jsonl").read_text(encoding="utf-8").splitlines() \
+        if (out / "log.jsonl").is_file() else []
+    line: dict = json.loads(done[-1]) if done else {}
     for ep in range(start, epochs):
         rng = np.random.default_rng([seed, ep])
         torch.manual_seed(seed * 1000 + ep)
