@@ -404,6 +404,7 @@ def register_eval_external(sub) -> None:
                    help="score only the first N images (sorted by name)")
     v.add_argument("-o", "--output", default=None, metavar="DIR",
                    help="write DIR/eval.json")
+    add_classifier_arg(v)
     v.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     v.add_argument("--json", action="store_true", help="print the results as JSON")
     add_output_args(v)
@@ -443,10 +444,12 @@ def run_eval_external(args: argparse.Namespace) -> int:
             cmap = parse_class_map(args.class_map)
         except ValueError as exc:
             raise ArgumentError(f"--class-map: {exc}") from None
-    det = YoloDetector(args.model, conf=0.001, iou=0.6)
+    det = YoloDetector(args.model, conf=0.001, iou=0.6,
+                       classifier=classifier_from_arg(args.classifier))
     with progress_bar(args.quiet, unit="image") as progress:
         res = evaluate_external(folder, det, names, cmap, small_px=args.small_px,
                                 conf=args.conf, max_images=args.max_images, progress=progress)
+    res["classifier"] = None if det.classifier is None else str(det.classifier.path)
     if args.output:
         with atomic_output(args.output, overwrite=args.overwrite, kind="dir") as tmp:
             (tmp / "eval.json").write_text(json.dumps(res, indent=1) + "\n", encoding="utf-8")
