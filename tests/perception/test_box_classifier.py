@@ -15,6 +15,13 @@ from dashtraj.perception.detect import (
     default_classifier_path,
     reclassify,
 )
+from detector_scenes import (
+    ORIENTATION_CAM,
+    ORIENTATION_SCENES,
+    catalog_car,
+    found_boxes,
+    heldout_frames,
+)
 
 
 def test_box_crops_grow_the_box_squash_it_and_keep_the_centre():
@@ -65,15 +72,6 @@ def test_shipped_classifier_matches_its_card_and_refuses_other_models(tmp_path):
         BoxClassifier(tmp_path / "nope.onnx")
 
 
-def _car(model_id="vehicle.tesla.model3", color="blue"):
-    from dashtraj.world.catalog import identities
-
-    for ident in identities():
-        if ident.model.blueprint_id == model_id and ident.color_name == color:
-            return ident
-    raise LookupError(model_id)
-
-
 def test_the_classifier_reads_the_orientation_of_single_cars(gl_ctx):
     """A car straight ahead driving away, an oncoming one and a crossing one (the detector
     test's scenes), each classified from its exact box."""
@@ -82,16 +80,13 @@ def test_the_classifier_reads_the_orientation_of_single_cars(gl_ctx):
     from dashtraj.render.synthetic import STRAIGHT_XODR
     from dashtraj.roads import RoadMap
 
-    cam = (-60.0, 1.75, 1.6, 0.0, 0.0, 0.0)
-    scenes = {"car_back": (-45.0, 1.75, 0.0), "car_front": (-38.0, -1.75, 180.0),
-              "car_side": (-42.0, 0.0, 90.0)}
     c = BoxClassifier(threads=1)
     r = Renderer(RoadMap.from_string(STRAIGHT_XODR, name="straight"), 1280, 720, 90.0,
                  ctx=gl_ctx)
     r.set_look(preset("clear"))
     try:
-        for expected, (x, y, yaw) in scenes.items():
-            frame = r.render(cam, [(1, _car(), x, y, 0.0, yaw)])
+        for expected, (x, y, yaw) in ORIENTATION_SCENES.items():
+            frame = r.render(ORIENTATION_CAM, [(1, catalog_car(), x, y, 0.0, yaw)])
             (lab,) = [lab for lab in frame.labels if lab.visible_pixels > 0]
             pr = c.probs(frame.rgb, np.array([lab.visible_box], float))[0]
             assert c.names[int(pr.argmax())] == expected, (expected, pr.round(2))
@@ -105,39 +100,13 @@ def test_detector_with_the_classifier_on_a_rendered_scene(gl_ctx, tmp_path, caps
     the classes right for more of them (measured: 45 of the 50 boxes >= 24 px found both
     ways, 39 of them with the right class by the detector alone, 41 with the classifier)."""
     from dashtraj.cli import main
-    from dashtraj.datasets.frames import open_renderer, recording_frames
-    from dashtraj.perception.detect import box_iou
-    from dashtraj.perception.detector_eval import frame_ground_truth
-    from dashtraj.render.look import preset
-    from dashtraj.world.catalog import VEHICLE_CLASSES
-    from dashtraj.world.recording import Recording, RunConfig, simulate
 
-    cfg = RunConfig(map="town10", seed=950, duration_s=4.0, n_observers=6, n_agents=40,
-                    vehicle_mix="balanced", vehicle_classes=VEHICLE_CLASSES,
-                    until_target_arrives=False)
-    simulate(cfg, tmp_path / "rec")
-    rec = Recording.open(tmp_path / "rec")
-    renderer = open_renderer(rec.map_path, 1280, 720, rec.config.camera.fov_deg, ctx=gl_ctx)
-    renderer.set_look(preset("clear"))
-    try:
-        frames = list(recording_frames(rec, 2.0, (1280, 720), renderer=renderer))
-    finally:
-        renderer.release()
+    frames = heldout_frames(tmp_path, gl_ctx, "clear")
     rgbs = [f.frame_data.rgb for f in frames]
     one, two = YoloDetector(conf=0.25), YoloDetector(conf=0.25, classifier=BoxClassifier())
-    counts = {"one": [0, 0], "two": [0, 0]}
-    total = 0
-    for f, d1, d2 in zip(frames, one.detect(rgbs), two.detect(rgbs), strict=True):
-        gt = frame_ground_truth(f.frame_data.labels, 20.0, 0.7)
-        gt = gt[(gt[:, 5] == 0) & (gt[:, 3] - gt[:, 1] >= 24)]
-        total += len(gt)
-        for name, d in (("one", d1), ("two", d2)):
-            if not len(gt) or not len(d):
-                continue
-            iou = box_iou(gt[:, :4], d.boxes) >= 0.5
-            same = d.class_ids[None, :] == gt[:, 4:5].astype(int)
-            counts[name][0] += int(iou.any(1).sum())
-            counts[name][1] += int((iou & same).any(1).sum())
+    total, *alone = found_boxes(frames, one.detect(rgbs))
+    _, *staged = found_boxes(frames, two.detect(rgbs))
+    counts = {"one": alone, "two": staged}
     with capsys.disabled():
         print(json.dumps({"boxes": total, **counts}))
     assert total >= 30

@@ -17,6 +17,13 @@ from dashtraj.perception.detect import (
 )
 from dashtraj.render.look import preset
 from dashtraj.world.camera import DETECTION_CLASSES
+from detector_scenes import (
+    ORIENTATION_CAM,
+    ORIENTATION_SCENES,
+    catalog_car,
+    found_boxes,
+    heldout_frames,
+)
 
 MODEL_CARD = default_model_path().parent / "MODEL.json"
 LOOK = "clear"
@@ -54,26 +61,7 @@ def detector():
     return YoloDetector(conf=0.25)
 
 
-def _car(model_id="vehicle.tesla.model3", color="blue"):
-    from dashtraj.world.catalog import identities
-
-    for ident in identities():
-        if ident.model.blueprint_id == model_id and ident.color_name == color:
-            return ident
-    raise LookupError(model_id)
-
-
-# camera in the right-hand lane of the straight test road (CARLA frame: y to the right;
-# traffic at y = +1.75 drives +x, at y = -1.75 drives -x), 1.6 m high, looking along +x
-CAM = (-60.0, 1.75, 1.6, 0.0, 0.0, 0.0)
-SCENES = {
-    "car_back": (-45.0, 1.75, 0.0),     # 15 m ahead in our lane, driving away
-    "car_front": (-38.0, -1.75, 180.0),  # 22 m ahead in the other lane, coming at us
-    "car_side": (-42.0, 0.0, 90.0),      # 18 m ahead, crossing the road
-}
-
-
-@pytest.mark.parametrize("expected", list(SCENES))
+@pytest.mark.parametrize("expected", list(ORIENTATION_SCENES))
 def test_orientation_of_single_cars(gl_ctx, detector, expected):
     _skip_if_known_below_bar(expected)
     from dashtraj.render.scene import Renderer
@@ -84,8 +72,8 @@ def test_orientation_of_single_cars(gl_ctx, detector, expected):
                  ctx=gl_ctx)
     r.set_look(preset(LOOK))
     try:
-        x, y, yaw = SCENES[expected]
-        frame = r.render(CAM, [(1, _car(), x, y, 0.0, yaw)])
+        x, y, yaw = ORIENTATION_SCENES[expected]
+        frame = r.render(ORIENTATION_CAM, [(1, catalog_car(), x, y, 0.0, yaw)])
     finally:
         r.release()
     (lab,) = [lab for lab in frame.labels if lab.visible_pixels > 0]
@@ -100,35 +88,9 @@ def test_orientation_of_single_cars(gl_ctx, detector, expected):
 
 def test_recall_on_a_held_out_recording(gl_ctx, detector, tmp_path):
     _skip_if_known_below_bar("recall")
-    from dashtraj.datasets.frames import open_renderer, recording_frames
-    from dashtraj.perception.detector_eval import frame_ground_truth
-    from dashtraj.world.catalog import VEHICLE_CLASSES
-    from dashtraj.world.recording import Recording, RunConfig, simulate
-
-    cfg = RunConfig(map="town10", seed=950, duration_s=4.0, n_observers=6, n_agents=40,
-                    vehicle_mix="balanced", vehicle_classes=VEHICLE_CLASSES,
-                    until_target_arrives=False)
-    simulate(cfg, tmp_path / "rec")
-    rec = Recording.open(tmp_path / "rec")
-    spec = rec.config.camera
-    renderer = open_renderer(rec.map_path, 1280, 720, spec.fov_deg, ctx=gl_ctx)
-    renderer.set_look(preset(LOOK))
-    found = found_cls = total = 0
-    try:
-        frames = list(recording_frames(rec, 2.0, (1280, 720), renderer=renderer))
-    finally:
-        renderer.release()
-    dets = detector.detect([f.frame_data.rgb for f in frames])
-    for f, d in zip(frames, dets, strict=True):
-        gt = frame_ground_truth(f.frame_data.labels, 20.0, 0.7)
-        gt = gt[(gt[:, 5] == 0) & (gt[:, 3] - gt[:, 1] >= 24)]
-        total += len(gt)
-        if not len(gt):
-            continue
-        iou = box_iou(gt[:, :4], d.boxes) if len(d) else np.zeros((len(gt), 0))
-        found += int((iou >= 0.5).any(1).sum()) if len(d) else 0
-        same = d.class_ids[None, :] == gt[:, 4:5].astype(int)
-        found_cls += int(((iou >= 0.5) & same).any(1).sum()) if len(d) else 0
+    frames = heldout_frames(tmp_path, gl_ctx, LOOK)
+    total, found, found_cls = found_boxes(
+        frames, detector.detect([f.frame_data.rgb for f in frames]))
     assert total >= 30, total
     recall = found / total
     print(json.dumps({"boxes": total, "recall": recall, "recall_class": found_cls / total}))
@@ -241,8 +203,8 @@ def test_the_gpu_model_is_what_its_card_says_and_finds_each_orientation(gl_ctx):
                  ctx=gl_ctx)
     r.set_look(preset(LOOK))
     try:
-        frames = {k: r.render(CAM, [(1, _car(), x, y, 0.0, yaw)])
-                  for k, (x, y, yaw) in SCENES.items()}
+        frames = {k: r.render(ORIENTATION_CAM, [(1, catalog_car(), x, y, 0.0, yaw)])
+                  for k, (x, y, yaw) in ORIENTATION_SCENES.items()}
     finally:
         r.release()
     for expected, frame in frames.items():

@@ -256,10 +256,9 @@ def tracker_eval(recordings, trackers=("sort", "ego"), peers=None, detector: str
             d, gt, sc = ef.detections, ef.truth, ef.scored
             ignored = np.setdiff1d(gt.truth_ids, sc.truth_ids)
             on_ignored = np.isin(d.truth_ids, ignored)
-            emb = (embedder.embed_boxes(ef.rgb, d.boxes, min_px * spec.height_px / 720.0)
-                   if embedder is not None else None)
-            emb_off = (relink_embedder.embed_boxes(ef.rgb, d.boxes,
-                                                   min_px * spec.height_px / 720.0)
+            min_h = min_px * spec.height_px / 720.0
+            emb = embedder.embed_boxes(ef.rgb, d.boxes, min_h) if embedder is not None else None
+            emb_off = (relink_embedder.embed_boxes(ef.rgb, d.boxes, min_h)
                        if embedder is not None and relink_embedder is not None else emb)
             for n in names:
                 t0 = time.perf_counter()

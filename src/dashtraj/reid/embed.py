@@ -38,14 +38,19 @@ class ModelFileError(DashtrajError):
     """An ONNX model file is missing or not a dashtraj ReID model."""
 
 
+def _packaged(name: str) -> Path:
+    """Path of a file shipped in ``dashtraj/data/reid/``."""
+    return Path(str(resources.files("dashtraj") / "data" / "reid" / name))
+
+
 def shipped_model_path() -> Path:
     """Path of the ONNX ReID model shipped inside the package."""
-    return Path(str(resources.files("dashtraj") / "data" / "reid" / SHIPPED_MODEL))
+    return _packaged(SHIPPED_MODEL)
 
 
 def join_model_path() -> Path:
     """Path of the ONNX track-join model shipped inside the package (`JOIN_MODEL`)."""
-    return Path(str(resources.files("dashtraj") / "data" / "reid" / JOIN_MODEL))
+    return _packaged(JOIN_MODEL)
 
 
 class ReidEmbedder:
