@@ -520,11 +520,10 @@ def reclassify(det: np.ndarray, probs: np.ndarray, min_prob: float = 0.1,
     det = np.asarray(det, np.float64).reshape(-1, 6)
     if not len(det):
         return det
-    rows = []
-    for i in range(len(det)):
-        p = probs[i]
-        for c in sorted(set(np.flatnonzero(p >= min_prob).tolist()) | {int(p.argmax())}):
-            rows.append([*det[i, :4], det[i, 4] * p[c], c])
-    out = np.array(rows, np.float64)
+    probs = np.asarray(probs, np.float64)
+    take = probs >= min_prob
+    take[np.arange(len(det)), probs.argmax(1)] = True
+    i, c = np.nonzero(take)  # box by box, classes ascending
+    out = np.column_stack([det[i, :4], det[i, 4] * probs[i, c], c]).astype(np.float64)
     keep = nms(out[:, :4], out[:, 4], iou, out[:, 5], max_keep=max_det)
     return out[keep]
