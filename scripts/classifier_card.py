@@ -45,38 +45,71 @@ def main(argv=None) -> int:
     for c, v in ev["per_class_24px"].items():
         v0 = ev0["per_class_24px"].get(c, {}).get("ap50")
         per.append(f"| {c} | {'' if v0 is None else f'{v0:.3f}'} | {v['ap50']:.3f} |")
+    refine = "iou_after" in last["val"]
     hist = "\n".join(
         f"| {x['epoch']} | {x['loss']:.3f} | {x['val']['acc']:.3f} | {x['val']['vehicle_acc']:.3f} "
-        f"| {x['val']['orientation_acc']:.3f} |" for x in log)
+        f"| {x['val']['orientation_acc']:.3f} |"
+        + (f" {x['val']['bg_recall']:.3f} | {x['val']['fg_as_bg']:.3f} | "
+           f"{x['val']['iou_before']:.3f} -> {x['val']['iou_after']:.3f} |" if refine else "")
+        for x in log)
+    hist_head = ("| epoch | loss | accuracy (15 classes) | vehicle class | orientation |"
+                 + (" background called background | vehicles called background | IoU "
+                    "with the truth box, before -> after the deltas |" if refine else ""))
+    hist_rule = "|---" * (5 + 3 * refine) + "|"
+    val_what = "boxes and the detector's proposals" if refine else "boxes"
     counts = ds.get("counts", ds.get("splits", {}))
+    if refine:
+        io = ("output `logits` (N, 16): the 15 classes then background (softmax; a box's "
+              "class probabilities sum to 1 minus its background probability), and `deltas` "
+              "(N, 4): the moves of the box's x0, y0, x1, y1 in box widths and heights; "
+              "metadata `names`, `background` (1), `crop_px`, `input_px`, `margin`. "
+              "`YoloDetector(classifier=...)` (`--classifier shipped` on `detect` and "
+              "`detector eval`) moves each of a frame's best 100 boxes by its deltas and "
+              "gives it its classes: one box per class of probability >= 0.1, scored "
+              "detector score x probability, then class-aware NMS.")
+        net = ("average pooling, dropout 0.2, a linear layer for the classes and one for the "
+               "deltas")
+        what = ("the boxes of the training recordings' frames rendered at 1280x720, every 2 s, "
+                "domain-randomized (`dashtraj detection-dataset ... --size 1280x720 "
+                "--randomize`; the detector's recordings and split: "
+                f"{json.dumps(counts)}): every labelled box, a jittered copy of each (sides "
+                "moved by 8 % of the box, normal), up to 3 of the shipped detector's proposals "
+                "(score >= 0.01) per vehicle they overlap at IoU >= 0.4, and its best-scoring "
+                "proposals that overlap no vehicle at IoU 0.3 (at least 6 a frame, twice the "
+                "vehicles) as background. A box is its vehicle's class at IoU >= 0.5, "
+                "background below 0.3, neither between; its deltas are learnt at IoU >= 0.4 "
+                "(smooth L1 on deltas / 0.1, restated for each training view)")
+    else:
+        io = ("output `logits` (N, 15) (softmax: the 15 classes' probabilities); metadata "
+              "`names`, `crop_px`, `input_px`, `margin`. `YoloDetector(classifier=...)` "
+              "(`--classifier shipped` on `detect` and `detector eval`) gives each of a "
+              "frame's best 100 boxes its classes: one box per class of probability >= 0.1, "
+              "scored detector score x probability, then class-aware NMS.")
+        net = "average pooling, dropout 0.2, a linear layer"
+        what = ("every labelled box of the training recordings' frames rendered at 1280x720, "
+                "every 2 s, domain-randomized (`dashtraj detection-dataset ... --size 1280x720 "
+                f"--randomize`; the detector's recordings and split: {json.dumps(counts)})")
     section = f"""{HEADING}
 
 {args.note}
 
 `classifier.onnx` — {len(data) / 1e6:.2f} MB, sha256 `{sha}`. Input `images` (N, 3, 64, 64)
 RGB, /255, ImageNet mean/std: each box grown by 25 % of its width and height on every side
-(black beyond the frame), squashed to 76 px square, its centre 64 px square; output `logits`
-(N, 15) (softmax: the 15 classes' probabilities); metadata `names`, `crop_px`, `input_px`,
-`margin`. `YoloDetector(classifier=...)` (`--classifier shipped` on `detect` and
-`detector eval`) gives each of a frame's best 100 boxes its classes: one box per class of
-probability >= 0.1, scored detector score x probability, then class-aware NMS.
+(black beyond the frame), squashed to 76 px square, its centre 64 px square; {io}
 
 Network: the EfficientNet-Lite0 stem and first blocks (ImageNet start, every layer
-trained), average pooling, dropout 0.2, a linear layer (`dashtraj.train.box_classifier`).
-Data: every labelled box of the training recordings' frames rendered at 1280x720, every
-2 s, domain-randomized (`dashtraj detection-dataset ... --size 1280x720 --randomize`; the
-detector's recordings and split: {json.dumps(counts)}). Augmentation: the 64-px centre
-drawn at random (58-76 px, rescaled), horizontal flips (a crop's class and orientation
-survive a mirror; no traffic side is in a crop), brightness x 0.7-1.3 and +/- 0.05.
-Softmax + label smoothing 0.1, AdamW lr 1e-3 cosine, 200 warm-up steps, batch 64.
+trained), {net} (`dashtraj.train.box_classifier`). Data: {what}. Augmentation: the 64-px
+centre drawn at random (58-76 px, rescaled), horizontal flips (a crop's class and
+orientation survive a mirror; no traffic side is in a crop), brightness x 0.7-1.3 and
++/- 0.05. Softmax + label smoothing 0.1, AdamW lr 1e-3 cosine, 200 warm-up steps, batch 64.
 
     {args.command}
 
 Training: {len(log)} epochs, {last['wall_s'] / 60:.1f} min on {open_threads(args.run)} torch
-thread(s) (2 shared CPU cores). Validation (the set's val recordings' boxes, centre crops):
+thread(s) (2 shared CPU cores). Validation (the set's val recordings' {val_what}, centre crops):
 
-| epoch | loss | accuracy (15 classes) | vehicle class | orientation |
-|---|---|---|---|---|
+{hist_head}
+{hist_rule}
 {hist}
 
 Held-out evaluation (`dashtraj detector eval` on the recordings above, `--every 8`, with and

@@ -68,21 +68,22 @@ fi
 "${PYTHON:-.venv/bin/python}" scripts/detector_card.py --run "$WORK/train" \
   --dataset "$WORK/dataset" --onnx "$WORK/detector.onnx" --eval "$WORK/eval/eval.json" "${ext[@]}" \
   --out "$CARD_OUT"
-# the second stage, the box classifier (CLASSIFIER=0 skips it): the training recordings'
-# frames at 1280x720, every 2 s, domain-randomized, every labelled box's crop; trained on the
-# same split, exported beside the detector, and the held-out recordings scored with it
+# the second stage, the refining box classifier (CLASSIFIER=0 skips it): the training
+# recordings' frames at 1280x720, every 2 s, domain-randomized; every labelled box, a jittered
+# copy, the detector's own proposals (vehicle or background); trained on the same split,
+# exported beside the detector, and the held-out recordings scored with it
 if [ "${CLASSIFIER:-1}" = 1 ]; then
   [ -f "$WORK/set720/dataset.json" ] \
     || "$DT" detection-dataset "${train[@]}" -o "$WORK/set720" --every 2.0 --size 1280x720 \
          --seed 0 --randomize --randomize-seed 0 -q --workers "$WORKERS"
   [ -f "$WORK/classifier/classifier.onnx" ] \
     || "$DT" detector train-classifier "$WORK/set720" -o "$WORK/classifier" --seed "$SEED" \
-         --threads 1
+         --refine-with "$WORK/detector.onnx" --epochs 6 --threads 2
   "$DT" detector eval "${held[@]}" --model "$WORK/detector.onnx" --every 8 \
     --classifier "$WORK/classifier/classifier.onnx" -o "$WORK/eval_classifier" --overwrite -q
   cp "$WORK/classifier/classifier.onnx" "$CARD_OUT/classifier.onnx"
   "${PYTHON:-.venv/bin/python}" scripts/classifier_card.py --run "$WORK/classifier" \
     --onnx "$CARD_OUT/classifier.onnx" --dataset "$WORK/set720" \
     --eval "$WORK/eval_classifier/eval.json" --eval-without "$WORK/eval/eval.json" \
-    --out "$CARD_OUT" --command "dashtraj detector train-classifier $WORK/set720 -o $WORK/classifier --seed $SEED --threads 1"
+    --out "$CARD_OUT" --command "dashtraj detector train-classifier $WORK/set720 -o $WORK/classifier --seed $SEED --refine-with $WORK/detector.onnx --epochs 6 --threads 2"
 fi

@@ -115,6 +115,8 @@ class ExperimentConfig:
         agnostic_nms_iou: ``vision`` with a detector model: its class-agnostic NMS IoU
             (None: the model's class-aware NMS only); `PerceiveConfig.agnostic_nms_iou`.
         min_score: ``vision`` with a detector model: the smallest kept box score.
+        classifier: ``vision`` with a detector model: its second stage, a box classifier
+            ONNX path (`PerceiveConfig.classifier`), or None.
         confirm_score: ``detections``/``vision``: the ``ego`` tracker reports a track once
             one of its boxes scored at least this much (`PerceiveConfig.confirm_score`).
         localizer: ``detections``/``vision``: perceive's localizer
@@ -168,6 +170,7 @@ class ExperimentConfig:
     workers: int = 2
     agnostic_nms_iou: float | None = AGNOSTIC_NMS_IOU
     min_score: float = DEFAULT_MIN_SCORE
+    classifier: str | None = None
     confirm_score: float = CONFIRM_SCORE
     localizer: str = "smoothed"
     drive: str | None = None
@@ -545,6 +548,7 @@ def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
                                               look=look, reid_range_m=reid_range_of(config),
                                               agnostic_nms_iou=config.agnostic_nms_iou,
                                               min_score=config.min_score,
+                                              classifier=config.classifier,
                                               confirm_score=config.confirm_score,
                                               localizer=config.localizer,
                                               pose_noise=config.pose_noise,

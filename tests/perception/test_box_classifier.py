@@ -14,6 +14,7 @@ from dashtraj.perception.detect import (
     box_crops,
     default_classifier_path,
     reclassify,
+    refine_boxes,
 )
 from detector_scenes import (
     ORIENTATION_CAM,
@@ -55,6 +56,69 @@ def test_reclassify_keeps_each_likely_class_scored_by_its_probability():
     assert reclassify(np.zeros((0, 6)), np.zeros((0, 15))).shape == (0, 6)
 
 
+def test_refine_boxes_moves_each_side_by_its_share_of_the_box_and_clips():
+    boxes = np.array([[100.0, 50, 200, 100], [0, 0, 10, 10]])
+    d = np.array([[0.1, -0.2, -0.05, 0.4], [-1.0, 0, 5.0, -2.0]])
+    out = refine_boxes(boxes, d, (640, 120))
+    np.testing.assert_allclose(out[0], [110, 40, 195, 120])  # y1 150 clipped to 120
+    # clipped to the frame, and never narrower than a pixel (y1 -20 -> 0 -> y0 + 1)
+    np.testing.assert_allclose(out[1], [0, 0, 60, 1])
+    np.testing.assert_allclose(refine_boxes(boxes, np.zeros((2, 4))), boxes)
+
+
+def test_training_views_restate_the_deltas_for_the_box_they_show():
+    """A training view (a square of the crop at some place and size, then resized) shows
+    what the run-time centre view of another box would show; the deltas to the truth box,
+    restated for that box, must land on the same truth box in the frame."""
+    from dashtraj.train.box_classifier import CROP_PX, INPUT_PX, MARGIN, _view_deltas
+
+    box, truth = np.array([100.0, 100, 200, 180]), np.array([110.0, 90, 215, 170])
+    wh = np.array([100.0, 80, 100, 80])
+    d = (truth - box) / wh
+    o, k = (CROP_PX - INPUT_PX) // 2, (1 + 2 * MARGIN) / CROP_PX
+    for ox, oy, c in ((o, o, INPUT_PX), (3, 8, 70), (0, 12, 58), (0, 0, 76)):
+        t = _view_deltas(d, ox, oy, c, CROP_PX, INPUT_PX)
+        # the view's own box: frame x of view pixel v is box x0 + (ox + v c / S - ...)
+        scale = c / INPUT_PX
+        lo = np.array([ox, oy]) * k - MARGIN - (o * k - MARGIN) * scale
+        own = np.concatenate([box[:2] + lo * wh[:2], box[:2] + (lo + scale) * wh[:2]])
+        np.testing.assert_allclose(refine_boxes(own[None], t[None])[0], truth, atol=1e-4)
+        # and that box's centre view is this view: view pixel 0 and 64 map to the same frame x
+        for v in (0, INPUT_PX):
+            via_view = box[0] + ((ox + v * scale) * k - MARGIN) * wh[0]
+            via_own = own[0] + ((o + v) * k - MARGIN) * (own[2] - own[0])
+            assert abs(via_view - via_own) < 1e-6
+    np.testing.assert_allclose(_view_deltas(d, o, o, INPUT_PX, CROP_PX, INPUT_PX), d, atol=1e-6)
+
+
+def test_proposal_samples_label_truth_jitter_proposals_and_background():
+    from dashtraj.train.box_classifier import proposal_samples
+
+    gt = np.array([[10.0, 10, 50, 40]])
+    props = np.array([[12.0, 11, 52, 41], [14, 12, 56, 44], [200, 200, 240, 230],
+                      [0, 0, 30, 20], [30, 10, 70, 40]])
+    boxes, cls, deltas, reg = proposal_samples(gt, np.array([4]), props,
+                                               np.array([0.9, 0.8, 0.5, 0.3, 0.2]), 15,
+                                               np.random.default_rng(0))
+    assert boxes.shape[0] == len(cls) == len(deltas) == len(reg)
+    np.testing.assert_allclose(boxes[0], gt[0])  # the truth box itself: its class, no move
+    assert cls[0] == 4 and reg[0] and not deltas[0].any()
+    by_box = {tuple(b): (c, r)
+              for b, c, r in zip(boxes[2:].round(3).tolist(), cls[2:], reg[2:], strict=True)}
+    assert by_box[(12.0, 11.0, 52.0, 41.0)] == (4, True)     # IoU 0.86: the car, moved back
+    assert by_box[(200.0, 200.0, 240.0, 230.0)] == (15, False)  # nothing there: background
+    assert by_box[(0.0, 0.0, 30.0, 20.0)] == (15, False)  # IoU 0.17
+    assert (30.0, 10.0, 70.0, 40.0) not in by_box  # IoU 0.33: neither, not drawn
+    assert by_box[(14.0, 12.0, 56.0, 44.0)] == (4, True)  # IoU 0.66
+    i = next(k for k, b in enumerate(boxes) if tuple(b) == (12.0, 11.0, 52.0, 41.0))
+    np.testing.assert_allclose(refine_boxes(boxes[i:i + 1], deltas[i:i + 1])[0], gt[0])
+    # a frame without vehicles: every proposal is background, the best first
+    b2, c2, _, r2 = proposal_samples(np.zeros((0, 4)), np.zeros(0, np.int64), props,
+                                     np.array([0.9, 0.8, 0.5, 0.3, 0.2]), 15,
+                                     np.random.default_rng(0))
+    assert len(b2) == 5 and (c2 == 15).all() and not r2.any()
+
+
 def test_shipped_classifier_matches_its_card_and_refuses_other_models(tmp_path):
     p = default_classifier_path()
     card = (p.parent / "MODEL.md").read_text(encoding="utf-8")
@@ -63,8 +127,10 @@ def test_shipped_classifier_matches_its_card_and_refuses_other_models(tmp_path):
     assert det_size + p.stat().st_size <= 12_000_000  # the issue's 12 MB, both stages
     c = BoxClassifier(threads=1)
     assert len(c.names) == 15 and (c.crop_px, c.input_px, c.margin) == (76, 64, 0.25)
-    pr = c.probs(np.zeros((72, 128, 3), np.uint8), np.array([[10.0, 10, 40, 40]]))
-    assert pr.shape == (1, 15) and abs(pr.sum() - 1) < 1e-6
+    assert c.refines and c.background  # a background class and box deltas
+    pr, moved = c.predict(np.zeros((72, 128, 3), np.uint8), np.array([[10.0, 10, 40, 40]]))
+    assert pr.shape == (1, 15) and moved.shape == (1, 4)
+    assert pr.sum() < 0.5  # a black crop is background
     # the detector itself is no box classifier (no such metadata); a missing file is named
     with pytest.raises(DetectorError, match="not a dashtraj box classifier"):
         BoxClassifier(p.parent / "detector.onnx")
@@ -94,11 +160,60 @@ def test_the_classifier_reads_the_orientation_of_single_cars(gl_ctx):
         r.release()
 
 
+def test_the_refiner_moves_loose_boxes_onto_the_car_and_calls_the_road_background(gl_ctx):
+    """The crossing car of the orientation scenes, its exact box shifted, grown and shrunk
+    by up to a fifth of its size: the shipped stage moves every such box closer to the
+    exact one (measured: IoU 0.59-0.83 before, 0.82-0.94 after, mean 0.91) and keeps
+    calling it a vehicle (probability >= 0.98). A box of empty road beside it is
+    background."""
+    from dashtraj.render.look import preset
+    from dashtraj.render.scene import Renderer
+    from dashtraj.render.synthetic import STRAIGHT_XODR
+    from dashtraj.roads import RoadMap
+
+    c = BoxClassifier(threads=1)
+    r = Renderer(RoadMap.from_string(STRAIGHT_XODR, name="straight"), 1280, 720, 90.0,
+                 ctx=gl_ctx)
+    r.set_look(preset("clear"))
+    try:
+        before, after, vehicle_p = [], [], []
+        for x, y, yaw in ORIENTATION_SCENES.values():
+            frame = r.render(ORIENTATION_CAM, [(1, catalog_car(), x, y, 0.0, yaw)])
+            (lab,) = [lab for lab in frame.labels if lab.visible_pixels > 0]
+            exact = np.array(lab.visible_box, float)
+            w, h = exact[2] - exact[0], exact[3] - exact[1]
+            loose = exact + np.array([[0.2 * w, 0, 0.2 * w, 0], [0, -0.2 * h, 0, 0],
+                                      [-0.15 * w, -0.15 * h, 0.15 * w, 0.15 * h],
+                                      [0.1 * w, 0.1 * h, -0.1 * w, -0.1 * h]])
+            pr, moved = c.predict(frame.rgb, loose)
+            before += [_iou1(b, exact) for b in loose]
+            after += [_iou1(b, exact) for b in moved]
+            vehicle_p += list(pr.sum(1))
+            road = np.array([[exact[0] - 2.5 * w, exact[3] + 0.3 * h, exact[0] - 1.5 * w,
+                              exact[3] + 0.3 * h + 0.6 * w]])
+            road_p, _ = c.predict(frame.rgb, np.clip(road, 0, [1280, 720, 1280, 720]))
+            assert road_p.sum() < 0.5, road_p.sum()
+    finally:
+        r.release()
+    assert min(vehicle_p) > 0.5  # loose boxes of a car are still a car
+    assert all(a > b for a, b in zip(after, before, strict=True)), (before, after)
+    assert np.mean(after) >= 0.85, after
+
+
+def _iou1(a, b) -> float:
+    iw = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    ih = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    inter = iw * ih
+    return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
+
+
 def test_detector_with_the_classifier_on_a_rendered_scene(gl_ctx, tmp_path, capsys):
     """The two stages on frames of an unseen recording (town10 seed 950, as the detector's
-    recall test): the boxes are the detector's, so recall at IoU 0.5 is unchanged, and
-    the classes right for more of them (measured: 45 of the 50 boxes >= 24 px found both
-    ways, 39 of them with the right class by the detector alone, 41 with the classifier)."""
+    recall test): the boxes are the detector's, moved by the stage, so recall at IoU 0.5
+    holds (one may drop), and the classes are right for more of them (measured: 45 of the
+    50 boxes >= 24 px found by the detector alone, 39 of them with the right class; 46
+    found and 40 right with the shipped refining stage; 45 and 41 with the classes-only
+    stage shipped before it)."""
     from dashtraj.cli import main
 
     frames = heldout_frames(tmp_path, gl_ctx, "clear")
@@ -121,3 +236,21 @@ def test_detector_with_the_classifier_on_a_rendered_scene(gl_ctx, tmp_path, caps
     capsys.readouterr()
     meta = json.loads((tmp_path / "out" / "detections.json").read_text())
     assert meta["classifier"].endswith("classifier.onnx")
+
+
+def test_perceive_and_the_experiments_take_the_classifier(tmp_path):
+    """``--classifier`` reaches the detector that `perceive` builds (the oracle ignores it);
+    a missing file is refused before any work (tests/test_cli_bad_inputs.py)."""
+    from dashtraj.cli.cmd_detect import classifier_path_from_arg
+    from dashtraj.experiments import ExperimentConfig
+    from dashtraj.perception.detect import default_model_path
+    from dashtraj.perception.detections import OracleDetector, build_detector
+    from dashtraj.perception.pipeline import PerceiveConfig
+
+    path = classifier_path_from_arg("shipped")
+    assert path == str(default_classifier_path()) and classifier_path_from_arg("none") is None
+    det = build_detector(str(default_model_path()), threads=1, classifier=path)
+    assert det._model.classifier is not None and det._model.classifier.refines
+    assert build_detector(str(default_model_path()), threads=1)._model.classifier is None
+    assert isinstance(build_detector("oracle", classifier=path), OracleDetector)
+    assert PerceiveConfig().classifier is None and ExperimentConfig().classifier is None

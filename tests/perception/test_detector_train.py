@@ -123,3 +123,39 @@ def test_box_classifier_trains_resumes_and_exports(tmp_path):
     assert c.names == tuple(f"c{i}" for i in range(15)) and c.input_px == 64
     pr = c.probs(np.zeros((360, 640, 3), np.uint8), np.array([[10.0, 10, 60, 40]]))
     assert pr.shape == (1, 15) and abs(pr.sum() - 1) < 1e-6
+
+
+def test_refining_box_classifier_trains_on_proposals_and_exports(tmp_path):
+    """The second stage with a background class and box deltas: trained on the detector's
+    proposals over a set's images, exported with both outputs, read by `BoxClassifier`."""
+    from dashtraj.errors import DashtrajError
+    from dashtraj.perception.detect import BoxClassifier, YoloDetector, default_model_path
+    from dashtraj.train.box_classifier import extract_proposals, train
+    from dashtraj.world.camera import DETECTION_CLASSES
+
+    data = tmp_path / "set"
+    _tiny_set(data)
+    (data / "data.yaml").write_text(
+        "names:\n" + "".join(f"  {i}: {n}\n" for i, n in enumerate(DETECTION_CLASSES)),
+        encoding="utf-8")
+    det = YoloDetector(default_model_path(), conf=0.01, threads=1)
+    d = extract_proposals(data, det)
+    n_truth = 16
+    assert len(d["x"]) >= 2 * n_truth  # every truth box and a jittered copy, then proposals
+    assert (d["y"] == 15).any() and set(d["y"].tolist()) <= set(range(-1, 16))
+    assert d["reg"][(d["y"] >= 0) & (d["y"] < 15)].all()  # a vehicle's box is moved to it
+    assert not d["reg"][d["y"] == 15].any()
+    run = tmp_path / "run"
+    s = train(data, run, epochs=1, batch=4, blocks=3, threads=1, detector=det,
+              log=lambda m: None)
+    assert {"bg_recall", "fg_as_bg", "iou_before", "iou_after"} <= set(s["val"])
+    with pytest.raises(DashtrajError, match="made with a detector"):
+        train(data, run, epochs=1, batch=4, blocks=3, threads=1, log=lambda m: None)
+    from dashtraj.train.box_classifier import export_onnx
+
+    export_onnx(run / "last.pt", tmp_path / "r.onnx")
+    c = BoxClassifier(tmp_path / "r.onnx", threads=1)
+    assert c.refines and c.background and len(c.names) == 15
+    probs, moved = c.predict(np.zeros((360, 640, 3), np.uint8), np.array([[10.0, 10, 60, 40]]))
+    assert probs.shape == (1, 15) and 0 < probs.sum() < 1  # background takes its share
+    assert moved.shape == (1, 4) and (moved[:, 2:] > moved[:, :2]).all()

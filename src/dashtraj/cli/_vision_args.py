@@ -15,6 +15,7 @@ from dashtraj.cli._args import (
     positive_float,
     require_file,
 )
+from dashtraj.cli.cmd_detect import add_classifier_arg, classifier_path_from_arg
 
 VISION_SIZE = (640, 360)
 """Default image size of ``--sightings vision``, pixels (the shipped detector's training
@@ -74,6 +75,7 @@ def add_vision_args(p: argparse.ArgumentParser, default_sightings: str | None = 
                         "the frames come (dashtraj perceive --live-relink; the ReID model "
                         "is --reid-model's)")
     add_range_args(p, "the query's 15 m", scope="vision: ")
+    add_classifier_arg(p, scope="vision: ")
     add_detector_filter_args(p)
     add_pose_noise_args(p, with_seed=False)
 
@@ -127,6 +129,7 @@ def vision_settings(args) -> dict:
             "reid_model": args.reid_model, "reid_threshold": args.reid_threshold,
             "look": args.look, "image_size": size, "every_s": every, "workers": args.workers,
             "agnostic_nms_iou": args.agnostic_nms, "min_score": args.min_score,
+            "classifier": classifier_path_from_arg(args.classifier),
             "confirm_score": args.confirm_score, "localizer": args.localizer,
             "pose_noise": args.pose_noise, "calibrate_pitch": args.calibrate_pitch,
             "live_relink": args.live_relink, "gallery_m": args.gallery_range,

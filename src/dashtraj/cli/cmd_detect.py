@@ -17,25 +17,36 @@ non_negative_int = int_at_least(0)
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp")
 
 
-def add_classifier_arg(p) -> None:
-    """``--classifier shipped|M.onnx|none``: the detector's second stage."""
+def add_classifier_arg(p, scope: str = "") -> None:
+    """``--classifier shipped|M.onnx|none``: the detector's second stage (``scope`` starts
+    its help)."""
     p.add_argument("--classifier", default="none", metavar="shipped|M.onnx|none",
-                   help="second stage: each box's class read from its crop by a box "
-                        "classifier (shipped: the one beside the shipped detector; default "
-                        "none: the detector's own classes)")
+                   help=f"{scope}second stage of a detector model: each box's class read "
+                        "from its crop by a box classifier, which also drops background "
+                        "and moves the box's sides (shipped: the one beside the shipped "
+                        "detector; default none: the detector's own boxes and classes)")
 
 
-def classifier_from_arg(value: str):
-    """The `BoxClassifier` that ``--classifier`` names, or None."""
+def classifier_path_from_arg(value: str) -> str | None:
+    """The box classifier file that ``--classifier`` names, or None (one-line error on a
+    missing file)."""
     from dashtraj.cli._args import require_file
-    from dashtraj.perception.detect import BoxClassifier, default_classifier_path
+    from dashtraj.perception.detect import default_classifier_path
 
     if value == "none":
         return None
     if value == "shipped":
-        return BoxClassifier(default_classifier_path())
+        return str(default_classifier_path())
     require_file("--classifier", value)
-    return BoxClassifier(value)
+    return value
+
+
+def classifier_from_arg(value: str):
+    """The `BoxClassifier` that ``--classifier`` names, or None."""
+    from dashtraj.perception.detect import BoxClassifier
+
+    path = classifier_path_from_arg(value)
+    return None if path is None else BoxClassifier(path)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -115,6 +126,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     c.add_argument("--blocks", type=int_at_least(1), default=None, metavar="N",
                    help="EfficientNet-Lite0 blocks kept, of 16 (default: "
                         "dashtraj.train.box_classifier.BLOCKS)")
+    c.add_argument("--refine-with", default=None, metavar="shipped|M.onnx",
+                   help="also learn a background class and box refinement, on this "
+                   "detector's proposals over the set's images (shipped: the shipped "
+                   "detector; default: classes only, on the labelled boxes)")
+    c.add_argument("--lowres", type=fraction, default=0.0, metavar="P",
+                   help="share of training crops drawn as a frame of 1/1.5-1/3 the "
+                   "resolution would show them (default 0)")
     c.add_argument("--json", action="store_true", help="print the summary as JSON")
     c.set_defaults(func=run_train_classifier)
 
@@ -178,11 +196,21 @@ def run_train_classifier(args: argparse.Namespace) -> int:
         from dashtraj.cli._args import ArgumentError
 
         raise ArgumentError(f"--blocks {args.blocks}: EfficientNet-Lite0 has 16 blocks")
+    detector = None
+    if args.refine_with == "shipped":
+        from dashtraj.perception.detect import default_model_path
+
+        detector = default_model_path()
+    elif args.refine_with is not None:
+        from dashtraj.cli._args import require_file
+
+        require_file("--refine-with", args.refine_with)
+        detector = args.refine_with
     bc = _training_module(args.data, "labels", "detector train-classifier",
                           "dashtraj.train.box_classifier")
     out = Path(args.output)
     s = bc.train(args.data, out, epochs=args.epochs, seed=args.seed, threads=args.threads,
-                 blocks=args.blocks or bc.BLOCKS,
+                 blocks=args.blocks or bc.BLOCKS, detector=detector, lowres=args.lowres,
                  log=lambda m: print(m, file=sys.stderr, flush=True))
     tmp = out / "classifier.tmp.onnx"
     bc.export_onnx(out / "last.pt", tmp)

@@ -17,6 +17,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         positive_float,
         positive_int,
     )
+    from dashtraj.cli.cmd_detect import add_classifier_arg
     from dashtraj.outputs import add_output_args
 
     p = subparsers.add_parser(
@@ -55,6 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--detector", default="oracle", metavar="oracle|M.onnx",
                    help="detector (default oracle: the renderer's exact visible boxes, or a "
                         "drive's truth boxes from its truth.csv)")
+    add_classifier_arg(p)
     add_detector_filter_args(p)
     add_pose_noise_args(p)
     p.add_argument("--tracker", default="ego", help="sort or ego (default ego)")
@@ -106,6 +108,7 @@ def run_perceive(args: argparse.Namespace) -> int:
     import time
 
     from dashtraj.cli._args import progress_bar
+    from dashtraj.cli.cmd_detect import classifier_path_from_arg
     from dashtraj.errors import DashtrajError
     from dashtraj.outputs import atomic_output, check_output
     from dashtraj.perception.pipeline import (
@@ -146,6 +149,7 @@ def run_perceive(args: argparse.Namespace) -> int:
                          mu_h=args.mu_h, every_s=args.every, size=size, msaa=args.msaa,
                          reid_range_m=args.reid_range, look=args.look,
                          agnostic_nms_iou=args.agnostic_nms, min_score=args.min_score,
+                         classifier=classifier_path_from_arg(args.classifier),
                          confirm_score=args.confirm_score,
                          pose_noise=args.pose_noise, pose_noise_seed=args.pose_noise_seed,
                          calibrate_pitch=args.calibrate_pitch,

@@ -424,9 +424,11 @@ class YoloDetector:
             for d, (_, lb), frame in zip(dets, boxed, chunk, strict=True):
                 img = lb.boxes_to_image(d)
                 if self.classifier is not None and len(img):
-                    top = img[:self.classify_top]
-                    img = reclassify(top, self.classifier.probs(np.asarray(frame), top[:, :4]),
-                                     iou=self.iou, max_det=self.max_det)
+                    top = img[:self.classify_top].copy()
+                    probs, moved = self.classifier.predict(np.asarray(frame), top[:, :4])
+                    if moved is not None:
+                        top[:, :4] = moved
+                    img = reclassify(top, probs, iou=self.iou, max_det=self.max_det)
                 results.append(Detections(boxes=img[:, :4], scores=img[:, 4],
                                           class_ids=img[:, 5].astype(np.int64),
                                           names=self.names))
@@ -468,12 +470,15 @@ def box_crops(rgb: np.ndarray, boxes: np.ndarray, margin: float, crop_px: int,
 
 class BoxClassifier:
     """The detector's second stage: a crop classifier that reads each box's class and
-    orientation from the frame's pixels (`dashtraj.train.box_classifier` trains it).
+    orientation from the frame's pixels (`dashtraj.train.box_classifier` trains it); a
+    refining one also tells vehicles from background and moves each box's sides.
 
     Args:
         model: its ONNX file (input ``images`` (N, 3, S, S) RGB, /255, ImageNet mean/std;
-            output (N, C) logits; metadata ``names``, ``crop_px``, ``input_px``,
-            ``margin``). threads: onnxruntime intra-op threads.
+            output ``logits`` (N, C), or (N, C + 1) with background last and metadata
+            ``background`` "1"; optional output ``deltas`` (N, 4): the box's x0, y0, x1,
+            y1 moves in box widths / heights; metadata ``names``, ``crop_px``,
+            ``input_px``, ``margin``). threads: onnxruntime intra-op threads.
 
     Raises:
         DetectorError: an unreadable model or one without that metadata.
@@ -495,20 +500,60 @@ class BoxClassifier:
             raise DetectorError(f"{self.path}: not a dashtraj box classifier (its metadata "
                                 f"lacks {exc})") from exc
         self._input = self.session.get_inputs()[0].name
+        outs = [o.name for o in self.session.get_outputs()]
+        self.background = meta.get("background") == "1"
+        self.refines = "deltas" in outs
+        self._outputs = ["logits" if "logits" in outs else outs[0]] + \
+            (["deltas"] if self.refines else [])
+        width = self.session.get_outputs()[outs.index(self._outputs[0])].shape[1]
+        if isinstance(width, int) and width != len(self.names) + self.background:
+            raise DetectorError(f"{self.path}: {width} logits for {len(self.names)} names"
+                                f"{' and background' if self.background else ''}")
 
-    def probs(self, rgb: np.ndarray, boxes: np.ndarray, batch: int = 64) -> np.ndarray:
-        """(K, C) class probabilities of the boxes (x0, y0, x1, y1, frame pixels)."""
+    def predict(self, rgb: np.ndarray, boxes: np.ndarray,
+                batch: int = 64) -> tuple[np.ndarray, np.ndarray | None]:
+        """The boxes' (x0, y0, x1, y1, frame pixels) class probabilities (K, C): a softmax
+        over the classes and, for a model with a background class, background, whose
+        column is dropped (a box's classes then sum to 1 minus its background
+        probability); and a refining model's boxes moved by its deltas, clipped to the
+        frame (`refine_boxes`), else None."""
+        boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
         crops = box_crops(rgb, boxes, self.margin, self.crop_px, self.input_px)
         mean = np.array([0.485, 0.456, 0.406], np.float32)
         std = np.array([0.229, 0.224, 0.225], np.float32)
-        out = []
+        out, deltas = [], []
         for i in range(0, len(crops), batch):
             x = ((crops[i:i + batch].astype(np.float32) / 255.0 - mean) / std)
-            logits = self.session.run(None, {self._input: np.ascontiguousarray(
-                x.transpose(0, 3, 1, 2))})[0].astype(np.float64)
+            res = self.session.run(self._outputs, {self._input: np.ascontiguousarray(
+                x.transpose(0, 3, 1, 2))})
+            logits = res[0].astype(np.float64)
             e = np.exp(logits - logits.max(1, keepdims=True))
-            out.append(e / e.sum(1, keepdims=True))
-        return np.concatenate(out) if out else np.zeros((0, len(self.names)))
+            out.append((e / e.sum(1, keepdims=True))[:, :len(self.names)])
+            if self.refines:
+                deltas.append(res[1].astype(np.float64))
+        probs = np.concatenate(out) if out else np.zeros((0, len(self.names)))
+        if not self.refines:
+            return probs, None
+        d = np.concatenate(deltas) if deltas else np.zeros((0, 4))
+        h, w = np.asarray(rgb).shape[:2]
+        return probs, refine_boxes(boxes, d, (w, h))
+
+    def probs(self, rgb: np.ndarray, boxes: np.ndarray, batch: int = 64) -> np.ndarray:
+        """(K, C) class probabilities of the boxes (x0, y0, x1, y1, frame pixels)."""
+        return self.predict(rgb, boxes, batch)[0]
+
+
+def refine_boxes(boxes: np.ndarray, deltas: np.ndarray, size=None) -> np.ndarray:
+    """Boxes (K, 4: x0, y0, x1, y1) with each side moved by its delta (K, 4) × the box's
+    width (x) or height (y); clipped to a (width, height) frame when ``size`` is given,
+    and never narrower than one pixel."""
+    boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+    wh = np.concatenate([boxes[:, 2:] - boxes[:, :2]] * 2, 1)
+    out = boxes + np.asarray(deltas, np.float64).reshape(-1, 4) * wh
+    if size is not None:
+        out = np.clip(out, 0, [size[0], size[1], size[0], size[1]])
+    out[:, 2:] = np.maximum(out[:, 2:], out[:, :2] + 1)
+    return out
 
 
 def reclassify(det: np.ndarray, probs: np.ndarray, min_prob: float = 0.1,

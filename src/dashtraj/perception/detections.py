@@ -215,11 +215,12 @@ class _ModelDetector:
     (`_part_of_better`)."""
 
     def __init__(self, path: Path, threads: int = 2, agnostic_iou: float | None = None,
-                 min_score: float = DEFAULT_MIN_SCORE):
+                 min_score: float = DEFAULT_MIN_SCORE, classifier: str | Path | None = None):
         from dashtraj.perception.detect import YoloDetector
 
         self.name = path.name
-        self._model = YoloDetector(path, threads=threads, conf=min_score)
+        self._model = YoloDetector(path, threads=threads, conf=min_score,
+                                   classifier=classifier)
         self.agnostic_iou = agnostic_iou
 
     def detect(self, frame) -> Detections:
@@ -274,10 +275,13 @@ DETECTORS: tuple[str, ...] = ("oracle",)
 
 
 def build_detector(name: str, threads: int = 2, agnostic_iou: float | None = None,
-                   min_score: float = DEFAULT_MIN_SCORE) -> Detector:
+                   min_score: float = DEFAULT_MIN_SCORE,
+                   classifier: str | Path | None = None) -> Detector:
     """``"oracle"`` → `OracleDetector`; a path to an ``.onnx`` file → the ONNX detector
     (`threads`: its onnxruntime intra-op threads; `agnostic_iou`: class-agnostic NMS,
-    see `_ModelDetector`; `min_score`: a model's smallest kept score).
+    see `_ModelDetector`; `min_score`: a model's smallest kept score; `classifier`: its
+    second stage, a box classifier ONNX (`dashtraj.perception.detect.BoxClassifier`),
+    or None; the oracle's boxes ignore it).
 
     Raises:
         DetectorError: neither a known name nor an existing .onnx file.
@@ -290,4 +294,4 @@ def build_detector(name: str, threads: int = 2, agnostic_iou: float | None = Non
                             "model")
     if not p.is_file():
         raise DetectorError(f"--detector {p}: no such model file")
-    return _ModelDetector(p, threads, agnostic_iou, min_score)
+    return _ModelDetector(p, threads, agnostic_iou, min_score, classifier)

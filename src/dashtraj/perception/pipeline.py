@@ -88,7 +88,11 @@ class PerceiveConfig:
         agnostic_nms_iou: the detector model's class-agnostic NMS IoU (default
             `AGNOSTIC_NMS_IOU`; None: its class-aware NMS only;
             `dashtraj.perception.detections._ModelDetector`).
-        min_score: the detector model's smallest kept score.
+        min_score: the detector model's smallest kept score (the detector's own score,
+            before a ``classifier`` scales it).
+        classifier: the detector model's second stage, a box classifier ONNX path
+            (`dashtraj.perception.detect.BoxClassifier`: each box's classes, and a refining
+            one's background and box), or None.
         confirm_score: the ``ego`` tracker reports a track once one of its boxes scored
             at least this much (`EgoTracker.confirm_score`; the oracle's boxes score 1).
         pose_noise: errors added to every observer's camera pose before it is used
@@ -123,6 +127,7 @@ class PerceiveConfig:
     parallel_frames: int | None = None
     agnostic_nms_iou: float | None = AGNOSTIC_NMS_IOU
     min_score: float = DEFAULT_MIN_SCORE
+    classifier: str | None = None
     confirm_score: float = CONFIRM_SCORE
     pose_noise: tuple[float, float, float, float] | None = None
     pose_noise_seed: int = 0
@@ -228,7 +233,7 @@ def observer_batches(recording, observer_id: int, config: PerceiveConfig, road_m
 
     spec = image_camera(recording, config.size)
     detector = build_detector(config.detector, 2 if config.threads is None else config.threads,
-                              config.agnostic_nms_iou, config.min_score)
+                              config.agnostic_nms_iou, config.min_score, config.classifier)
     tracker = build_tracker(config.tracker, spec, config.confirm_score)
     localizer = build_localizer(config.localizer, config.mu_h, road_map=road_map)
     # tracked/smoothed/mapped run an ego filter of their own: with the same settings it
