@@ -383,6 +383,8 @@ CASES: list[tuple[str, list[str], str]] = [
                                                   "{MISSING}.onnx"], "--refine-with"),
     ("detector-train-classifier-lowres", ["detector", "train-classifier", "{REC}", "-o",
                                           "{NEW_DIR}", "--lowres", "2"], "--lowres"),
+    ("detect-refine-steps-zero", ["detect", "{REC}", "--classifier", "shipped",
+                                  "--refine-steps", "0", "-o", "{NEW_DIR}"], "--refine-steps"),
     ("perceive-missing-classifier", ["perceive", "{REC}", "--classifier", "{MISSING}.onnx",
                                      "-o", "{NEW_FILE}"], "--classifier"),
     ("experiments-missing-classifier", ["experiments", "--seeds", "1", "--classifier",

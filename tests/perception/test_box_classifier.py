@@ -235,7 +235,11 @@ def test_detector_with_the_classifier_on_a_rendered_scene(gl_ctx, tmp_path, caps
                  "--classifier", "shipped", "--json"]) == 0
     capsys.readouterr()
     meta = json.loads((tmp_path / "out" / "detections.json").read_text())
-    assert meta["classifier"].endswith("classifier.onnx")
+    assert meta["classifier"].endswith("classifier.onnx") and meta["refine_steps"] == 1
+    # more refining steps: each reads the crop of the box the last one moved to
+    four = YoloDetector(conf=0.25, classifier=BoxClassifier(), refine_steps=4)
+    _, *stepped = found_boxes(frames, four.detect(rgbs))
+    assert four.refine_steps == 4 and stepped[0] >= counts["one"][0] - 1
 
 
 def test_perceive_and_the_experiments_take_the_classifier(tmp_path):

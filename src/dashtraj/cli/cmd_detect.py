@@ -27,6 +27,15 @@ def add_classifier_arg(p, scope: str = "") -> None:
                         "detector; default none: the detector's own boxes and classes)")
 
 
+def add_refine_steps_arg(p) -> None:
+    """``--refine-steps N``: how often a refining box classifier moves each box."""
+    from dashtraj.perception.detect import REFINE_STEPS
+
+    p.add_argument("--refine-steps", type=int_at_least(1), default=REFINE_STEPS, metavar="N",
+                   help="a refining --classifier moves each box N times, each from the crop "
+                        f"of the box it moved to (default {REFINE_STEPS})")
+
+
 def classifier_path_from_arg(value: str) -> str | None:
     """The box classifier file that ``--classifier`` names, or None (one-line error on a
     missing file)."""
@@ -72,6 +81,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     d.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
     d.add_argument("--preview", action="store_true", help="also draw the boxes")
     add_classifier_arg(d)
+    add_refine_steps_arg(d)
     d.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_output_args(d)
     d.set_defaults(func=run_detect)
@@ -271,7 +281,8 @@ def run_detect(args: argparse.Namespace) -> int:
 
     check_output(args.output, overwrite=args.overwrite, kind="dir")
     det = YoloDetector(args.model, names=args.names, conf=args.conf, iou=args.iou,
-                       batch=args.batch, classifier=classifier_from_arg(args.classifier))
+                       batch=args.batch, classifier=classifier_from_arg(args.classifier),
+                       refine_steps=args.refine_steps)
     images = _list_images(Path(args.source))
     summary = {"images": 0, "detections": 0, "per_class": {}}
     with atomic_output(args.output, overwrite=args.overwrite, kind="dir") as tmp:
@@ -296,9 +307,13 @@ def run_detect(args: argparse.Namespace) -> int:
                     summary["per_class"][lab] = summary["per_class"].get(lab, 0) + 1
                 if args.preview:
                     draw_detections(rgb, d).save(tmp / "preview" / f"{p.stem}.jpg", quality=90)
+        staged = det.classifier is not None
         (tmp / "detections.json").write_text(
-            json.dumps({"model": str(det.path), "classifier": None if det.classifier is None
-                        else str(det.classifier.path), "names": list(det.names), "conf": args.conf,
+            json.dumps({"model": str(det.path),
+                        "classifier": str(det.classifier.path) if staged else None,
+                        "refine_steps": (det.refine_steps if staged and det.classifier.refines
+                                         else None),
+                        "names": list(det.names), "conf": args.conf,
                         "iou": args.iou, "images": records}, indent=1) + "\n",
             encoding="utf-8")
     summary["output"] = args.output
@@ -358,6 +373,7 @@ def register_eval(sub) -> None:
     v.add_argument("--plot", action="store_true",
                    help="bar chart of AP50 per class (needs -o)")
     add_classifier_arg(v)
+    add_refine_steps_arg(v)
     v.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     v.add_argument("--json", action="store_true", help="print the results as JSON")
     add_output_args(v)
@@ -383,10 +399,13 @@ def run_eval(args: argparse.Namespace) -> int:
     cfg = EvalConfig(every_s=args.every, size=size, min_box_height_px=10.0 * w / 640,
                      small_px=args.small_px * w / 1280, conf=args.conf)
     det = YoloDetector(args.model, names=args.names, conf=0.001, iou=0.6,
-                       classifier=classifier_from_arg(args.classifier))
+                       classifier=classifier_from_arg(args.classifier),
+                       refine_steps=args.refine_steps)
     with progress_bar(args.quiet, unit="frame") as progress:
         res = evaluate_recordings(recs, det, cfg, progress=progress)
     res["classifier"] = None if det.classifier is None else str(det.classifier.path)
+    res["refine_steps"] = (det.refine_steps if det.classifier is not None
+                           and det.classifier.refines else None)
     if args.output:
         with atomic_output(args.output, overwrite=args.overwrite, kind="dir") as tmp:
             (tmp / "eval.json").write_text(json.dumps(res, indent=1) + "\n", encoding="utf-8")
@@ -433,6 +452,7 @@ def register_eval_external(sub) -> None:
     v.add_argument("-o", "--output", default=None, metavar="DIR",
                    help="write DIR/eval.json")
     add_classifier_arg(v)
+    add_refine_steps_arg(v)
     v.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     v.add_argument("--json", action="store_true", help="print the results as JSON")
     add_output_args(v)
@@ -473,11 +493,14 @@ def run_eval_external(args: argparse.Namespace) -> int:
         except ValueError as exc:
             raise ArgumentError(f"--class-map: {exc}") from None
     det = YoloDetector(args.model, conf=0.001, iou=0.6,
-                       classifier=classifier_from_arg(args.classifier))
+                       classifier=classifier_from_arg(args.classifier),
+                       refine_steps=args.refine_steps)
     with progress_bar(args.quiet, unit="image") as progress:
         res = evaluate_external(folder, det, names, cmap, small_px=args.small_px,
                                 conf=args.conf, max_images=args.max_images, progress=progress)
     res["classifier"] = None if det.classifier is None else str(det.classifier.path)
+    res["refine_steps"] = (det.refine_steps if det.classifier is not None
+                           and det.classifier.refines else None)
     if args.output:
         with atomic_output(args.output, overwrite=args.overwrite, kind="dir") as tmp:
             (tmp / "eval.json").write_text(json.dumps(res, indent=1) + "\n", encoding="utf-8")
