@@ -36,6 +36,13 @@ def add_refine_steps_arg(p) -> None:
                         f"of the box it moved to (default {REFINE_STEPS})")
 
 
+def refine_steps_used(det) -> int | None:
+    """A `YoloDetector`'s refining steps, for a command's JSON; None without a refining
+    box classifier."""
+    staged = det.classifier is not None and det.classifier.refines
+    return det.refine_steps if staged else None
+
+
 def classifier_path_from_arg(value: str) -> str | None:
     """The box classifier file that ``--classifier`` names, or None (one-line error on a
     missing file)."""
@@ -307,12 +314,9 @@ def run_detect(args: argparse.Namespace) -> int:
                     summary["per_class"][lab] = summary["per_class"].get(lab, 0) + 1
                 if args.preview:
                     draw_detections(rgb, d).save(tmp / "preview" / f"{p.stem}.jpg", quality=90)
-        staged = det.classifier is not None
         (tmp / "detections.json").write_text(
-            json.dumps({"model": str(det.path),
-                        "classifier": str(det.classifier.path) if staged else None,
-                        "refine_steps": (det.refine_steps if staged and det.classifier.refines
-                                         else None),
+            json.dumps({"model": str(det.path), "classifier": None if det.classifier is None
+                        else str(det.classifier.path), "refine_steps": refine_steps_used(det),
                         "names": list(det.names), "conf": args.conf,
                         "iou": args.iou, "images": records}, indent=1) + "\n",
             encoding="utf-8")
@@ -404,8 +408,7 @@ def run_eval(args: argparse.Namespace) -> int:
     with progress_bar(args.quiet, unit="frame") as progress:
         res = evaluate_recordings(recs, det, cfg, progress=progress)
     res["classifier"] = None if det.classifier is None else str(det.classifier.path)
-    res["refine_steps"] = (det.refine_steps if det.classifier is not None
-                           and det.classifier.refines else None)
+    res["refine_steps"] = refine_steps_used(det)
     if args.output:
         with atomic_output(args.output, overwrite=args.overwrite, kind="dir") as tmp:
             (tmp / "eval.json").write_text(json.dumps(res, indent=1) + "\n", encoding="utf-8")
@@ -499,8 +502,7 @@ def run_eval_external(args: argparse.Namespace) -> int:
         res = evaluate_external(folder, det, names, cmap, small_px=args.small_px,
                                 conf=args.conf, max_images=args.max_images, progress=progress)
     res["classifier"] = None if det.classifier is None else str(det.classifier.path)
-    res["refine_steps"] = (det.refine_steps if det.classifier is not None
-                           and det.classifier.refines else None)
+    res["refine_steps"] = refine_steps_used(det)
     if args.output:
         with atomic_output(args.output, overwrite=args.overwrite, kind="dir") as tmp:
             (tmp / "eval.json").write_text(json.dumps(res, indent=1) + "\n", encoding="utf-8")
