@@ -12,6 +12,7 @@ from dashtraj.perception.detect import (
     DetectorError,
     YoloDetector,
     box_crops,
+    box_iou,
     default_classifier_path,
     reclassify,
     refine_boxes,
@@ -186,8 +187,8 @@ def test_the_refiner_moves_loose_boxes_onto_the_car_and_calls_the_road_backgroun
                                       [-0.15 * w, -0.15 * h, 0.15 * w, 0.15 * h],
                                       [0.1 * w, 0.1 * h, -0.1 * w, -0.1 * h]])
             pr, moved = c.predict(frame.rgb, loose)
-            before += [_iou1(b, exact) for b in loose]
-            after += [_iou1(b, exact) for b in moved]
+            before += list(box_iou(loose, exact)[:, 0])
+            after += list(box_iou(moved, exact)[:, 0])
             vehicle_p += list(pr.sum(1))
             road = np.array([[exact[0] - 2.5 * w, exact[3] + 0.3 * h, exact[0] - 1.5 * w,
                               exact[3] + 0.3 * h + 0.6 * w]])
@@ -198,13 +199,6 @@ def test_the_refiner_moves_loose_boxes_onto_the_car_and_calls_the_road_backgroun
     assert min(vehicle_p) > 0.5  # loose boxes of a car are still a car
     assert all(a > b for a, b in zip(after, before, strict=True)), (before, after)
     assert np.mean(after) >= 0.85, after
-
-
-def _iou1(a, b) -> float:
-    iw = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    ih = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    inter = iw * ih
-    return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
 
 
 def test_detector_with_the_classifier_on_a_rendered_scene(gl_ctx, tmp_path, capsys):

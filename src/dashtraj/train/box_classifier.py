@@ -83,15 +83,6 @@ FG_IOU, BG_IOU, REG_IOU = 0.5, 0.3, 0.4
 (no class loss) between; its box is regressed to the truth box at IoU ≥ REG_IOU."""
 
 
-def _box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(len(a), len(b)) IoU of x0, y0, x1, y1 boxes."""
-    lt = np.maximum(a[:, None, :2], b[None, :, :2])
-    rb = np.minimum(a[:, None, 2:], b[None, :, 2:])
-    inter = np.prod(np.clip(rb - lt, 0, None), 2)
-    area = lambda x: (x[:, 2] - x[:, 0]) * (x[:, 3] - x[:, 1])  # noqa: E731
-    return inter / np.maximum(area(a)[:, None] + area(b)[None, :] - inter, 1e-9)
-
-
 def proposal_samples(gt: np.ndarray, gt_cls: np.ndarray, props: np.ndarray,
                      scores: np.ndarray, background: int, rng: np.random.Generator,
                      per_truth: int = 3, jitter: float = 0.08) -> tuple:
@@ -101,6 +92,8 @@ def proposal_samples(gt: np.ndarray, gt_cls: np.ndarray, props: np.ndarray,
     highest-scoring background proposals (max(6, 2 × truth boxes)). Returns (boxes (K, 4),
     class (K,): the truth class, ``background`` or -1 (neither), deltas (K, 4): the truth
     box's sides minus the box's, in box widths / heights, reg (K,) bool)."""
+    from dashtraj.perception.detect import box_iou
+
     gt = np.asarray(gt, np.float64).reshape(-1, 4)
     props = np.asarray(props, np.float64).reshape(-1, 4)
     wh = np.concatenate([gt[:, 2:] - gt[:, :2]] * 2, 1)
@@ -109,7 +102,7 @@ def proposal_samples(gt: np.ndarray, gt_cls: np.ndarray, props: np.ndarray,
     boxes = [gt, jit]
     if len(props):
         if len(gt):
-            iou = _box_iou(props, gt)
+            iou = box_iou(props, gt)
             best = iou.max(1)
             bg = np.flatnonzero(best < BG_IOU)
             fg = [rng.permutation(np.flatnonzero((iou.argmax(1) == j) & (best >= REG_IOU)))
@@ -124,7 +117,7 @@ def proposal_samples(gt: np.ndarray, gt_cls: np.ndarray, props: np.ndarray,
     deltas = np.zeros((len(boxes), 4), np.float32)
     reg = np.zeros(len(boxes), bool)
     if len(gt):
-        iou = _box_iou(boxes, gt)
+        iou = box_iou(boxes, gt)
         j, best = iou.argmax(1), iou.max(1)
         cls = np.where(best >= FG_IOU, np.asarray(gt_cls)[j], np.where(best < BG_IOU,
                                                                         background, -1))
