@@ -41,34 +41,42 @@ MEAN = (0.485, 0.456, 0.406)
 STD = (0.229, 0.224, 0.225)
 
 
+def _labelled_images(root: Path):
+    """Every image of a YOLO set's train and val splits with its labels: yields (split index
+    0 train / 1 val, index within the split, split name, (H, W, 3) uint8 RGB image, (K,)
+    classes, (K, 4) boxes x0, y0, x1, y1 in image pixels, (K,) their heights as labelled),
+    in file order."""
+    from PIL import Image
+
+    for k, split in enumerate(("train", "val")):
+        for n, lab in enumerate(sorted((root / "labels" / split).glob("*.txt"))):
+            rows = [r.split() for r in lab.read_text(encoding="utf-8").splitlines() if r.strip()]
+            img = np.asarray(Image.open(root / "images" / split / (lab.stem + ".jpg"))
+                             .convert("RGB"))
+            hh, ww = img.shape[:2]
+            lr = np.array([[float(v) for v in r[:5]] for r in rows]).reshape(-1, 5)
+            cx, cy, w, h = lr[:, 1] * ww, lr[:, 2] * hh, lr[:, 3] * ww, lr[:, 4] * hh
+            yield (k, n, split, img, lr[:, 0].astype(np.int64),
+                   np.stack([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2], 1), h)
+
+
 def extract_crops(data, crop_px: int = CROP_PX, margin: float = MARGIN) -> dict:
     """Every labelled box of a YOLO set as a crop: {"x": (N, crop_px, crop_px, 3) uint8,
     "y": (N,) class, "split": (N,) 0 train / 1 val, "height": (N,) box height, pixels,
     "names": class names}. Crops are made as `dashtraj.perception.detect.box_crops` makes
     them at run time (before its centre cut)."""
-    from PIL import Image
-
     from dashtraj.perception.detect import box_crops, read_names_yaml
 
     root = Path(data)
     names = read_names_yaml(root / "data.yaml")
     xs, ys, splits, hs = [], [], [], []
-    for k, split in enumerate(("train", "val")):
-        for lab in sorted((root / "labels" / split).glob("*.txt")):
-            rows = [r.split() for r in lab.read_text(encoding="utf-8").splitlines() if r.strip()]
-            if not rows:
-                continue
-            img = np.asarray(Image.open(root / "images" / split / (lab.stem + ".jpg"))
-                             .convert("RGB"))
-            hh, ww = img.shape[:2]
-            lab_rows = np.array([[float(v) for v in r[:5]] for r in rows])
-            cx, cy, w, h = (lab_rows[:, 1] * ww, lab_rows[:, 2] * hh, lab_rows[:, 3] * ww,
-                            lab_rows[:, 4] * hh)
-            boxes = np.stack([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2], 1)
-            xs.append(box_crops(img, boxes, margin, crop_px, crop_px))
-            ys.append(lab_rows[:, 0].astype(np.int64))
-            splits.append(np.full(len(rows), k, np.int64))
-            hs.append(h)
+    for k, _, _, img, cls, boxes, heights in _labelled_images(root):
+        if not len(cls):
+            continue
+        xs.append(box_crops(img, boxes, margin, crop_px, crop_px))
+        ys.append(cls)
+        splits.append(np.full(len(cls), k, np.int64))
+        hs.append(heights)
     if not xs:
         raise ValueError(f"{root}: no labelled boxes in labels/train or labels/val")
     return {"x": np.concatenate(xs), "y": np.concatenate(ys), "split": np.concatenate(splits),
@@ -134,36 +142,25 @@ def extract_proposals(data, detector, crop_px: int = CROP_PX, margin: float = MA
     image of a YOLO set, the proposals from ``detector`` (a `YoloDetector` or its ONNX
     path) at ``conf``. Adds "deltas" (N, 4) and "reg" (N,) to `extract_crops`' keys; "y"
     holds len(names) for background and -1 for neither."""
-    from PIL import Image
-
     from dashtraj.perception.detect import YoloDetector, box_crops, read_names_yaml
 
     root = Path(data)
     names = read_names_yaml(root / "data.yaml")
     det = detector if isinstance(detector, YoloDetector) else YoloDetector(detector, conf=conf)
     out: dict[str, list] = {k: [] for k in ("x", "y", "split", "height", "deltas", "reg")}
-    for k, split in enumerate(("train", "val")):
-        labs = sorted((root / "labels" / split).glob("*.txt"))
-        for n, lab in enumerate(labs):
-            rng = np.random.default_rng([seed, k, n])
-            rows = [r.split() for r in lab.read_text(encoding="utf-8").splitlines() if r.strip()]
-            img = np.asarray(Image.open(root / "images" / split / (lab.stem + ".jpg"))
-                             .convert("RGB"))
-            hh, ww = img.shape[:2]
-            lr = np.array([[float(v) for v in r[:5]] for r in rows]).reshape(-1, 5)
-            cx, cy, w, h = lr[:, 1] * ww, lr[:, 2] * hh, lr[:, 3] * ww, lr[:, 4] * hh
-            gt = np.stack([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2], 1)
-            d = det.detect([img])[0]
-            boxes, cls, deltas, reg = proposal_samples(gt, lr[:, 0].astype(np.int64), d.boxes,
-                                                       d.scores, len(names), rng)
-            out["x"].append(box_crops(img, boxes, margin, crop_px, crop_px))
-            out["y"].append(cls)
-            out["split"].append(np.full(len(boxes), k, np.int64))
-            out["height"].append(boxes[:, 3] - boxes[:, 1])
-            out["deltas"].append(deltas)
-            out["reg"].append(reg)
-            if log is not None and (n + 1) % 500 == 0:
-                log(f"proposals: {split} {n + 1}/{len(labs)} images")
+    total = {sp: len(list((root / "labels" / sp).glob("*.txt"))) for sp in ("train", "val")}
+    for k, n, split, img, gt_cls, gt, _ in _labelled_images(root):
+        d = det.detect([img])[0]
+        boxes, cls, deltas, reg = proposal_samples(gt, gt_cls, d.boxes, d.scores, len(names),
+                                                   np.random.default_rng([seed, k, n]))
+        out["x"].append(box_crops(img, boxes, margin, crop_px, crop_px))
+        out["y"].append(cls)
+        out["split"].append(np.full(len(boxes), k, np.int64))
+        out["height"].append(boxes[:, 3] - boxes[:, 1])
+        out["deltas"].append(deltas)
+        out["reg"].append(reg)
+        if log is not None and (n + 1) % 500 == 0:
+            log(f"proposals: {split} {n + 1}/{total[split]} images")
     if not out["x"]:
         raise ValueError(f"{root}: no images in labels/train or labels/val")
     res = {key: np.concatenate(v) for key, v in out.items()}
