@@ -53,7 +53,7 @@ def found_boxes(frames, dets, min_px: float = 24.0) -> tuple[int, int, int]:
 
     total = found = found_cls = 0
     for f, d in zip(frames, dets, strict=True):
-        gt = frame_ground_truth(f.frame_data.labels, 20.0, 0.7)
+        gt = frame_ground_truth(f.frame_data.labels, 20.0, 0.7, 1.0)
         gt = gt[(gt[:, 5] == 0) & (gt[:, 3] - gt[:, 1] >= min_px)]
         total += len(gt)
         if not len(gt) or not len(d):

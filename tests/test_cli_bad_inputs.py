@@ -405,6 +405,8 @@ CASES: list[tuple[str, list[str], str]] = [
      "argument --small-px: expected a finite number"),
     ("detector-eval-every-zero", ["detector", "eval", "{REC}", "--every", "0"],
      "argument --every: expected a number > 0"),
+    ("detector-eval-max-truncation", ["detector", "eval", "{REC}", "--max-truncation", "1.5"],
+     "argument --max-truncation: expected a number in [0, 1]"),
     ("detector-train-seed", ["detector", "train", "{REC}", "-o", "{NEW_DIR}", "--seed", "-1"],
      "argument --seed: expected an integer >= 0"),
     ("detector-eval-external-missing", ["detector", "eval-external", "{MISSING}"],

@@ -96,3 +96,31 @@ def test_average_precision_101_points():
     # one TP then one FP, 2 ground truths: recall 0.5 reached at precision 1
     ap = average_precision(np.array([True, False]), np.array([False, True]), 2)
     assert ap == pytest.approx(51 / 101)
+
+
+def test_ground_truth_ignores_slivers_beyond_the_frame_edge():
+    """KITTI's truncation rule: a vehicle mostly outside the frame (here a 7 px wide strip
+    at the right edge, 93 % of its silhouette beyond it) is an ignore region, so missing
+    it costs no recall; half inside still counts. max_truncation 1 keeps the old rule."""
+    from types import SimpleNamespace
+
+    from dashtraj.perception.detector_eval import EvalConfig, frame_ground_truth
+
+    def lab(box, cls, vis=1.0, trunc=0.0):
+        return SimpleNamespace(visible_box=box, visible_pixels=100, visible_fraction=vis,
+                               truncation=trunc, detection_class_id=cls)
+
+    labels = [lab((100, 300, 300, 420), 1), lab((1273, 375, 1280, 417), 12, trunc=0.93),
+              lab((0, 300, 90, 400), 2, trunc=0.45), lab((500, 300, 600, 390), 0, vis=0.2),
+              lab((700, 350, 720, 365), 3), lab((800, 350, 900, 420), 4, trunc=0.51)]
+    assert EvalConfig().max_truncation == 0.5
+    g = frame_ground_truth(labels, 20.0, 0.7)
+    assert g[:, 5].tolist() == [0, 1, 0, 1, 1, 1]
+    assert g[:, 4].tolist() == [1, 12, 2, 0, 3, 4]
+    assert frame_ground_truth(labels, 20.0, 0.7, 1.0)[:, 5].tolist() == [0, 0, 0, 1, 1, 0]
+    # the two labelled boxes found, the sliver and the 51 % truncated one missed
+    d = np.array([[100, 300, 300, 420, 0.9, 1], [0, 300, 90, 400, 0.8, 2]], float)
+    assert evaluate_detections([d], [g], 15, small_px=24)["recall"] == 1.0
+    old = evaluate_detections([d], [frame_ground_truth(labels, 20.0, 0.7, 1.0)], 15,
+                              small_px=24)
+    assert old["recall"] == 0.5 and old["gt"] == 4

@@ -372,6 +372,9 @@ def register_eval(sub) -> None:
                    help="threshold of the precision/recall figures (0.25)")
     v.add_argument("--small-px", type=positive_float, default=24.0, metavar="PX",
                    help="the size subset: boxes at least this tall (24)")
+    v.add_argument("--max-truncation", type=fraction, default=0.5, metavar="F",
+                   help="vehicles with more than this share of their silhouette outside the "
+                   "frame are ignore regions (KITTI's hard level: 0.5; 1: none)")
     v.add_argument("-o", "--output", default=None, metavar="DIR",
                    help="write DIR/eval.json (and DIR/ap_per_class.png with --plot)")
     v.add_argument("--plot", action="store_true",
@@ -401,7 +404,8 @@ def run_eval(args: argparse.Namespace) -> int:
     size = parse_size(args.size) if args.size else None
     w = size[0] if size else recs[0].config.camera.width_px
     cfg = EvalConfig(every_s=args.every, size=size, min_box_height_px=10.0 * w / 640,
-                     small_px=args.small_px * w / 1280, conf=args.conf)
+                     small_px=args.small_px * w / 1280, conf=args.conf,
+                     max_truncation=args.max_truncation)
     det = YoloDetector(args.model, names=args.names, conf=0.001, iou=0.6,
                        classifier=classifier_from_arg(args.classifier),
                        refine_steps=args.refine_steps)

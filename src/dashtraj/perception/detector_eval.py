@@ -4,11 +4,14 @@
 Ground truth per frame: every vehicle with visible pixels, its *visible* box
 (``VehicleLabel.visible_box``, frame pixels) and detection class. Vehicles the detection
 set leaves unlabelled (visible box lower than ``min_box_height_px`` or occlusion above
-``max_occlusion``, `dashtraj.datasets.detection`) are *ignore* regions: a detection on
-one counts neither as true nor as false positive (COCO's crowd/area-range rule), so the
-all-size figures neither reward nor punish finding them. Scores: `evaluate_detections`
-(COCO 101-point AP, mAP50, mAP50-95, P/R at the detector's threshold), all sizes and
-boxes at least ``small_px`` tall (24 px at 1280×720: vehicles within about 30 m).
+``max_occlusion``, `dashtraj.datasets.detection`) and vehicles mostly outside the frame
+(``truncation`` above ``max_truncation``: KITTI's rule, whose hardest level keeps objects
+truncated up to 50 %; a car 95 % beyond the frame's edge is a sliver a few pixels wide) are
+*ignore* regions: a detection on one counts neither as true nor as false positive (COCO's
+crowd/area-range rule), so the figures neither reward nor punish finding them.
+Scores: `evaluate_detections` (COCO 101-point AP, mAP50, mAP50-95, P/R at the detector's
+threshold), all sizes and boxes at least ``small_px`` tall (24 px at 1280×720: vehicles
+within about 30 m).
 """
 
 from __future__ import annotations
@@ -22,26 +25,33 @@ import numpy as np
 class EvalConfig:
     """every_s: sampling period, seconds. size: (W, H) frame size or None for the
     recordings' camera. min_box_height_px / max_occlusion: the detection set's label
-    filters scaled to the frame (10 px at 640×360 = 20 px at 1280×720). small_px: the
+    filters scaled to the frame (10 px at 640×360 = 20 px at 1280×720). max_truncation:
+    vehicles with a larger share of their projected silhouette outside the frame are
+    ignored (KITTI's hard level, 0.5; 1 ignores none: the rule before 2026-12-06). small_px: the
     size subset. conf: operating threshold of P/R. batch: frames per detector run."""
 
     every_s: float = 2.0
     size: tuple[int, int] | None = None
     min_box_height_px: float = 20.0
     max_occlusion: float = 0.7
+    max_truncation: float = 0.5
     small_px: float = 24.0
     conf: float = 0.25
     batch: int = 8
 
 
-def frame_ground_truth(labels, min_box_height_px: float, max_occlusion: float) -> np.ndarray:
-    """(M, 6) [x0, y0, x1, y1, class, ignore] of one frame's visible vehicles, pixels."""
+def frame_ground_truth(labels, min_box_height_px: float, max_occlusion: float,
+                       max_truncation: float = 0.5) -> np.ndarray:
+    """(M, 6) [x0, y0, x1, y1, class, ignore] of one frame's visible vehicles, pixels;
+    ignored: lower than ``min_box_height_px``, more occluded than ``max_occlusion`` or
+    more truncated by the frame's edges than ``max_truncation`` (`EvalConfig`)."""
     rows = []
     for lab in labels:
         b = lab.visible_box
         if b is None or lab.visible_pixels <= 0:
             continue
-        ignore = (b[3] - b[1] < min_box_height_px) or (1 - lab.visible_fraction > max_occlusion)
+        ignore = (b[3] - b[1] < min_box_height_px or 1 - lab.visible_fraction > max_occlusion
+                  or lab.truncation > max_truncation)
         rows.append([*map(float, b), float(lab.detection_class_id), float(ignore)])
     return np.array(rows, np.float64).reshape(-1, 6)
 
@@ -72,7 +82,7 @@ def evaluate_recordings(recordings, detector, config: EvalConfig = EvalConfig(),
         for rf in source_frames(rec, config.every_s, config.size):
             buf_rgb.append(rf.frame_data.rgb)
             buf_gt.append(frame_ground_truth(rf.frame_data.labels, config.min_box_height_px,
-                                             config.max_occlusion))
+                                             config.max_occlusion, config.max_truncation))
             if progress is not None:
                 progress()
             if len(buf_rgb) >= config.batch:
