@@ -41,6 +41,16 @@ def test_box_crops_grow_the_box_squash_it_and_keep_the_centre():
     edge, flat = box_crops(rgb, np.array([[0.0, 0.0, 20.0, 20.0], [5.0, 5.0, 5.0, 9.0]]),
                            0.25, 76, 64)
     assert edge[0, 0].sum() == 0 and flat.sum() == 0
+    # the frame's Pillow image (made once when a box is cropped again and again) gives the
+    # same crops; a box 10x the crop's size is shrunk first (reducing_gap) and still sharp
+    from PIL import Image
+
+    big = np.array([[0.0, 0.0, 760.0, 760.0]])
+    frame = np.zeros((800, 800, 3), np.uint8)
+    frame[::2] = 255  # one-pixel stripes: grey after any fair shrinking
+    a = box_crops(frame, big, 0.0, 76, 64)
+    assert np.array_equal(a, box_crops(Image.fromarray(frame), big, 0.0, 76, 64))
+    assert abs(float(a.mean()) - 127.5) < 3 and a.std() < 8
 
 
 def test_reclassify_keeps_each_likely_class_scored_by_its_probability():

@@ -427,9 +427,12 @@ class YoloDetector:
             for d, (_, lb), frame in zip(dets, boxed, chunk, strict=True):
                 img = lb.boxes_to_image(d)
                 if self.classifier is not None and len(img):
+                    from PIL import Image
+
                     top = img[:self.classify_top].copy()
+                    pil = Image.fromarray(np.asarray(frame, np.uint8))  # once for every step
                     for _ in range(self.refine_steps if self.classifier.refines else 1):
-                        probs, moved = self.classifier.predict(np.asarray(frame), top[:, :4])
+                        probs, moved = self.classifier.predict(pil, top[:, :4])
                         if moved is not None:
                             top[:, :4] = moved
                     img = reclassify(top, probs, iou=self.iou, max_det=self.max_det)
@@ -457,16 +460,26 @@ def default_classifier_path(name: str = "shipped") -> Path:
     return default_model_path(name).parent / CLASSIFIER_FILE
 
 
-def box_crops(rgb: np.ndarray, boxes: np.ndarray, margin: float, crop_px: int,
+CROP_REDUCING_GAP = 2.0
+"""`box_crops`' Pillow ``reducing_gap``: a box much larger than the crop is first shrunk by
+an integer factor (box averaging), then resampled, at least twice the crop's size; 1.6×
+as fast as resampling it whole (9 boxes a frame: 6.3 → 3.8 ms), pixels 0.27 grey
+levels apart on average, the refining stage's validation mAP50 >= 24 px unchanged
+(0.9486 → 0.9491 with four steps)."""
+
+
+def box_crops(rgb, boxes: np.ndarray, margin: float, crop_px: int,
               input_px: int) -> np.ndarray:
     """(K, input_px, input_px, 3) uint8 crops of boxes (x0, y0, x1, y1, frame pixels): each
     box grown by ``margin`` of its width and height on every side (black beyond the frame),
-    squashed to ``crop_px`` square (bilinear), and its centre ``input_px`` square kept. The
-    box classifier's training crops (`dashtraj.train.box_classifier`) are made the same way,
-    the centre then drawn at random."""
+    squashed to ``crop_px`` square (bilinear, ``CROP_REDUCING_GAP``), and its centre
+    ``input_px`` square kept. ``rgb``: the (H, W, 3) uint8 frame or its Pillow image (a
+    caller cropping one frame many times makes that once). The box classifier's training
+    crops (`dashtraj.train.box_classifier`) are made the same way, the centre then drawn
+    at random."""
     from PIL import Image
 
-    img = Image.fromarray(np.asarray(rgb, np.uint8))
+    img = rgb if isinstance(rgb, Image.Image) else Image.fromarray(np.asarray(rgb, np.uint8))
     o = (crop_px - input_px) // 2
     out = np.zeros((len(boxes), input_px, input_px, 3), np.uint8)
     for k, (x0, y0, x1, y1) in enumerate(np.asarray(boxes, np.float64).reshape(-1, 4)):
@@ -475,7 +488,8 @@ def box_crops(rgb: np.ndarray, boxes: np.ndarray, margin: float, crop_px: int,
                                               x1 + margin * w, y1 + margin * h))
         if box[2] <= box[0] or box[3] <= box[1]:
             continue
-        c = np.asarray(img.crop(box).resize((crop_px, crop_px), Image.BILINEAR))
+        c = np.asarray(img.crop(box).resize((crop_px, crop_px), Image.BILINEAR,
+                                            reducing_gap=CROP_REDUCING_GAP))
         out[k] = c[o:o + input_px, o:o + input_px]
     return out
 
@@ -522,9 +536,10 @@ class BoxClassifier:
             raise DetectorError(f"{self.path}: {width} logits for {len(self.names)} names"
                                 f"{' and background' if self.background else ''}")
 
-    def predict(self, rgb: np.ndarray, boxes: np.ndarray,
+    def predict(self, rgb, boxes: np.ndarray,
                 batch: int = 64) -> tuple[np.ndarray, np.ndarray | None]:
-        """The boxes' (x0, y0, x1, y1, frame pixels) class probabilities (K, C): a softmax
+        """The boxes' (x0, y0, x1, y1, frame pixels) class probabilities (K, C) in the frame
+        ``rgb`` ((H, W, 3) uint8 or its Pillow image, `box_crops`): a softmax
         over the classes and, for a model with a background class, background, whose
         column is dropped (a box's classes then sum to 1 minus its background
         probability); and a refining model's boxes moved by its deltas, clipped to the
@@ -547,8 +562,10 @@ class BoxClassifier:
         if not self.refines:
             return probs, None
         d = np.concatenate(deltas) if deltas else np.zeros((0, 4))
-        h, w = np.asarray(rgb).shape[:2]
-        return probs, refine_boxes(boxes, d, (w, h))
+        from PIL import Image
+
+        size = rgb.size if isinstance(rgb, Image.Image) else np.asarray(rgb).shape[1::-1]
+        return probs, refine_boxes(boxes, d, size)
 
     def probs(self, rgb: np.ndarray, boxes: np.ndarray, batch: int = 64) -> np.ndarray:
         """(K, C) class probabilities of the boxes (x0, y0, x1, y1, frame pixels)."""
