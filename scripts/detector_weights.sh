@@ -78,12 +78,12 @@ if [ "${CLASSIFIER:-1}" = 1 ]; then
          --seed 0 --randomize --randomize-seed 0 -q --workers "$WORKERS"
   [ -f "$WORK/classifier/classifier.onnx" ] \
     || "$DT" detector train-classifier "$WORK/set720" -o "$WORK/classifier" --seed "$SEED" \
-         --refine-with "$WORK/detector.onnx" --epochs 6 --threads 2
+         --refine-with "$WORK/detector.onnx" --epochs 12 --threads 2
   "$DT" detector eval "${held[@]}" --model "$WORK/detector.onnx" --every 8 \
     --classifier "$WORK/classifier/classifier.onnx" -o "$WORK/eval_classifier" --overwrite -q
   cp "$WORK/classifier/classifier.onnx" "$CARD_OUT/classifier.onnx"
   "${PYTHON:-.venv/bin/python}" scripts/classifier_card.py --run "$WORK/classifier" \
     --onnx "$CARD_OUT/classifier.onnx" --dataset "$WORK/set720" \
     --eval "$WORK/eval_classifier/eval.json" --eval-without "$WORK/eval/eval.json" \
-    --out "$CARD_OUT" --command "dashtraj detector train-classifier $WORK/set720 -o $WORK/classifier --seed $SEED --refine-with $WORK/detector.onnx --epochs 6 --threads 2"
+    --out "$CARD_OUT" --command "dashtraj detector train-classifier $WORK/set720 -o $WORK/classifier --seed $SEED --refine-with $WORK/detector.onnx --epochs 12 --threads 2"
 fi
