@@ -42,7 +42,8 @@ def test_box_crops_grow_the_box_squash_it_and_keep_the_centre():
                            0.25, 76, 64)
     assert edge[0, 0].sum() == 0 and flat.sum() == 0
     # the frame's Pillow image (made once when a box is cropped again and again) gives the
-    # same crops; a box 10x the crop's size is shrunk first (reducing_gap) and still sharp
+    # same crops; a box 10x the crop's size is shrunk first (reducing_gap), still fairly:
+    # one-pixel stripes average to grey, no aliasing
     from PIL import Image
 
     big = np.array([[0.0, 0.0, 760.0, 760.0]])

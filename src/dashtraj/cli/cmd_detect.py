@@ -354,7 +354,8 @@ def register_eval(sub) -> None:
             "towns never used in training), run the detector and score it against the "
             "renderer's exact visible boxes: mAP50, mAP50-95 (COCO 101-point), AP per class, "
             "precision/recall at --conf, for all boxes and for boxes >= --small-px tall. "
-            "Vehicles the detection set leaves unlabelled are ignore regions."
+            "Vehicles the detection set leaves unlabelled, and vehicles more than "
+            "--max-truncation outside the frame, are ignore regions."
         ),
     )
     v.add_argument("recordings", nargs="+", metavar="RUN",
