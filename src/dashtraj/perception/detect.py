@@ -448,9 +448,9 @@ REFINE_STEPS = 1
 step reads the crop of the box the step before moved to). On the detector's validation
 recordings (our renders; mAP50 for boxes >= 24 px, 216 frames, the shipped stage) more
 steps help: 1 step 0.921, 2 0.945, 3 0.956, 4 0.956, 5 0.958; on CARLA's own frames (the
-other validation set) they do not: vehicle AP50 >= 24 px 0.630, 0.629 (2), all sizes 0.474,
-0.429 (2); the stage before it fell from 0.607 to 0.499 with four. One step is the default;
-``--refine-steps 4`` suits the built-in world's renders."""
+other validation set) they hurt: vehicle AP50 >= 24 px 0.630, 0.629 (2), 0.601 (4), all
+sizes 0.474, 0.429 (2), 0.371 (4); the stage before it fell from 0.607 to 0.499 with four.
+One step is the default; ``--refine-steps 4`` suits the built-in world's renders."""
 
 CLASSIFIER_FILE = "classifier.onnx"
 """The shipped box classifier, beside the shipped detector (`default_classifier_path`)."""
