@@ -43,18 +43,25 @@ def refine_steps_used(det) -> int | None:
     return det.refine_steps if staged else None
 
 
+def shipped_or_file(flag: str, value: str, shipped) -> str:
+    """``value`` of a model argument: "shipped" names the ``shipped`` path, anything else a
+    file that must exist (one-line error naming ``flag``)."""
+    from dashtraj.cli._args import require_file
+
+    if value == "shipped":
+        return str(shipped)
+    require_file(flag, value)
+    return value
+
+
 def classifier_path_from_arg(value: str) -> str | None:
     """The box classifier file that ``--classifier`` names, or None (one-line error on a
     missing file)."""
-    from dashtraj.cli._args import require_file
     from dashtraj.perception.detect import default_classifier_path
 
     if value == "none":
         return None
-    if value == "shipped":
-        return str(default_classifier_path())
-    require_file("--classifier", value)
-    return value
+    return shipped_or_file("--classifier", value, default_classifier_path())
 
 
 def classifier_from_arg(value: str):
@@ -213,16 +220,10 @@ def run_train_classifier(args: argparse.Namespace) -> int:
         from dashtraj.cli._args import ArgumentError
 
         raise ArgumentError(f"--blocks {args.blocks}: EfficientNet-Lite0 has 16 blocks")
-    detector = None
-    if args.refine_with == "shipped":
-        from dashtraj.perception.detect import default_model_path
+    from dashtraj.perception.detect import default_model_path
 
-        detector = default_model_path()
-    elif args.refine_with is not None:
-        from dashtraj.cli._args import require_file
-
-        require_file("--refine-with", args.refine_with)
-        detector = args.refine_with
+    detector = None if args.refine_with is None else \
+        shipped_or_file("--refine-with", args.refine_with, default_model_path())
     bc = _training_module(args.data, "labels", "detector train-classifier",
                           "dashtraj.train.box_classifier")
     out = Path(args.output)

@@ -427,10 +427,8 @@ class YoloDetector:
             for d, (_, lb), frame in zip(dets, boxed, chunk, strict=True):
                 img = lb.boxes_to_image(d)
                 if self.classifier is not None and len(img):
-                    from PIL import Image
-
                     top = img[:self.classify_top].copy()
-                    pil = Image.fromarray(np.asarray(frame, np.uint8))  # once for every step
+                    pil = frame_image(frame)  # once for every step
                     for _ in range(self.refine_steps if self.classifier.refines else 1):
                         probs, moved = self.classifier.predict(pil, top[:, :4])
                         if moved is not None:
@@ -469,18 +467,26 @@ levels apart on average, the refining stage's validation mAP50 >= 24 px unchange
 (0.9486 → 0.9491 with four steps)."""
 
 
+def frame_image(rgb):
+    """The Pillow image of an (H, W, 3) uint8 frame (a Pillow image passes through): what
+    `box_crops` crops from, made once by a caller that crops one frame many times."""
+    from PIL import Image
+
+    return rgb if isinstance(rgb, Image.Image) else Image.fromarray(np.asarray(rgb, np.uint8))
+
+
 def box_crops(rgb, boxes: np.ndarray, margin: float, crop_px: int,
               input_px: int) -> np.ndarray:
     """(K, input_px, input_px, 3) uint8 crops of boxes (x0, y0, x1, y1, frame pixels): each
     box grown by ``margin`` of its width and height on every side (black beyond the frame),
     squashed to ``crop_px`` square (bilinear, ``CROP_REDUCING_GAP``), and its centre
-    ``input_px`` square kept. ``rgb``: the (H, W, 3) uint8 frame or its Pillow image (a
+    ``input_px`` square kept. ``rgb``: the (H, W, 3) uint8 frame or its `frame_image` (a
     caller cropping one frame many times makes that once). The box classifier's training
     crops (`dashtraj.train.box_classifier`) are made the same way, the centre then drawn
     at random."""
     from PIL import Image
 
-    img = rgb if isinstance(rgb, Image.Image) else Image.fromarray(np.asarray(rgb, np.uint8))
+    img = frame_image(rgb)
     o = (crop_px - input_px) // 2
     out = np.zeros((len(boxes), input_px, input_px, 3), np.uint8)
     for k, (x0, y0, x1, y1) in enumerate(np.asarray(boxes, np.float64).reshape(-1, 4)):
@@ -540,13 +546,14 @@ class BoxClassifier:
     def predict(self, rgb, boxes: np.ndarray,
                 batch: int = 64) -> tuple[np.ndarray, np.ndarray | None]:
         """The boxes' (x0, y0, x1, y1, frame pixels) class probabilities (K, C) in the frame
-        ``rgb`` ((H, W, 3) uint8 or its Pillow image, `box_crops`): a softmax
+        ``rgb`` ((H, W, 3) uint8 or its `frame_image`): a softmax
         over the classes and, for a model with a background class, background, whose
         column is dropped (a box's classes then sum to 1 minus its background
         probability); and a refining model's boxes moved by its deltas, clipped to the
         frame (`refine_boxes`), else None."""
         boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
-        crops = box_crops(rgb, boxes, self.margin, self.crop_px, self.input_px)
+        img = frame_image(rgb)
+        crops = box_crops(img, boxes, self.margin, self.crop_px, self.input_px)
         mean = np.array([0.485, 0.456, 0.406], np.float32)
         std = np.array([0.229, 0.224, 0.225], np.float32)
         out, deltas = [], []
@@ -563,10 +570,7 @@ class BoxClassifier:
         if not self.refines:
             return probs, None
         d = np.concatenate(deltas) if deltas else np.zeros((0, 4))
-        from PIL import Image
-
-        size = rgb.size if isinstance(rgb, Image.Image) else np.asarray(rgb).shape[1::-1]
-        return probs, refine_boxes(boxes, d, size)
+        return probs, refine_boxes(boxes, d, img.size)
 
     def probs(self, rgb: np.ndarray, boxes: np.ndarray, batch: int = 64) -> np.ndarray:
         """(K, C) class probabilities of the boxes (x0, y0, x1, y1, frame pixels)."""
