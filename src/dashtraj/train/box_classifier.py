@@ -272,13 +272,14 @@ def _batch(x: np.ndarray, input_px: int, rng: np.random.Generator | None,
 
 
 def _rel_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise IoU of boxes given as deltas to the unit box (0, 0, 1, 1)."""
+    """Row-wise IoU of boxes given as deltas to the unit box (0, 0, 1, 1)
+    (`dashtraj.train.detector_train.box_iou_pairs`)."""
+    import torch
+
+    from dashtraj.train.detector_train import box_iou_pairs
+
     unit = np.array([0.0, 0.0, 1.0, 1.0])
-    a, b = unit + a, unit + b
-    wh = np.clip(np.minimum(a[:, 2:], b[:, 2:]) - np.maximum(a[:, :2], b[:, :2]), 0, None)
-    inter = wh[:, 0] * wh[:, 1]
-    area = lambda x: np.clip(x[:, 2] - x[:, 0], 0, None) * np.clip(x[:, 3] - x[:, 1], 0, None)  # noqa: E731
-    return inter / np.maximum(area(a) + area(b) - inter, 1e-9)
+    return box_iou_pairs(torch.from_numpy(unit + a), torch.from_numpy(unit + b)).numpy()
 
 
 def evaluate(net, x: np.ndarray, y: np.ndarray, input_px: int = INPUT_PX,
