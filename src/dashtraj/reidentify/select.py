@@ -65,7 +65,7 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
                          keep_anchor: bool = False, pin_anchor: bool = True,
                          apart: Collection[frozenset] = (),
                          together: Collection[frozenset] = (),
-                         start_t: float | None = None) -> Selection:
+                         start_t: float | None = None, watch=None) -> Selection:
     """Decide and gate the target's tracks.
 
     Args:
@@ -99,6 +99,8 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
             from the first sighting on, and a vehicle seen only before the target's
             first sighting is another one (a look-alike met earlier; `gate_tracks`'
             rule).
+        watch: a `dashtraj.trajectory.watch.Watch` for the gate (negative evidence:
+            `gate_tracks`), or None.
 
     Returns:
         `Selection`.
@@ -125,7 +127,7 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
     res = gate_tracks(road_map, [sightings[d.key] for d in placed], weights=weights,
                       anchor=idx.get(anchor) if anchor is not None and pin_anchor else None,
                       config=gate, apart=indices(apart), together=indices(together),
-                      start_t=start_t)
+                      start_t=start_t, watch=watch)
     accepted = tuple(placed[i].key for i in res.accepted)
     out = tuple(k for k in cand_keys if k not in set(accepted))
     return Selection(tuple(decisions), cand_keys, accepted, out)

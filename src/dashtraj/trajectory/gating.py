@@ -341,9 +341,11 @@ def _apart_at_once(a_track: list[Sighting], b_track: list[Sighting], max_m: floa
 
 
 def _follows(road_map, lanes, cfg, a_track: list[Sighting], b_track: list[Sighting],
-             one_vehicle: bool = False) -> bool:
+             one_vehicle: bool = False, watch=None) -> bool:
     """One car can have made both tracks, A starting no later than B (`one_vehicle`: the
-    camera's pixels showed them as one vehicle, whatever their positions)."""
+    camera's pixels showed them as one vehicle, whatever their positions; `watch`: a
+    `dashtraj.trajectory.watch.Watch`, and A ends before B starts: the drive between
+    them must also be one the cameras could have missed)."""
     b0 = b_track[0]
     if (not one_vehicle and a_track[-1].t >= b0.t and a_track[0].observer_id == b0.observer_id
             and a_track[0].track_id != b0.track_id
@@ -356,6 +358,10 @@ def _follows(road_map, lanes, cfg, a_track: list[Sighting], b_track: list[Sighti
     if not reachable(road_map, a_ref, b0, cfg, lanes, head(a_track, a_ref), head(b_track, b0)):
         return False
     a_last = a_track[-1]
+    if watch is not None and a_last.t < b0.t and not watch.drive_unseen(
+            a_last.t, lanes.points(a_last, head(a_track, a_last)), b0.t,
+            lanes.points(b0, head(b_track, b0)), cfg.max_speed_mps, cfg.slack_m):
+        return False  # every place between them watched and seen empty: two vehicles
     if a_last.t > b0.t:  # overlap in time: B must reach A's last sighting too
         b_ref = [s for s in b_track if s.t <= a_last.t][-1]
         if not reachable(road_map, b_ref, a_last, cfg, lanes, head(b_track, b_ref),
@@ -369,7 +375,7 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
                 config: GateConfig = GateConfig(), method: str = "clique",
                 apart: Collection[tuple[int, int]] = (),
                 together: Collection[tuple[int, int]] = (),
-                start_t: float | None = None) -> GateResult:
+                start_t: float | None = None, watch=None) -> GateResult:
     """Keep the heaviest set of candidate tracks one vehicle could have produced.
 
     Args:
@@ -390,6 +396,9 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
             None: a track whose sightings all come before it (other than the anchor)
             is another vehicle, rejected whatever else it fits (the route is rebuilt
             from the first sighting on).
+        watch: a `dashtraj.trajectory.watch.Watch` (where the cameras looked and saw
+            nothing), or None: a track that ends before another starts is the same car
+            only if the drive between them could have gone unseen (`Watch.drive_unseen`).
 
     Returns:
         `GateResult` (accepted indices in time order, rejected indices).
@@ -440,7 +449,7 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
                               method=method,
                               apart=[(at[i], at[j]) for i, j in two if i in at and j in at],
                               together=[(at[i], at[j]) for i, j in one
-                                        if i in at and j in at])
+                                        if i in at and j in at], watch=watch)
             accepted = tuple(keep[j] for j in sub.accepted)
             return GateResult(accepted, tuple(sorted(set(range(n)) - set(accepted))),
                               sub.weight, tuple(order))
@@ -450,7 +459,8 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
         for p in range(q):
             pair = (order[p], order[q])
             ok[p, q] = pair not in two and _follows(road_map, lanes, config, ts[order[p]],
-                                                    ts[order[q]], one_vehicle=pair in one)
+                                                    ts[order[q]], one_vehicle=pair in one,
+                                                    watch=watch)
     wo = w[order]
     if method == "clique":
         a_pos = None if anchor is None else order.index(anchor)
