@@ -11,7 +11,7 @@ Usage:
     python scripts/reid_rescore.py EXP --reid-model M.onnx [--reid-threshold F.json]
         [--gate | --no-gate] [--same-camera-m M] [--slack-m M] [--radius-m M] [--max-speed-mps V]
         [--co-observed-m M] [--heading-min-m M] [--heading-window-s S]
-        [--pin-anchor | --no-pin-anchor]
+        [--pin-anchor | --no-pin-anchor] [--watch | --no-watch] [--watch-range-m M] ...
         [--split | --no-split] [--min-score S] [--no-pose-sigma] [--gallery-range M]
         [--route-range M] [--json]
 
@@ -52,11 +52,13 @@ def main(argv: list[str] | None = None) -> int:
         SIGHTING_MIN_SCORE,
         SPLIT_TRACKS,
         VISION_GATE,
+        WATCH,
         load_threshold,
         target_from_db,
     )
     from dashtraj.roads import RoadMap
     from dashtraj.trajectory.gating import GateConfig
+    from dashtraj.trajectory.watch import WatchConfig
     from dashtraj.world.recording import Recording
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -75,6 +77,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pin-anchor", action=argparse.BooleanOptionalAction, default=PIN_ANCHOR,
                     help="the gate keeps the query's own track whatever the others say "
                          "(default: the library's, dashtraj.reidentify.vision.PIN_ANCHOR)")
+    ap.add_argument("--watch", action=argparse.BooleanOptionalAction, default=None,
+                    help="negative evidence in the gate: cameras that watched every place one "
+                         "car could have been between two tracks and saw none there "
+                         "(default: the library's, dashtraj.reidentify.vision.WATCH, or on "
+                         "when a --watch-* setting is given)")
+    watch_fields = [f.name for f in fields(WatchConfig)]
+    for field in watch_fields:  # --watch-range-m M etc.: WatchConfig with that field replaced
+        ap.add_argument("--watch-" + field.replace("_", "-"),
+                        type=int if field == "misses" else float, default=None,
+                        help=f"the negative evidence's WatchConfig.{field} (default: the "
+                             f"library's WatchConfig())")
     ap.add_argument("--split", action=argparse.BooleanOptionalAction, default=SPLIT_TRACKS,
                     help="cut tracks where their crops' look changes (default: the library's, "
                          "dashtraj.reidentify.vision.SPLIT_TRACKS)")
@@ -101,6 +114,10 @@ def main(argv: list[str] | None = None) -> int:
     th = load_threshold(args.reid_model, args.reid_threshold)
     changes = {k: getattr(args, k) for k in gate_fields if getattr(args, k) is not None}
     gate_cfg = replace(VISION_GATE, **changes) if changes else None
+    wchanges = {k: getattr(args, "watch_" + k) for k in watch_fields
+                if getattr(args, "watch_" + k) is not None}
+    watch = (WatchConfig(**wchanges) if wchanges and args.watch is not False
+             else WATCH if args.watch is None else args.watch)
     embedder = ReidEmbedder(args.reid_model, threads=1)
     summaries, rows = [], []
     with tempfile.TemporaryDirectory(prefix="reid_rescore_") as tmp:
@@ -122,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
                                 gallery_m=(config.gallery_m if args.gallery_range is None
                                            else args.gallery_range),
                                 route_m=(config.route_m if args.route_range is None
-                                         else args.route_range))
+                                         else args.route_range), watch=watch)
             results, _, _ = reconstruct_and_score(road_map, rec.target_route, tt.sightings,
                                                   config.methods,
                                                   pose_noise=None if args.no_pose_sigma

@@ -147,6 +147,8 @@ class ExperimentConfig:
             box relations see a camera's tracks that far (None: neither;
             `target_from_db`'s ``route_m``). The CLI's default is 20 m
             (`dashtraj.cli._vision_args.VISION_ROUTE_M`).
+        watch: ``vision``: negative evidence in the gate (`target_from_db`'s ``watch``);
+            None: the library's default (`dashtraj.reidentify.vision.WATCH`).
     """
 
     town: str = "town10"
@@ -179,8 +181,12 @@ class ExperimentConfig:
     live_relink: bool = False
     gallery_m: float | None = None
     route_m: float | None = None
+    watch: bool | None = None
 
     def __post_init__(self) -> None:
+        if self.watch is not None and self.sightings != "vision":
+            raise ExperimentError("--watch reads where the observers' cameras looked: it "
+                                  "needs --sightings vision")
         if self.gallery_m is not None:
             if self.sightings != "vision":
                 raise ExperimentError("--gallery-range widens appearance ReID's gallery: it "
@@ -591,7 +597,8 @@ def vision_sightings(config: ExperimentConfig, rec, out: Path, road_map,
                         threshold=th.calibration.threshold, recipe=th.calibration.recipe,
                         gate=config.gate, max_distance_m=config.max_distance_m,
                         sample_s=SAMPLE_S, stages=stages, gallery_m=config.gallery_m,
-                        route_m=config.route_m)
+                        route_m=config.route_m,
+                        **({} if config.watch is None else {"watch": config.watch}))
     s = tt.summary
     line = (f"re-identify: {s['reid_candidates']} of {s['reid_tracks']} tracks within "
             f"{reid_range_of(config):g} m pass the threshold, the gate keeps "

@@ -182,6 +182,17 @@ def test_route_range_is_a_vision_setting_at_least_the_gallerys():
         ExperimentConfig(sightings="detections", route_m=20.0)
 
 
+def test_watch_is_a_vision_setting():
+    ap = vision_parser()
+    for argv, want in (([], None), (["--watch"], True), (["--no-watch"], False)):
+        assert vision_settings(ap.parse_args(argv))["watch"] is want, argv
+    cfg = ExperimentConfig(reid="appearance", **vision_settings(ap.parse_args(["--watch"])))
+    assert cfg.watch is True
+    assert ExperimentConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
+    with pytest.raises(ExperimentError, match=r"--watch .* needs --sightings vision"):
+        ExperimentConfig(sightings="oracle", watch=True)
+
+
 @pytest.mark.slow
 def test_detections_source_from_pixels(tmp_path):
     # A short run from rendered frames: perceive (oracle detector, ego tracker, fused

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 import dashtraj.experiments as ex
@@ -93,6 +94,37 @@ def test_demo_from_pixels_finds_the_target_and_writes_every_file(tmp_path, gl_av
     assert cal.calibration.rule == "far" and cal.calibration.positives > 0
     assert cal.calibration.query == "track" and cal.calibration.max_far == 0.05
     assert cal.provenance["sources"][0]["look"] == s["look"] == th.provenance["sources"][0]["look"]
+    # negative evidence (--watch): what each camera looked at comes from the database, one
+    # view per observer, a frame per pose, each box's bearings inside the field of view;
+    # the watch only adds "two vehicles" pairs (the gate may then pick another consistent
+    # set; on this run it keeps some of the same tracks), and every kept one is true
+    from dashtraj.reid.embed import ReidEmbedder
+    from dashtraj.reidentify.vision import camera_views, target_from_db
+    from dashtraj.roads import RoadMap
+    from dashtraj.store import SightingsDB
+    from dashtraj.world.recording import Recording
+
+    with SightingsDB.open(out / "sightings.db") as db:
+        views = camera_views(db)
+        poses = db.poses()
+    assert len(views) == 3 and sum(len(v.t) for v in views) == len(poses)
+    assert all(np.all(np.diff(v.t) > 0) for v in views)
+    bearings = np.concatenate([b for v in views for b in v.boxes])
+    assert len(bearings) and np.all(bearings[:, 0] <= bearings[:, 1])
+    assert np.all(np.abs(bearings) <= 45.0 + 1e-9)
+    rec = Recording.open(out / "recording")
+    kw = dict(embedder=ReidEmbedder(shipped_model_path(), threads=1),
+              threshold=th.calibration.threshold, recipe=th.calibration.recipe,
+              route_m=20.0)
+    db_copy = tmp_path / "copy.db"
+    db_copy.write_bytes((out / "sightings.db").read_bytes())
+    road_map = RoadMap.from_file(rec.map_path)
+    vid = int(rec.meta["target_vehicle_id"])
+    plain = target_from_db(db_copy, road_map, vid, watch=False, **kw)
+    watched = target_from_db(db_copy, road_map, vid, watch=True, **kw)
+    assert set(watched.true_match) <= set(plain.true_match)
+    assert plain.summary["reid_true_matches"] == s["reid_true_matches"]
+    assert watched.summary["reid_precision"] == 1.0
 
 
 @pytest.mark.slow

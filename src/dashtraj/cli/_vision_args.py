@@ -75,6 +75,7 @@ def add_vision_args(p: argparse.ArgumentParser, default_sightings: str | None = 
                         "the frames come (dashtraj perceive --live-relink; the ReID model "
                         "is --reid-model's)")
     add_range_args(p, "the query's 15 m", scope="vision: ")
+    add_watch_arg(p, scope="vision: ")
     add_classifier_arg(p, scope="vision: ")
     add_detector_filter_args(p)
     add_pose_noise_args(p, with_seed=False)
@@ -94,6 +95,15 @@ def add_range_args(p: argparse.ArgumentParser, query: str, scope: str = "") -> N
                         f"tracks seen at once within M metres are two vehicles; at least the "
                         f"gallery's range (default {VISION_ROUTE_M:g}, or the gallery's range "
                         f"where farther; the gallery's range turns it off)")
+
+
+def add_watch_arg(p: argparse.ArgumentParser, scope: str = "") -> None:
+    """``--watch`` / ``--no-watch``: negative evidence in the gate (`target_from_db`'s
+    ``watch``; None: the library's default, `dashtraj.reidentify.vision.WATCH`)."""
+    p.add_argument("--watch", action=argparse.BooleanOptionalAction, default=None,
+                   help=f"{scope}the gate also splits two tracks when the cameras watched every "
+                        f"place one car could have been between them and saw no vehicle there "
+                        f"(negative evidence; default: dashtraj.reidentify.vision.WATCH)")
 
 
 def vision_settings(args) -> dict:
@@ -133,6 +143,7 @@ def vision_settings(args) -> dict:
             "confirm_score": args.confirm_score, "localizer": args.localizer,
             "pose_noise": args.pose_noise, "calibrate_pitch": args.calibrate_pitch,
             "live_relink": args.live_relink, "gallery_m": args.gallery_range,
+            "watch": args.watch,
             "route_m": (route_range(args.route_range, args.gallery_range)
                         if args.sightings == "vision" else args.route_range)}
 

@@ -22,7 +22,7 @@ def _track(text: str) -> tuple[int, int]:
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `reidentify` command."""
     from dashtraj.cli._args import positive_float
-    from dashtraj.cli._vision_args import add_range_args
+    from dashtraj.cli._vision_args import add_range_args, add_watch_arg
     from dashtraj.outputs import add_output_args
 
     p = subparsers.add_parser(
@@ -57,6 +57,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--max-distance", type=positive_float, default=15.0, metavar="M",
                    help="ReID range: detections estimated this close, metres (default 15)")
     add_range_args(p, "--max-distance")
+    add_watch_arg(p)
     p.add_argument("--sample", type=positive_float, default=0.5, metavar="S",
                    help="one sighting per track every S seconds (default 0.5)")
     p.add_argument("--vehicle", type=int, default=None, metavar="ID",
@@ -95,7 +96,8 @@ def run_reidentify(args: argparse.Namespace) -> int:
                         gate=not args.no_gate, max_distance_m=args.max_distance,
                         sample_s=args.sample, gallery_m=args.gallery_range,
                         route_m=route_range(args.route_range, args.gallery_range,
-                                            args.max_distance))
+                                            args.max_distance),
+                        **({} if args.watch is None else {"watch": args.watch}))
     s = tt.summary
     if s["query"] is None:
         raise DashtrajError(f"--track {args.track[0]}:{args.track[1]} has no crop within "

@@ -78,6 +78,7 @@ from dashtraj.reidentify.select import (
 )
 from dashtraj.trajectory.gating import GateConfig
 from dashtraj.trajectory.records import Sighting
+from dashtraj.trajectory.watch import CameraViews, Watch, WatchConfig, box_bearings
 
 VISION_GATE = GateConfig(slack_m=5.0, heading_min_m=3.0, heading_window_s=5.0)
 """The gate of `target_from_db` (``gate=True``): `GateConfig`'s, with 5 m of slack instead of
@@ -132,6 +133,10 @@ score under 0.5, of those that show the target 7 %. Chosen there, with `VISION_G
 
 SPLIT_TRACKS = True
 """Default of `target_from_db`'s ``split``: tracks are cut where their look changes."""
+
+WATCH = False
+"""Default of `target_from_db`'s ``watch``: negative evidence in the gate
+(`dashtraj.trajectory.watch`)."""
 SPLIT_MIN_CROPS = 3
 SPLIT_MIN_STEP = 0.2
 SPLIT_MARGIN = 0.1
@@ -399,6 +404,36 @@ def _majority(votes: Counter):
     return min(votes, key=lambda v: (-votes[v], v is None, v if v is not None else 0))
 
 
+def camera_views(db, detections=None) -> list[CameraViews]:
+    """Where each observer's camera looked, frame by frame, and the bearings of every box
+    it detected there (any score, tracked or not): the `Watch` of negative evidence.
+
+    Args:
+        db: an open `dashtraj.store.SightingsDB`.
+        detections: its detections, when already read (None: read them).
+
+    Returns:
+        One `CameraViews` per observer with poses, in observer order.
+    """
+    cam = db.run_info()["camera"]
+    width, fov = float(cam["width_px"]), float(cam.get("fov_deg", 90.0))
+    boxes: dict[tuple[int, int], list] = {}
+    for d in (db.detections() if detections is None else detections):
+        boxes.setdefault((d.observer_id, d.frame), []).append((d.x0, d.x1))
+    by_obs: dict[int, list] = {}
+    for p in db.poses():
+        by_obs.setdefault(p.observer_id, []).append(p)
+    out = []
+    for o in sorted(by_obs):
+        ps = sorted(by_obs[o], key=lambda p: p.t)
+        bx = [np.asarray(boxes.get((o, p.frame), ()), np.float64).reshape(-1, 2) for p in ps]
+        out.append(CameraViews(
+            t=np.array([p.t for p in ps]), x=np.array([p.cam_x for p in ps]),
+            y=np.array([p.cam_y for p in ps]), yaw_deg=np.array([p.cam_yaw for p in ps]),
+            fov_deg=fov, boxes=[box_bearings(b[:, 0], b[:, 1], width, fov) for b in bx]))
+    return out
+
+
 def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None, *,
                    query_track: tuple[int, int] | None = None,
                    switches: StageSwitches = StageSwitches(), embedder=None,
@@ -411,7 +446,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
                    split: bool = SPLIT_TRACKS,
                    min_score: float = SIGHTING_MIN_SCORE,
                    gallery_m: float | None = None,
-                   route_m: float | None = None) -> TargetTracks:
+                   route_m: float | None = None,
+                   watch: bool | WatchConfig = WATCH) -> TargetTracks:
     """The target's sightings from one perception run's database.
 
     Args:
@@ -457,6 +493,10 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
             tracks were seen out to this range (`seen_spans`): a look-alike seen by a
             camera in the same frames as the target just beyond the gallery's range is
             then another vehicle (None: neither).
+        watch: negative evidence in the gate (`dashtraj.trajectory.watch`): two tracks
+            are two vehicles when the cameras watched every place one car could have been
+            between them and saw none there; True (`WatchConfig()`), a `WatchConfig`, or
+            False (none). Without a gate, nothing.
 
     Returns:
         `TargetTracks`.
@@ -486,7 +526,11 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
     aggregate = recipe.aggregate
     with SightingsDB.open(db_path, writable=switches.reid == "appearance") as db:
         poses = {(p.observer_id, p.frame): p for p in db.poses()}
-        every = [d for d in db.detections() if d.score >= min_score]
+        all_dets = db.detections()
+        every = [d for d in all_dets if d.score >= min_score]
+        # where the cameras looked, for negative evidence in the gate (every box counts)
+        views = (camera_views(db, all_dets) if gate and watch is not False and not by_truth
+                 else None)
         near = [d for d in every if d.distance_m <= gallery_m
                 and (d.truth_vehicle_id is not None if by_truth else d.track_id is not None)]
         track_truth: dict[Hashable, int | None] = {}
@@ -630,6 +674,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
             spans = seen_spans(every, spans, key_of, route_m)
         rel = (box_relations(every, spans, key=key_of)
                if not by_truth and gate else BoxRelations(frozenset(), frozenset()))
+        watcher = None if views is None else Watch(
+            road_map, views, watch if isinstance(watch, WatchConfig) else WatchConfig())
         sel = select_target_tracks(road_map, dists, keys, tracks, float(threshold),
                                    aggregate=aggregate, anchor=anchor,
                                    gate=(gate if isinstance(gate, GateConfig)
@@ -638,7 +684,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
                                    apart=rel.apart, together=rel.together,
                                    # sightings are samples: a track seen until the
                                    # query's time can have its last up to sample_s before
-                                   start_t=query.t - sample_s if gate else None)
+                                   start_t=query.t - sample_s if gate else None,
+                                   watch=watcher)
         accepted = [k for k in sel.accepted if k in tracks]
         candidates = list(sel.candidates)
         extra["reid_threshold"] = float(threshold)
