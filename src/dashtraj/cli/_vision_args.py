@@ -101,9 +101,10 @@ def add_watch_arg(p: argparse.ArgumentParser, scope: str = "") -> None:
     """``--watch`` / ``--no-watch``: negative evidence in the gate (`target_from_db`'s
     ``watch``; None: the library's default, `dashtraj.reidentify.vision.WATCH`)."""
     p.add_argument("--watch", action=argparse.BooleanOptionalAction, default=None,
-                   help=f"{scope}the gate also splits two tracks when the cameras watched every "
-                        f"place one car could have been between them and saw no vehicle there "
-                        f"(negative evidence; default: dashtraj.reidentify.vision.WATCH)")
+                   help=f"{scope}the gate also splits two tracks when every way one car could "
+                        f"have driven between them led through places the cameras watched and "
+                        f"saw empty (negative evidence; default: "
+                        f"dashtraj.reidentify.vision.WATCH, off)")
 
 
 def vision_settings(args) -> dict:
