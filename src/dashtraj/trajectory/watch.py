@@ -73,6 +73,8 @@ class WatchConfig:
         step_m: spacing of the lane points the car could be at, metres.
         misses: frames in which the car may have been in a watched place that was seen
             empty (a detector's miss) before a way is ruled out.
+        end_m: the car starts and ends within this (plus `step_m`) of the two sightings'
+            lane points, metres (their localization error); None: the gate's slack.
     """
 
     range_m: float = 15.0
@@ -82,6 +84,7 @@ class WatchConfig:
     open_m: float = 3.0
     step_m: float = 2.0
     misses: int = 1
+    end_m: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("range_m", "near_m", "fov_margin_deg", "box_margin_deg", "open_m",
@@ -89,6 +92,10 @@ class WatchConfig:
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
                 raise WatchError(f"WatchConfig.{name} must be a finite number >= 0, got {v!r}")
+        if self.end_m is not None and not (isinstance(self.end_m, int | float)
+                                           and math.isfinite(self.end_m) and self.end_m >= 0):
+            raise WatchError(f"WatchConfig.end_m must be None or a finite number >= 0, got "
+                             f"{self.end_m!r}")
         if self.step_m <= 0 or self.range_m <= self.near_m:
             raise WatchError(f"WatchConfig: step_m > 0 and range_m > near_m, got "
                              f"{self.step_m!r}, {self.range_m!r}, {self.near_m!r}")
@@ -314,32 +321,37 @@ class Watch:
             self._steps()
         ca, ra = self._costs(points_a, False), self._costs(points_a, True)
         cb, rb = self._costs(points_b, True), self._costs(points_b, False)
-        tol = slack_m + self.cfg.step_m
-        if not ((ca + cb) <= max_speed_mps * (tb - ta) + 2 * tol).any():
-            return True  # no way between them on these lanes: reachability's business
-        # reach[j]: where the car can be now, having crossed j watched-empty places
-        reach = [(ca <= tol) | (ra <= tol)] + \
-            [np.zeros(len(ca), bool) for _ in range(self.cfg.misses)]
+        tol = (slack_m if self.cfg.end_m is None else self.cfg.end_m) + self.cfg.step_m
+        end = (cb <= tol) | (rb <= tol)  # at b, up to its localization error either way
+        # free: where the car can be now, cameras aside (the gate's question, on these
+        # lanes); reach[j]: where it can be having crossed j watched-empty places. Only
+        # a way that exists without the cameras and not with them is evidence.
+        free = (ca <= tol) | (ra <= tol)
+        reach = [free] + [np.zeros(len(ca), bool) for _ in range(self.cfg.misses)]
         t_all = self._ft[lo:hi]
         t_prev = ta
         for t in np.unique(t_all):
             at = np.flatnonzero(t_all == t) + lo
-            can = cb <= max_speed_mps * (tb - t) + tol  # b still reachable in time
-            moved = [self._expand(r, max_speed_mps * (t - t_prev)) & can for r in reach]
+            can = (cb <= max_speed_mps * (tb - t) + tol) | end  # b still reachable in time
+            step_m = max_speed_mps * (t - t_prev)
+            free = self._expand(free, step_m) & can
             t_prev = t
+            if not free.any():
+                return True  # no way between them on these lanes: reachability's business
+            moved = [self._expand(r, step_m) & can for r in reach]
             union = np.logical_or.reduce(moved)
             if not union.any():
-                return False
+                reach = moved
+                continue
             idx = np.flatnonzero(union)
             empty = np.zeros(len(ca), bool)
             empty[idx[self._watched_empty(self._xy[idx], at)]] = True
             reach = [moved[0] & ~empty] + [(moved[j] & ~empty) | (moved[j - 1] & empty)
                                           for j in range(1, len(moved))]
-            if not np.logical_or.reduce(reach).any():
-                return False
-        end = (cb <= tol) | (rb <= tol)
-        last = np.logical_or.reduce(reach)
-        return bool((self._expand(last, max_speed_mps * (tb - t_prev)) & end).any())
+        last_m = max_speed_mps * (tb - t_prev)
+        if not (self._expand(free, last_m) & end).any():
+            return True  # no way at all: not the cameras' evidence
+        return bool((self._expand(np.logical_or.reduce(reach), last_m) & end).any())
 
     def _watched_empty(self, pts: np.ndarray, frames: np.ndarray) -> np.ndarray:
         """Per point of `pts`: watched and empty in one of these frames (one per camera
