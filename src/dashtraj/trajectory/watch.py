@@ -11,15 +11,15 @@ sightings are of two vehicles. This module is that test (`Watch.drive_unseen`), 
 `gate_tracks` as its ``watch``.
 
 **Where the car could have been.** The lane graph's driving lanes are cut into points
-every ``step_m``. The car starts at a: any point within ``slack_m + step_m`` of a's lane
-points along the lanes, ahead or behind (localization error). From one frame time to the
-next (every frame of every camera strictly between ta and tb, in time order) it moves at
-most ``max_speed_mps`` times the time between along the lanes, in hops of ``step_m``
-rounded up: on along its lane, into a successor, across to a neighbouring lane of one road
-section driving the same way (at no cost), or not at all; and it stays where it can still
-reach b in time. It must end within ``slack_m + step_m`` of b's lane points. The route
-costs are lower bounds and the hops round up, so the places are, if anything, too many:
-the test errs towards "could have been unseen".
+every ``step_m``. The car starts at a: any point within the gate's ``slack_m`` (or
+``end_m``) + ``step_m`` of a's lane points along the lanes, ahead or behind (localization
+error). From one frame time to the next (every frame of every camera strictly between ta
+and tb, in time order) it moves at most ``max_speed_mps`` times the time between along the
+lanes, in hops of ``step_m`` rounded up: on along its lane, into a successor, across to a
+neighbouring lane of one road section driving the same way (at no cost), or not at all;
+and it stays where it can still reach b in time. It must end as near b, ahead or behind.
+The route costs are lower bounds and the hops round up, so the places are, if anything,
+too many: the test errs towards "could have been unseen".
 
 **Watched and empty.** A place is watched by a camera in a frame when it lies within
 ``near_m`` to ``range_m`` of the camera, inside its horizontal field of view less
@@ -30,10 +30,11 @@ box that camera detected in that frame (any class, any score, tracked or not) sp
 bearing, widened by ``box_margin_deg``. A box anywhere in that direction, nearer or
 farther, may be the car itself or something hiding it, so it counts as "maybe there".
 
-**Two vehicles** when no way from a to b keeps the car out of watched, empty places in
-all but ``misses`` frames (a space-time reachability filter that carries the number of
-such frames used). The detector can miss a car in a frame; ``misses`` lets one car do
-that before it is split in two.
+**Two vehicles** when a way from a to b exists on these lanes, but none keeps the car out
+of watched, empty places in all but ``misses`` frames (a space-time reachability filter
+that carries the number of such frames used). Where no way exists at all, that is the
+gate's reachability to judge, not evidence. The detector can miss a car in a frame;
+``misses`` lets one car do that before it is split in two.
 
 Units: seconds, metres, degrees; positions in CARLA world coordinates (as the sightings'
 ``x``, ``y``; yaw as `Sighting.observer_yaw`, bearing + to the right).
