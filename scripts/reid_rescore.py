@@ -78,10 +78,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="the gate keeps the query's own track whatever the others say "
                          "(default: the library's, dashtraj.reidentify.vision.PIN_ANCHOR)")
     ap.add_argument("--watch", action=argparse.BooleanOptionalAction, default=None,
-                    help="negative evidence in the gate: cameras that watched every place one "
-                         "car could have been between two tracks and saw none there "
-                         "(default: the library's, dashtraj.reidentify.vision.WATCH, or on "
-                         "when a --watch-* setting is given)")
+                    help="negative evidence in the gate: two tracks are two vehicles when every "
+                         "way one car could have driven between them led through places the "
+                         "cameras watched and saw empty (default: the library's, "
+                         "dashtraj.reidentify.vision.WATCH, or on when a --watch-* setting "
+                         "is given)")
     watch_fields = [f.name for f in fields(WatchConfig)]
     for field in watch_fields:  # --watch-range-m M etc.: WatchConfig with that field replaced
         ap.add_argument("--watch-" + field.replace("_", "-"),

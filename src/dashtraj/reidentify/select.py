@@ -36,6 +36,7 @@ from dashtraj.reidentify.decision import TrackDecision, decide_tracks
 from dashtraj.roads import RoadMap
 from dashtraj.trajectory.gating import GateConfig, gate_tracks
 from dashtraj.trajectory.records import Sighting
+from dashtraj.trajectory.watch import Watch
 
 DEFAULT_GATE = GateConfig()
 """The gate `select_target_tracks` uses unless told otherwise."""
@@ -65,7 +66,7 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
                          keep_anchor: bool = False, pin_anchor: bool = True,
                          apart: Collection[frozenset] = (),
                          together: Collection[frozenset] = (),
-                         start_t: float | None = None, watch=None) -> Selection:
+                         start_t: float | None = None, watch: Watch | None = None) -> Selection:
     """Decide and gate the target's tracks.
 
     Args:

@@ -133,10 +133,6 @@ score under 0.5, of those that show the target 7 %. Chosen there, with `VISION_G
 
 SPLIT_TRACKS = True
 """Default of `target_from_db`'s ``split``: tracks are cut where their look changes."""
-
-WATCH = False
-"""Default of `target_from_db`'s ``watch``: negative evidence in the gate
-(`dashtraj.trajectory.watch`)."""
 SPLIT_MIN_CROPS = 3
 SPLIT_MIN_STEP = 0.2
 SPLIT_MARGIN = 0.1
@@ -145,6 +141,11 @@ medians at least 0.2 apart, the far side's more than 0.1 beyond the threshold. C
 the development runs (seeds 5-9, `scripts/reid_rescore.py --split`): without the margin
 a run of three crops of the target at 0.43 (the threshold is 0.40) was cut from its
 track and missed; with it, every development set kept or gained true tracks."""
+
+WATCH = False
+"""Default of `target_from_db`'s ``watch``: negative evidence in the gate
+(`dashtraj.trajectory.watch`), off: on the development look-alike runs it changed no
+decision (the README's "Negative evidence")."""
 
 RECOMPUTE = "make reid-threshold  (or: dashtraj reid-threshold DB... --model M.onnx)"
 
@@ -494,9 +495,9 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
             camera in the same frames as the target just beyond the gallery's range is
             then another vehicle (None: neither).
         watch: negative evidence in the gate (`dashtraj.trajectory.watch`): two tracks
-            are two vehicles when the cameras watched every place one car could have been
-            between them and saw none there; True (`WatchConfig()`), a `WatchConfig`, or
-            False (none). Without a gate, nothing.
+            are two vehicles when every way one car could have driven between them led
+            through places the cameras watched and saw empty (`camera_views`); True
+            (`WatchConfig()`), a `WatchConfig`, or False (none). Without a gate, nothing.
 
     Returns:
         `TargetTracks`.

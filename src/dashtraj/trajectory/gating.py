@@ -97,6 +97,7 @@ from dashtraj.errors import DashtrajError
 from dashtraj.roads import RoadMap, Waypoint
 from dashtraj.trajectory.correction import _other_side_lane, correct_position
 from dashtraj.trajectory.records import Sighting
+from dashtraj.trajectory.watch import Watch
 
 
 class GatingError(DashtrajError, ValueError):
@@ -341,7 +342,7 @@ def _apart_at_once(a_track: list[Sighting], b_track: list[Sighting], max_m: floa
 
 
 def _follows(road_map, lanes, cfg, a_track: list[Sighting], b_track: list[Sighting],
-             one_vehicle: bool = False, watch=None) -> bool:
+             one_vehicle: bool = False, watch: Watch | None = None) -> bool:
     """One car can have made both tracks, A starting no later than B (`one_vehicle`: the
     camera's pixels showed them as one vehicle, whatever their positions; `watch`: a
     `dashtraj.trajectory.watch.Watch`, and A ends before B starts: the drive between
@@ -361,7 +362,7 @@ def _follows(road_map, lanes, cfg, a_track: list[Sighting], b_track: list[Sighti
     if watch is not None and a_last.t < b0.t and not watch.drive_unseen(
             a_last.t, lanes.points(a_last, head(a_track, a_last)), b0.t,
             lanes.points(b0, head(b_track, b0)), cfg.max_speed_mps, cfg.slack_m):
-        return False  # every place between them watched and seen empty: two vehicles
+        return False  # every way between them led through watched, empty places
     if a_last.t > b0.t:  # overlap in time: B must reach A's last sighting too
         b_ref = [s for s in b_track if s.t <= a_last.t][-1]
         if not reachable(road_map, b_ref, a_last, cfg, lanes, head(b_track, b_ref),
@@ -375,7 +376,7 @@ def gate_tracks(road_map: RoadMap, tracks: Sequence[Sequence[Sighting]], *,
                 config: GateConfig = GateConfig(), method: str = "clique",
                 apart: Collection[tuple[int, int]] = (),
                 together: Collection[tuple[int, int]] = (),
-                start_t: float | None = None, watch=None) -> GateResult:
+                start_t: float | None = None, watch: Watch | None = None) -> GateResult:
     """Keep the heaviest set of candidate tracks one vehicle could have produced.
 
     Args:
