@@ -152,6 +152,33 @@ def test_shipped_classifier_matches_its_card_and_refuses_other_models(tmp_path):
         BoxClassifier(tmp_path / "nope.onnx")
 
 
+def test_flip_reads_a_mirrored_frame_as_the_mirror_of_the_frame():
+    """With ``flip`` each crop is read as it is and mirrored, and the two averaged: the
+    stage's answer for a mirrored frame is then exactly the mirror of its answer for the
+    frame (the same classes; boxes moved to mirrored places), which one reading alone is
+    not."""
+    rng = np.random.default_rng(5)
+    frame = rng.integers(0, 256, (360, 640, 3), dtype=np.uint8)
+    frame[150:250, 100:260] = (200, 30, 30)  # a box-like blob off the centre line
+    mirror = np.ascontiguousarray(frame[:, ::-1])
+    boxes = np.array([[100.0, 150.0, 260.0, 250.0], [300.0, 40.0, 380.0, 120.0]])
+    mboxes = boxes.copy()
+    mboxes[:, [0, 2]] = 640.0 - boxes[:, [2, 0]]
+    flip = BoxClassifier(threads=1)  # CLASSIFIER_FLIP: on by default
+    assert flip.flip
+    p, moved = flip.predict(frame, boxes)
+    mp, mmoved = flip.predict(mirror, mboxes)
+    assert np.allclose(p, mp, atol=1e-5)
+    back = mmoved.copy()
+    back[:, [0, 2]] = 640.0 - mmoved[:, [2, 0]]
+    assert np.allclose(moved, back, atol=1e-3)
+    one = BoxClassifier(threads=1, flip=False)
+    p1, _ = one.predict(frame, boxes)
+    q1, _ = one.predict(mirror, mboxes)
+    assert not np.allclose(p1, q1, atol=1e-5)  # one reading is not mirror-symmetric
+    assert np.allclose(p, (p1 + q1) / 2, atol=1e-5)  # flip is the mean of the two
+
+
 def test_the_classifier_reads_the_orientation_of_single_cars(gl_ctx):
     """A car straight ahead driving away, an oncoming one and a crossing one (the detector
     test's scenes), each classified from its exact box."""
@@ -219,8 +246,9 @@ def test_detector_with_the_classifier_on_a_rendered_scene(gl_ctx, tmp_path, caps
     recall test): the boxes are the detector's, moved by the stage, so recall at IoU 0.5
     holds (one may drop), and the classes are right for more of them (measured: 45 of the
     50 boxes >= 24 px found by the detector alone, 39 of them with the right class; 46
-    found and 41 right with the shipped refining stage (46 and 40 with its 6-epoch
-    predecessor; 45 and 41 with the classes-only stage shipped before that))."""
+    found and 41 right with the shipped refining stage, reading each crop mirrored too or
+    not (46 and 40 with its 6-epoch predecessor; 45 and 41 with the classes-only stage
+    shipped before that))."""
     from dashtraj.cli import main
 
     frames = heldout_frames(tmp_path, gl_ctx, "clear")
@@ -243,6 +271,12 @@ def test_detector_with_the_classifier_on_a_rendered_scene(gl_ctx, tmp_path, caps
     capsys.readouterr()
     meta = json.loads((tmp_path / "out" / "detections.json").read_text())
     assert meta["classifier"].endswith("classifier.onnx") and meta["refine_steps"] == 1
+    assert meta["classifier_flip"] is True  # CLASSIFIER_FLIP
+    assert main(["detect", str(tmp_path / "f.jpg"), "-o", str(tmp_path / "out2"),
+                 "--classifier", "shipped", "--no-classifier-flip", "--json"]) == 0
+    capsys.readouterr()
+    meta = json.loads((tmp_path / "out2" / "detections.json").read_text())
+    assert meta["classifier_flip"] is False
     # more refining steps: each reads the crop of the box the last one moved to
     four = YoloDetector(conf=0.25, classifier=BoxClassifier(), refine_steps=4)
     _, *stepped = found_boxes(frames, four.detect(rgbs))

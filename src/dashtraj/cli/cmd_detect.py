@@ -36,6 +36,17 @@ def add_refine_steps_arg(p) -> None:
                         f"of the box it moved to (default {REFINE_STEPS})")
 
 
+def add_classifier_flip_arg(p) -> None:
+    """``--classifier-flip`` / ``--no-classifier-flip``: the box classifier reads each crop
+    mirrored too (test-time augmentation)."""
+    from dashtraj.perception.detect import CLASSIFIER_FLIP
+
+    p.add_argument("--classifier-flip", action=argparse.BooleanOptionalAction,
+                   default=CLASSIFIER_FLIP,
+                   help="the --classifier reads each crop mirrored too and averages the two "
+                        f"(default {'on' if CLASSIFIER_FLIP else 'off'})")
+
+
 def refine_steps_used(det) -> int | None:
     """A `YoloDetector`'s refining steps, for a command's JSON; None without a refining
     box classifier."""
@@ -64,12 +75,14 @@ def classifier_path_from_arg(value: str) -> str | None:
     return shipped_or_file("--classifier", value, default_classifier_path())
 
 
-def classifier_from_arg(value: str):
-    """The `BoxClassifier` that ``--classifier`` names, or None."""
-    from dashtraj.perception.detect import BoxClassifier
+def classifier_from_arg(value: str, flip: bool | None = None):
+    """The `BoxClassifier` that ``--classifier`` names (``flip``: ``--classifier-flip``;
+    None: the default), or None."""
+    from dashtraj.perception.detect import CLASSIFIER_FLIP, BoxClassifier
 
     path = classifier_path_from_arg(value)
-    return None if path is None else BoxClassifier(path)
+    return None if path is None else BoxClassifier(
+        path, flip=CLASSIFIER_FLIP if flip is None else flip)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -96,6 +109,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     d.add_argument("--preview", action="store_true", help="also draw the boxes")
     add_classifier_arg(d)
     add_refine_steps_arg(d)
+    add_classifier_flip_arg(d)
     d.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_output_args(d)
     d.set_defaults(func=run_detect)
@@ -289,7 +303,8 @@ def run_detect(args: argparse.Namespace) -> int:
 
     check_output(args.output, overwrite=args.overwrite, kind="dir")
     det = YoloDetector(args.model, names=args.names, conf=args.conf, iou=args.iou,
-                       batch=args.batch, classifier=classifier_from_arg(args.classifier),
+                       batch=args.batch,
+                       classifier=classifier_from_arg(args.classifier, args.classifier_flip),
                        refine_steps=args.refine_steps)
     images = _list_images(Path(args.source))
     summary = {"images": 0, "detections": 0, "per_class": {}}
@@ -318,6 +333,7 @@ def run_detect(args: argparse.Namespace) -> int:
         (tmp / "detections.json").write_text(
             json.dumps({"model": str(det.path), "classifier": None if det.classifier is None
                         else str(det.classifier.path), "refine_steps": refine_steps_used(det),
+                        "classifier_flip": None if det.classifier is None else det.classifier.flip,
                         "names": list(det.names), "conf": args.conf,
                         "iou": args.iou, "images": records}, indent=1) + "\n",
             encoding="utf-8")
@@ -383,6 +399,7 @@ def register_eval(sub) -> None:
                    help="bar chart of AP50 per class (needs -o)")
     add_classifier_arg(v)
     add_refine_steps_arg(v)
+    add_classifier_flip_arg(v)
     v.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     v.add_argument("--json", action="store_true", help="print the results as JSON")
     add_output_args(v)
@@ -409,12 +426,13 @@ def run_eval(args: argparse.Namespace) -> int:
                      small_px=args.small_px * w / 1280, conf=args.conf,
                      max_truncation=args.max_truncation)
     det = YoloDetector(args.model, names=args.names, conf=0.001, iou=0.6,
-                       classifier=classifier_from_arg(args.classifier),
+                       classifier=classifier_from_arg(args.classifier, args.classifier_flip),
                        refine_steps=args.refine_steps)
     with progress_bar(args.quiet, unit="frame") as progress:
         res = evaluate_recordings(recs, det, cfg, progress=progress)
     res["classifier"] = None if det.classifier is None else str(det.classifier.path)
     res["refine_steps"] = refine_steps_used(det)
+    res["classifier_flip"] = None if det.classifier is None else det.classifier.flip
     if args.output:
         with atomic_output(args.output, overwrite=args.overwrite, kind="dir") as tmp:
             (tmp / "eval.json").write_text(json.dumps(res, indent=1) + "\n", encoding="utf-8")
@@ -462,6 +480,7 @@ def register_eval_external(sub) -> None:
                    help="write DIR/eval.json")
     add_classifier_arg(v)
     add_refine_steps_arg(v)
+    add_classifier_flip_arg(v)
     v.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     v.add_argument("--json", action="store_true", help="print the results as JSON")
     add_output_args(v)
@@ -502,13 +521,14 @@ def run_eval_external(args: argparse.Namespace) -> int:
         except ValueError as exc:
             raise ArgumentError(f"--class-map: {exc}") from None
     det = YoloDetector(args.model, conf=0.001, iou=0.6,
-                       classifier=classifier_from_arg(args.classifier),
+                       classifier=classifier_from_arg(args.classifier, args.classifier_flip),
                        refine_steps=args.refine_steps)
     with progress_bar(args.quiet, unit="image") as progress:
         res = evaluate_external(folder, det, names, cmap, small_px=args.small_px,
                                 conf=args.conf, max_images=args.max_images, progress=progress)
     res["classifier"] = None if det.classifier is None else str(det.classifier.path)
     res["refine_steps"] = refine_steps_used(det)
+    res["classifier_flip"] = None if det.classifier is None else det.classifier.flip
     if args.output:
         with atomic_output(args.output, overwrite=args.overwrite, kind="dir") as tmp:
             (tmp / "eval.json").write_text(json.dumps(res, indent=1) + "\n", encoding="utf-8")
