@@ -47,6 +47,12 @@ def add_classifier_flip_arg(p) -> None:
                         f"(default {'on' if CLASSIFIER_FLIP else 'off'})")
 
 
+def classifier_flip_used(det) -> bool | None:
+    """Whether a `YoloDetector`'s box classifier reads crops mirrored too, for a command's
+    JSON; None without a box classifier."""
+    return None if det.classifier is None else det.classifier.flip
+
+
 def refine_steps_used(det) -> int | None:
     """A `YoloDetector`'s refining steps, for a command's JSON; None without a refining
     box classifier."""
@@ -333,7 +339,7 @@ def run_detect(args: argparse.Namespace) -> int:
         (tmp / "detections.json").write_text(
             json.dumps({"model": str(det.path), "classifier": None if det.classifier is None
                         else str(det.classifier.path), "refine_steps": refine_steps_used(det),
-                        "classifier_flip": None if det.classifier is None else det.classifier.flip,
+                        "classifier_flip": classifier_flip_used(det),
                         "names": list(det.names), "conf": args.conf,
                         "iou": args.iou, "images": records}, indent=1) + "\n",
             encoding="utf-8")
@@ -432,7 +438,7 @@ def run_eval(args: argparse.Namespace) -> int:
         res = evaluate_recordings(recs, det, cfg, progress=progress)
     res["classifier"] = None if det.classifier is None else str(det.classifier.path)
     res["refine_steps"] = refine_steps_used(det)
-    res["classifier_flip"] = None if det.classifier is None else det.classifier.flip
+    res["classifier_flip"] = classifier_flip_used(det)
     if args.output:
         with atomic_output(args.output, overwrite=args.overwrite, kind="dir") as tmp:
             (tmp / "eval.json").write_text(json.dumps(res, indent=1) + "\n", encoding="utf-8")
@@ -528,7 +534,7 @@ def run_eval_external(args: argparse.Namespace) -> int:
                                 conf=args.conf, max_images=args.max_images, progress=progress)
     res["classifier"] = None if det.classifier is None else str(det.classifier.path)
     res["refine_steps"] = refine_steps_used(det)
-    res["classifier_flip"] = None if det.classifier is None else det.classifier.flip
+    res["classifier_flip"] = classifier_flip_used(det)
     if args.output:
         with atomic_output(args.output, overwrite=args.overwrite, kind="dir") as tmp:
             (tmp / "eval.json").write_text(json.dumps(res, indent=1) + "\n", encoding="utf-8")
