@@ -405,13 +405,14 @@ def _majority(votes: Counter):
     return min(votes, key=lambda v: (-votes[v], v is None, v if v is not None else 0))
 
 
-def camera_views(db, detections=None) -> list[CameraViews]:
+def camera_views(db, detections=None, poses=None) -> list[CameraViews]:
     """Where each observer's camera looked, frame by frame, and the bearings of every box
     it detected there (any score, tracked or not): the `Watch` of negative evidence.
 
     Args:
         db: an open `dashtraj.store.SightingsDB`.
         detections: its detections, when already read (None: read them).
+        poses: its poses, when already read (None: read them).
 
     Returns:
         One `CameraViews` per observer with poses, in observer order.
@@ -422,7 +423,7 @@ def camera_views(db, detections=None) -> list[CameraViews]:
     for d in (db.detections() if detections is None else detections):
         boxes.setdefault((d.observer_id, d.frame), []).append((d.x0, d.x1))
     by_obs: dict[int, list] = {}
-    for p in db.poses():
+    for p in (db.poses() if poses is None else poses):
         by_obs.setdefault(p.observer_id, []).append(p)
     out = []
     for o in sorted(by_obs):
@@ -530,8 +531,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
         all_dets = db.detections()
         every = [d for d in all_dets if d.score >= min_score]
         # where the cameras looked, for negative evidence in the gate (every box counts)
-        views = (camera_views(db, all_dets) if gate and watch is not False and not by_truth
-                 else None)
+        views = (camera_views(db, all_dets, poses.values())
+                 if gate and watch is not False and not by_truth else None)
         near = [d for d in every if d.distance_m <= gallery_m
                 and (d.truth_vehicle_id is not None if by_truth else d.track_id is not None)]
         track_truth: dict[Hashable, int | None] = {}

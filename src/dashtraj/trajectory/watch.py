@@ -167,31 +167,25 @@ class Watch:
 
     # ------------------------------------------------------------- lane points
     def _points(self) -> None:
-        """Points every `step_m` along every driving lane of the lane graph, with each
-        point's lane, its progress along the lane and its neighbours at the same s."""
+        """Points every `step_m` along every driving lane of the lane graph: their
+        progress along their lane, their positions, and each lane's slice of them."""
         g = self.map.lane_graph(0.0)
         self.graph = g
-        keys, prog, xs, ys = [], [], [], []
+        prog, xs, ys = [], [], []
         self._lane_index: dict = {}
         for key, length in g._length.items():
             n = max(1, math.ceil(length / self.cfg.step_m))
             p = np.linspace(0.0, length, n + 1)
             s = np.array([g.s_at_progress(key, float(v)) for v in p])
             xy = g._points_at(key, s)
-            self._lane_index[key] = (len(keys), len(keys) + len(p))
-            keys.extend([key] * len(p))
+            self._lane_index[key] = (len(prog), len(prog) + len(p))
             prog.extend(p)
             xs.extend(xy[:, 0])
             ys.extend(xy[:, 1])
-        self._key = keys
+        self._n = len(prog)
         self._prog = np.asarray(prog)
         self._xy = np.column_stack([xs, ys])
-        self._lane_of = np.empty(len(keys), int)
         self._lane_keys = list(self._lane_index)
-        self._lane_len = np.array([g._length[k] for k in self._lane_keys])
-        for li, key in enumerate(self._lane_keys):
-            a, b = self._lane_index[key]
-            self._lane_of[a:b] = li
         self._corridors()
 
     def _corridors(self) -> None:
@@ -224,7 +218,7 @@ class Watch:
         (forward), or from every lane point to them (reverse), metres: lower bounds
         (corridors, `_corridors`)."""
         n = len(self._corr)
-        out = np.full(len(self._key), math.inf)
+        out = np.full(self._n, math.inf)
         best = np.full(n, math.inf)  # forward: cost to a corridor's start; reverse: from it
         heap: list = []
         for key, p0 in sources:
@@ -274,7 +268,7 @@ class Watch:
         the corridor, or standing still; a sparse (N, N) matrix."""
         from scipy.sparse import csr_matrix
 
-        rows, cols = [np.arange(len(self._key))], [np.arange(len(self._key))]
+        rows, cols = [np.arange(self._n)], [np.arange(self._n)]
         g = self.graph
         for key, (a, b) in self._lane_index.items():
             rows.append(np.arange(a, b - 1))
@@ -295,7 +289,7 @@ class Watch:
                     rows.append(np.arange(a, b))
                     cols.append(a2 + j)
         r, c = np.concatenate(rows), np.concatenate(cols)
-        n = len(self._key)
+        n = self._n
         self._step = csr_matrix((np.ones(len(r), np.float32), (c, r)), shape=(n, n))
 
     def _expand(self, reach: np.ndarray, metres: float) -> np.ndarray:
@@ -370,13 +364,12 @@ class Watch:
             if not see.any():
                 continue
             boxes = v.boxes[i]
+            idx = np.flatnonzero(see)
             if len(boxes):
-                covered = ((bear[see, None] >= boxes[None, :, 0] - cfg.box_margin_deg)
-                           & (bear[see, None] <= boxes[None, :, 1] + cfg.box_margin_deg)).any(1)
-                idx = np.flatnonzero(see)
-                see[idx[covered]] = False
-            if see.any():
-                idx = np.flatnonzero(see)
+                covered = ((bear[idx, None] >= boxes[None, :, 0] - cfg.box_margin_deg)
+                           & (bear[idx, None] <= boxes[None, :, 1] + cfg.box_margin_deg)).any(1)
+                idx = idx[~covered]
+            if len(idx):
                 out[idx[self._clear(v.x[i], v.y[i], pts[idx])]] = True
         return out
 
