@@ -54,6 +54,19 @@ def test_box_crops_grow_the_box_squash_it_and_keep_the_centre():
     assert abs(float(a.mean()) - 127.5) < 3 and a.std() < 8
 
 
+
+def test_box_crops_in_threads_are_the_same_bytes():
+    rng = np.random.default_rng(3)
+    frame = rng.integers(0, 255, (720, 1280, 3), dtype=np.uint8)
+    x0 = rng.uniform(-50, 1200, 11)
+    y0 = rng.uniform(-50, 650, 11)
+    boxes = np.column_stack([x0, y0, x0 + rng.uniform(4, 400, 11), y0 + rng.uniform(4, 300, 11)])
+    one = box_crops(frame, boxes, 0.25, 76, 64)
+    assert one.any(axis=(1, 2, 3)).all()
+    for threads in (2, 3, 16):  # more threads than boxes: one box each
+        assert np.array_equal(box_crops(frame, boxes, 0.25, 76, 64, threads=threads), one)
+    assert box_crops(frame, boxes[:0], 0.25, 76, 64, threads=2).shape == (0, 64, 64, 3)
+
 def test_reclassify_keeps_each_likely_class_scored_by_its_probability():
     det = np.array([[0, 0, 10, 10, 0.9, 0], [100, 100, 110, 110, 0.5, 3],
                     [0, 0, 10, 10.5, 0.8, 1]], float)
