@@ -12,6 +12,7 @@ Usage:
         [--gate | --no-gate] [--same-camera-m M] [--slack-m M] [--radius-m M] [--max-speed-mps V]
         [--co-observed-m M] [--heading-min-m M] [--heading-window-s S]
         [--pin-anchor | --no-pin-anchor] [--watch | --no-watch] [--watch-range-m M] ...
+        [--lookalike | --no-lookalike] [--lookalike-frac F] [--lookalike-gap S]
         [--split | --no-split] [--min-score S] [--no-pose-sigma] [--gallery-range M]
         [--route-range M] [--json]
 
@@ -47,7 +48,9 @@ def main(argv: list[str] | None = None) -> int:
         reconstruct_and_score,
     )
     from dashtraj.reid.embed import ReidEmbedder
+    from dashtraj.reidentify.select import LookalikeRule
     from dashtraj.reidentify.vision import (
+        LOOKALIKE,
         PIN_ANCHOR,
         SIGHTING_MIN_SCORE,
         SPLIT_TRACKS,
@@ -89,6 +92,15 @@ def main(argv: list[str] | None = None) -> int:
                         type=int if field == "misses" else float, default=None,
                         help=f"the negative evidence's WatchConfig.{field} (default: the "
                              f"library's WatchConfig())")
+    ap.add_argument("--lookalike", action=argparse.BooleanOptionalAction, default=None,
+                    help="once a dropped candidate has shown a look-alike, keep only the tracks "
+                         "linked to the query's by short unseen stretches (default: the "
+                         "library's, dashtraj.reidentify.vision.LOOKALIKE, or on when a "
+                         "--lookalike-* setting is given)")
+    ap.add_argument("--lookalike-frac", type=float, default=None, metavar="F",
+                    help="LookalikeRule.distance_frac (default: LookalikeRule()'s)")
+    ap.add_argument("--lookalike-gap", type=float, default=None, metavar="S",
+                    help="LookalikeRule.max_gap_s, seconds (default: LookalikeRule()'s)")
     ap.add_argument("--split", action=argparse.BooleanOptionalAction, default=SPLIT_TRACKS,
                     help="cut tracks where their crops' look changes (default: the library's, "
                          "dashtraj.reidentify.vision.SPLIT_TRACKS)")
@@ -119,6 +131,10 @@ def main(argv: list[str] | None = None) -> int:
                 if getattr(args, "watch_" + k) is not None}
     watch = (WatchConfig(**wchanges) if wchanges and args.watch is not False
              else WATCH if args.watch is None else args.watch)
+    lchanges = {k: v for k, v in (("distance_frac", args.lookalike_frac),
+                                   ("max_gap_s", args.lookalike_gap)) if v is not None}
+    lookalike = (LookalikeRule(**lchanges) if lchanges and args.lookalike is not False
+                 else LOOKALIKE if args.lookalike is None else args.lookalike)
     embedder = ReidEmbedder(args.reid_model, threads=1)
     summaries, rows = [], []
     with tempfile.TemporaryDirectory(prefix="reid_rescore_") as tmp:
@@ -140,7 +156,8 @@ def main(argv: list[str] | None = None) -> int:
                                 gallery_m=(config.gallery_m if args.gallery_range is None
                                            else args.gallery_range),
                                 route_m=(config.route_m if args.route_range is None
-                                         else args.route_range), watch=watch)
+                                         else args.route_range), watch=watch,
+                                lookalike=lookalike)
             results, _, _ = reconstruct_and_score(road_map, rec.target_route, tt.sightings,
                                                   config.methods,
                                                   pose_noise=None if args.no_pose_sigma

@@ -149,6 +149,10 @@ class ExperimentConfig:
             (`dashtraj.cli._vision_args.VISION_ROUTE_M`).
         watch: ``vision``: negative evidence in the gate (`target_from_db`'s ``watch``);
             None: the library's default (`dashtraj.reidentify.vision.WATCH`).
+        lookalike: ``vision``: after the gate, once a dropped candidate has shown a
+            look-alike, only tracks linked to the query's by short unseen stretches
+            (`target_from_db`'s ``lookalike``); None: the library's default
+            (`dashtraj.reidentify.vision.LOOKALIKE`).
     """
 
     town: str = "town10"
@@ -182,10 +186,14 @@ class ExperimentConfig:
     gallery_m: float | None = None
     route_m: float | None = None
     watch: bool | None = None
+    lookalike: bool | None = None
 
     def __post_init__(self) -> None:
         if self.watch is not None and self.sightings != "vision":
             raise ExperimentError("--watch reads where the observers' cameras looked: it "
+                                  "needs --sightings vision")
+        if self.lookalike is not None and self.sightings != "vision":
+            raise ExperimentError("--lookalike acts on appearance ReID's candidates: it "
                                   "needs --sightings vision")
         if self.gallery_m is not None:
             if self.sightings != "vision":
@@ -598,7 +606,8 @@ def vision_sightings(config: ExperimentConfig, rec, out: Path, road_map,
                         gate=config.gate, max_distance_m=config.max_distance_m,
                         sample_s=SAMPLE_S, stages=stages, gallery_m=config.gallery_m,
                         route_m=config.route_m,
-                        **({} if config.watch is None else {"watch": config.watch}))
+                        **({} if config.watch is None else {"watch": config.watch}),
+                        **({} if config.lookalike is None else {"lookalike": config.lookalike}))
     s = tt.summary
     line = (f"re-identify: {s['reid_candidates']} of {s['reid_tracks']} tracks within "
             f"{reid_range_of(config):g} m pass the threshold, the gate keeps "

@@ -193,6 +193,18 @@ def test_watch_is_a_vision_setting():
         ExperimentConfig(sightings="oracle", watch=True)
 
 
+def test_lookalike_is_a_vision_setting():
+    ap = vision_parser()
+    for argv, want in (([], None), (["--lookalike"], True), (["--no-lookalike"], False)):
+        assert vision_settings(ap.parse_args(argv))["lookalike"] is want, argv
+    cfg = ExperimentConfig(reid="appearance",
+                           **vision_settings(ap.parse_args(["--no-lookalike"])))
+    assert cfg.lookalike is False
+    assert ExperimentConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
+    with pytest.raises(ExperimentError, match=r"--lookalike .* needs --sightings vision"):
+        ExperimentConfig(sightings="oracle", lookalike=False)
+
+
 @pytest.mark.slow
 def test_detections_source_from_pixels(tmp_path):
     # A short run from rendered frames: perceive (oracle detector, ego tracker, fused

@@ -125,6 +125,11 @@ def test_demo_from_pixels_finds_the_target_and_writes_every_file(tmp_path, gl_av
     assert set(watched.true_match) <= set(plain.true_match)
     assert plain.summary["reid_true_matches"] == s["reid_true_matches"]
     assert watched.summary["reid_precision"] == 1.0
+    # the look-alike rule only ever drops tracks the gate kept, and says how many
+    ruled = target_from_db(db_copy, road_map, vid, lookalike=True, **kw)
+    assert set(ruled.true_match) <= set(plain.true_match)
+    assert len(plain.true_match) - len(ruled.true_match) == ruled.summary["reid_unlinked"]
+    assert plain.summary["reid_lookalikes"] == plain.summary["reid_unlinked"] == 0
 
 
 @pytest.mark.slow

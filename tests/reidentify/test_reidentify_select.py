@@ -6,8 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from dashtraj.reidentify.decision import ReidDecisionError
 from dashtraj.reidentify.scoring import reid_score
-from dashtraj.reidentify.select import box_relations, select_target_tracks
+from dashtraj.reidentify.select import (
+    LookalikeRule,
+    box_relations,
+    linked_to,
+    select_target_tracks,
+)
 from dashtraj.store.db import DetectionRow
 from gating_helpers import drive, sight
 
@@ -87,6 +93,53 @@ def test_a_look_alike_seen_only_before_the_query_is_not_the_target(town01):
     assert select_target_tracks(town01, d, keys, tracks, 0.5, gate=None,
                                 start_t=5.0).accepted == tuple(tracks)
 
+
+
+def test_a_look_alike_in_view_stops_long_unseen_stretches(town01):
+    """Once the gate has dropped a candidate that looks like the query (a twin on the
+    parallel road while the target was on road 12), a track kept only across more than
+    `max_gap_s` unseen is no longer trusted; without the twin, or across short gaps,
+    nothing changes."""
+    target = {
+        (1, 1): drive(town01, 0.0, 2.0, 12, 20.0, obs=1, track=1),     # the query's track
+        (2, 5): drive(town01, 10.0, 12.0, 12, 120.0, obs=2, track=5),  # 8 s later
+        (4, 7): drive(town01, 50.0, 52.0, 12, 180.0, obs=4, track=7),  # 38 s unseen
+    }
+    twin = {(3, 2): drive(town01, 9.0, 11.0, 4, 120.0, obs=3, track=2)}
+    rule = LookalikeRule(distance_frac=0.6, max_gap_s=30.0)
+
+    def select(tracks, dist, **kw):
+        keys = [k for k in tracks for _ in range(3)]
+        d = np.array([dist.get(k, 0.1) + dd for k in tracks for dd in (0.0, 0.01, 0.02)])
+        return select_target_tracks(town01, d, keys, tracks, 0.5, anchor=(1, 1), **kw)
+
+    both = {**target, **twin}
+    plain = select(both, {})
+    assert plain.accepted == ((1, 1), (2, 5), (4, 7)) and plain.gated_out == ((3, 2),)
+    ruled = select(both, {}, lookalike=rule)
+    assert ruled.lookalikes == ((3, 2),) and ruled.unlinked == ((4, 7),)
+    assert ruled.accepted == ((1, 1), (2, 5)) and set(ruled.gated_out) == {(3, 2), (4, 7)}
+    # a track 20 s on links the far one (two gaps of 19 s)
+    mid = {(5, 9): drive(town01, 31.0, 31.0, 12, 150.0, obs=5, track=9)}
+    assert select({**both, **mid}, {}, lookalike=rule).accepted == \
+        ((1, 1), (2, 5), (5, 9), (4, 7))
+    # no look-alike dropped: no change; one that looks less like the query (0.35 > 0.3):
+    # no change; a longer allowed gap: no change
+    assert select(target, {}, lookalike=rule).accepted == plain.accepted
+    assert select(both, {(3, 2): 0.35}, lookalike=rule).unlinked == ()
+    assert select(both, {}, lookalike=LookalikeRule(0.6, 40.0)).accepted == plain.accepted
+    with pytest.raises(ReidDecisionError, match="max_gap_s"):
+        LookalikeRule(max_gap_s=0.0)
+    with pytest.raises(ReidDecisionError, match="distance_frac"):
+        LookalikeRule(distance_frac=float("nan"))
+
+
+def test_linked_to_follows_chains_both_ways_in_time():
+    spans = {"a": (10.0, 12.0), "b": (0.0, 5.0), "c": (20.0, 21.0), "d": (40.0, 41.0),
+             "e": (11.0, 50.0)}
+    assert linked_to("a", {k: spans[k] for k in "abcd"}, 8.0) == {"a", "b", "c"}
+    assert linked_to("a", {k: spans[k] for k in "abcd"}, 5.0) == {"a", "b"}
+    assert linked_to("a", spans, 1.0) == {"a", "c", "d", "e"}  # e overlaps a, c and d
 
 def _row(obs, frame, track, box, t=None):
     return DetectionRow(observer_id=obs, frame=frame, idx=0, t=frame * 0.2 if t is None else t,

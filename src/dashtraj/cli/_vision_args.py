@@ -76,6 +76,7 @@ def add_vision_args(p: argparse.ArgumentParser, default_sightings: str | None = 
                         "is --reid-model's)")
     add_range_args(p, "the query's 15 m", scope="vision: ")
     add_watch_arg(p, scope="vision: ")
+    add_lookalike_arg(p, scope="vision: ")
     add_classifier_arg(p, scope="vision: ")
     add_detector_filter_args(p)
     add_pose_noise_args(p, with_seed=False)
@@ -105,6 +106,16 @@ def add_watch_arg(p: argparse.ArgumentParser, scope: str = "") -> None:
                         f"have driven between them led through places the cameras watched and "
                         f"saw empty (negative evidence; default: "
                         f"dashtraj.reidentify.vision.WATCH, off)")
+
+
+def add_lookalike_arg(p: argparse.ArgumentParser, scope: str = "") -> None:
+    """``--lookalike`` / ``--no-lookalike``: `target_from_db`'s ``lookalike`` (None: the
+    library's default, `dashtraj.reidentify.vision.LOOKALIKE`)."""
+    p.add_argument("--lookalike", action=argparse.BooleanOptionalAction, default=None,
+                   help=f"{scope}once the gate has dropped a candidate that looks like the "
+                        f"target, keep only the tracks linked to the query's by unseen "
+                        f"stretches of at most 30 s (default: "
+                        f"dashtraj.reidentify.vision.LOOKALIKE, off)")
 
 
 def vision_settings(args) -> dict:
@@ -144,7 +155,7 @@ def vision_settings(args) -> dict:
             "confirm_score": args.confirm_score, "localizer": args.localizer,
             "pose_noise": args.pose_noise, "calibrate_pitch": args.calibrate_pitch,
             "live_relink": args.live_relink, "gallery_m": args.gallery_range,
-            "watch": args.watch,
+            "watch": args.watch, "lookalike": args.lookalike,
             "route_m": (route_range(args.route_range, args.gallery_range)
                         if args.sightings == "vision" else args.route_range)}
 

@@ -22,7 +22,7 @@ def _track(text: str) -> tuple[int, int]:
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `reidentify` command."""
     from dashtraj.cli._args import positive_float
-    from dashtraj.cli._vision_args import add_range_args, add_watch_arg
+    from dashtraj.cli._vision_args import add_lookalike_arg, add_range_args, add_watch_arg
     from dashtraj.outputs import add_output_args
 
     p = subparsers.add_parser(
@@ -58,6 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="ReID range: detections estimated this close, metres (default 15)")
     add_range_args(p, "--max-distance")
     add_watch_arg(p)
+    add_lookalike_arg(p)
     p.add_argument("--sample", type=positive_float, default=0.5, metavar="S",
                    help="one sighting per track every S seconds (default 0.5)")
     p.add_argument("--vehicle", type=int, default=None, metavar="ID",
@@ -97,7 +98,8 @@ def run_reidentify(args: argparse.Namespace) -> int:
                         sample_s=args.sample, gallery_m=args.gallery_range,
                         route_m=route_range(args.route_range, args.gallery_range,
                                             args.max_distance),
-                        **({} if args.watch is None else {"watch": args.watch}))
+                        **({} if args.watch is None else {"watch": args.watch}),
+                        **({} if args.lookalike is None else {"lookalike": args.lookalike}))
     s = tt.summary
     if s["query"] is None:
         raise DashtrajError(f"--track {args.track[0]}:{args.track[1]} has no crop within "

@@ -71,6 +71,7 @@ from dashtraj.reidentify.decision import (
 from dashtraj.reidentify.scoring import reid_score, sighting_score
 from dashtraj.reidentify.select import (
     BoxRelations,
+    LookalikeRule,
     box_relations,
     query_detection,
     select_target_tracks,
@@ -146,6 +147,15 @@ WATCH = False
 """Default of `target_from_db`'s ``watch``: negative evidence in the gate
 (`dashtraj.trajectory.watch`), off: on the development look-alike runs it changed no
 decision (the README's "Negative evidence")."""
+
+LOOKALIKE = False
+"""Default of `target_from_db`'s ``lookalike`` (`select.LookalikeRule`: once the gate has
+dropped a candidate that looks like the target, tracks kept only across more than 30 s
+unseen are dropped too), off. Chosen on the development look-alike runs, where it took
+the gate's 57 / 5 true / false tracks to 56 / 2, it did not hold on the ten look-alike
+experiments (``--twins 3 --seeds 0-4``, scored once, 2026-12-06): 56 / 9 became 50 / 8,
+precision 0.862 either way, recall 0.933 -> 0.833, hmm whole trip 5.27 -> 8.69 m (the
+README's "Look-alikes")."""
 
 RECOMPUTE = "make reid-threshold  (or: dashtraj reid-threshold DB... --model M.onnx)"
 
@@ -270,6 +280,8 @@ class TargetTracks:
         sightings: the accepted tracks' sightings, time order.
         summary: reid_precision, reid_recall, their counts, reid_candidates (tracks the
             appearance decision accepted, before the gate), reid_gated_out,
+            reid_lookalikes and reid_unlinked (`select.LookalikeRule`: dropped candidates
+            that showed a look-alike; tracks the gate kept and the rule dropped),
             reid_misses_by_cause (the target's tracks not accepted: above the
             ``threshold``, dropped by the ``gate``, or ``no_usable_crop``; appearance
             ReID only),
@@ -449,7 +461,8 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
                    min_score: float = SIGHTING_MIN_SCORE,
                    gallery_m: float | None = None,
                    route_m: float | None = None,
-                   watch: bool | WatchConfig = WATCH) -> TargetTracks:
+                   watch: bool | WatchConfig = WATCH,
+                   lookalike: bool | LookalikeRule = LOOKALIKE) -> TargetTracks:
     """The target's sightings from one perception run's database.
 
     Args:
@@ -499,6 +512,10 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
             are two vehicles when every way one car could have driven between them led
             through places the cameras watched and saw empty (`camera_views`); True
             (`WatchConfig()`), a `WatchConfig`, or False (none). Without a gate, nothing.
+        lookalike: after the gate, once a dropped candidate has shown a look-alike, keep
+            only the tracks linked to the query's by short unseen stretches
+            (`select.LookalikeRule`): True (`LookalikeRule()`), a `LookalikeRule`, or
+            False (none). Without a gate, nothing.
 
     Returns:
         `TargetTracks`.
@@ -687,9 +704,14 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
                                    # sightings are samples: a track seen until the
                                    # query's time can have its last up to sample_s before
                                    start_t=query.t - sample_s if gate else None,
-                                   watch=watcher)
+                                   watch=watcher,
+                                   lookalike=(None if not gate or lookalike is False else
+                                              lookalike if isinstance(lookalike, LookalikeRule)
+                                              else LookalikeRule()))
         accepted = [k for k in sel.accepted if k in tracks]
         candidates = list(sel.candidates)
+        extra["reid_lookalikes"] = len(sel.lookalikes)
+        extra["reid_unlinked"] = len(sel.unlinked)
         extra["reid_threshold"] = float(threshold)
         extra["reid_aggregate"] = aggregate
         extra["reid_query"] = recipe.query
