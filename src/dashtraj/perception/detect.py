@@ -350,7 +350,10 @@ class YoloDetector:
         self.path = Path(model) if model is not None else default_model_path()
         if not self.path.is_file():
             raise DetectorError(f"{self.path}: no such model file")
-        self.session = _session(self.path, threads)
+        # with a second stage, the detector's idle threads sleep: spinning, they held the
+        # cores while the stage cut crops and ran (bench_detector.py, four steps: CPU 101
+        # -> 72 ms a frame, wall 51 -> 47 ms); alone they spin (wall 18.5 against 19.9 ms)
+        self.session = _session(self.path, threads, spin=classifier is None)
         meta = self.session.get_modelmeta().custom_metadata_map
         self.metadata = dict(meta)
         inp = self.session.get_inputs()[0]
