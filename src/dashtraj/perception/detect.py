@@ -351,8 +351,9 @@ class YoloDetector:
         if not self.path.is_file():
             raise DetectorError(f"{self.path}: no such model file")
         # with a second stage, the detector's idle threads sleep: spinning, they held the
-        # cores while the stage cut crops and ran (bench_detector.py, four steps: CPU 101
-        # -> 72 ms a frame, wall 51 -> 47 ms); alone they spin (wall 18.5 against 19.9 ms)
+        # cores while the stage cut crops and ran (bench_detector.py's 40 frames, four
+        # steps mirrored: CPU 101 -> 72 ms a frame, wall 51 -> 47 ms); alone they spin
+        # (wall 18.5 against 19.9 ms)
         self.session = _session(self.path, threads, spin=classifier is None)
         meta = self.session.get_modelmeta().custom_metadata_map
         self.metadata = dict(meta)

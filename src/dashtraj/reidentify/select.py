@@ -70,8 +70,8 @@ class LookalikeRule:
     distances (2026-12-06): a dropped candidate within 0.4 / 0.5 / 0.6 x the threshold
     marked 6 / 8 / 9 of the 10 look-alike runs and 1 of the 10 others; with 0.6, chains
     of 20 / 25 / 30 / 35 s kept 46 / 52 / 56 / 57 true and 1 / 1 / 2 / 5 false tracks, and
-    every true track of the runs without look-alikes (the one marked run's tracks are
-    seconds apart). It did not hold on the ten look-alike experiments (``--twins 3
+    every true track of the runs without look-alikes (the one marked run lost none). It
+    did not hold on the ten look-alike experiments (``--twins 3
     --seeds 0-4``, scored once): 56 / 9 true / false tracks became 50 / 8, so it is off by
     default (`dashtraj.reidentify.vision.LOOKALIKE`).
 
