@@ -72,3 +72,26 @@ def test_split_units():
     assert split_units(2, 0.2, rng).sum() == 1
     assert split_units(10, 0.2, rng).sum() == 2
     assert split_units(3, 0.99, rng).sum() == 2
+
+
+def test_train_only_recordings_grow_train_and_keep_the_split(gl_available, recordings,
+                                                            tmp_path):
+    """A recording given as train-only lands in train whole; the other recordings' split
+    and images are the bytes they are without it (it is appended after the split)."""
+    cfg = DetectionConfig(every_s=1.0, size=SIZE, min_box_height_px=4, val_fraction=0.5,
+                          seed=3)
+    base = build_detection_dataset(recordings[:1], tmp_path / "a", cfg)
+    grown = build_detection_dataset(recordings[:1], tmp_path / "b", cfg,
+                                    train_only=recordings[1:])
+    assert base["val"] == grown["val"] and base["split_by"] == grown["split_by"] == "observer"
+    assert grown["train_only"] == [str(recordings[1].path)] and base["train_only"] == []
+    for split in ("train", "val"):
+        a = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob(f"{split}/*"))
+        assert a and all((tmp_path / "b" / p).read_bytes() == (tmp_path / "a" / p).read_bytes()
+                         for p in a)
+    extra = [p for p in (tmp_path / "b" / "images").rglob("*.jpg")
+             if p.name.startswith("r01_")]
+    assert extra and all(p.parent.name == "train" for p in extra)
+    assert grown["counts"]["val"] == base["counts"]["val"]
+    assert grown["counts"]["train"]["images"] == \
+        base["counts"]["train"]["images"] + len(extra)

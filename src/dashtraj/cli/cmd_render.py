@@ -86,6 +86,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     d.add_argument("--val-fraction", type=fraction, default=0.2,
                    help="share of recordings in val (default 0.2)")
     d.add_argument("--seed", type=seed_int, default=0, help="split seed (default 0)")
+    d.add_argument("--train-only", nargs="+", default=[], metavar="RUN",
+                   help="more recordings, all in train: the RUNs' split stays what it is "
+                        "without them (a set grows its training part, keeps its val)")
     _randomize_args(d, "image")
     d.add_argument("--workers", type=positive_int, default=1,
                    help="render processes, one recording each at a time (default 1; the "
@@ -244,7 +247,8 @@ def run_detection(args: argparse.Namespace) -> int:
                           seed=args.seed, randomize=args.randomize,
                           randomize_seed=args.randomize_seed)
     seen: dict = {}
-    for p in args.recordings:  # one recording twice would put the same frames in train and val
+    for p in [*args.recordings, *args.train_only]:
+        # one recording twice would put the same frames in train and val
         key = Path(p).resolve()
         if key in seen:
             from dashtraj.cli._args import ArgumentError
@@ -253,14 +257,16 @@ def run_detection(args: argparse.Namespace) -> int:
                                 "each recording once, or its frames leak between train and val")
         seen[key] = p
     recs = [open_recording_or_drive(p) for p in args.recordings]
-    parallel = args.workers > 1 and len(recs) > 1
-    bar = _bar(args, len(recs) if parallel else _frame_total(recs, args.every),
+    extra = [open_recording_or_drive(p) for p in args.train_only]
+    parallel = args.workers > 1 and len(recs) + len(extra) > 1
+    bar = _bar(args, len(recs) + len(extra) if parallel
+               else _frame_total([*recs, *extra], args.every),
                "recording" if parallel else "frame")
     try:
         with atomic_output(out, overwrite=args.overwrite, kind="dir") as tmp:
             info = build_detection_dataset(recs, tmp, cfg,
                                            progress=bar.update if bar is not None else None,
-                                           workers=args.workers)
+                                           workers=args.workers, train_only=extra)
             # data.yaml names the set's folder: the final one, not the temporary sibling
             (tmp / "data.yaml").write_text(data_yaml(out), encoding="utf-8")
     finally:

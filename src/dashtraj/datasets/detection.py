@@ -123,7 +123,7 @@ def data_yaml(out_dir: Path) -> str:
 
 
 def build_detection_dataset(recordings, out_dir, config: DetectionConfig = DetectionConfig(),
-                            progress=None, workers: int = 1) -> dict:
+                            progress=None, workers: int = 1, train_only=()) -> dict:
     """Render recordings into a YOLO detection set (layout in the module docstring).
 
     Args:
@@ -137,6 +137,9 @@ def build_detection_dataset(recordings, out_dir, config: DetectionConfig = Detec
             context, started with ``spawn``); 1 renders in this process. The set's files
             are the same bytes for any count (every image depends only on its recording,
             observer and frame).
+        train_only: more recordings, all in train, after ``recordings``: the split of
+            ``recordings`` (and their images) stay what they are without them, so a set
+            grows its training part and keeps its validation recordings.
 
     Returns:
         the ``dataset.json`` dict: config, split_by ("recording" | "observer"), the
@@ -149,9 +152,10 @@ def build_detection_dataset(recordings, out_dir, config: DetectionConfig = Detec
     from dashtraj.datasets.frames import observer_ids
 
     recs = list(recordings)
+    extra = list(train_only)
     if not recs:
         raise DatasetError("no recording given")
-    d = next((r for r in recs if isinstance(r, Drive)), None)
+    d = next((r for r in (*recs, *extra) if isinstance(r, Drive)), None)
     if config.randomize and d is not None:
         raise DatasetError(f"{d.path} is a drive: its images are what they are (no "
                            "randomized look)")
@@ -174,6 +178,9 @@ def build_detection_dataset(recordings, out_dir, config: DetectionConfig = Detec
                            strict=True))
         val_units = [o for o in obs if obs_val[o]]
         val_of = [obs_val]
+    # appended after the split: it, and the others' indices (their looks), stay as they were
+    val_of += [False] * len(extra)
+    recs += extra
     jobs = [(ri, str(rec.path), val_of[ri], str(out), config) for ri, rec in enumerate(recs)]
     if workers <= 1 or len(recs) == 1:
         parts = [_render_recording(*job, rec=rec, progress=progress)
@@ -202,6 +209,7 @@ def build_detection_dataset(recordings, out_dir, config: DetectionConfig = Detec
     info = {
         "format": "yolo", "config": {**asdict(config), "size": list(config.size)},
         "recordings": [str(r.path) for r in recs], "split_by": split_by, "val": val_units,
+        "train_only": [str(r.path) for r in extra],
         "counts": counts,
         "class_counts": {n: int(c) for n, c in zip(DETECTION_CLASSES, class_counts, strict=True)},
         "note": ("vehicles failing min_box_height_px / max_occlusion are left unlabelled "
