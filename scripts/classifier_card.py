@@ -31,6 +31,8 @@ def main(argv=None) -> int:
     ap.add_argument("--command", default="")
     ap.add_argument("--note", default="")
     args = ap.parse_args(argv)
+    from dashtraj.perception.detect import CLASSIFIER_MIN_PROB as MIN_PROB
+
     log = [json.loads(x) for x in (args.run / "log.jsonl").read_text().splitlines() if x]
     data = args.onnx.read_bytes()
     sha = hashlib.sha256(data).hexdigest()
@@ -58,6 +60,11 @@ def main(argv=None) -> int:
     hist_rule = "|---" * (5 + 3 * refine) + "|"
     val_what = "boxes and the detector's proposals" if refine else "boxes"
     counts = ds.get("counts", ds.get("splits", {}))
+    extra = ds.get("train_only") or []
+    split_text = ("the detector's recordings and split, and "
+                  f"{len(extra)} more recordings in train only (`--train-only`: "
+                  f"{', '.join(Path(p).name for p in extra)})" if extra
+                  else "the detector's recordings and split")
     if refine:
         io = ("output `logits` (N, 16): the 15 classes then background (softmax; a box's "
               "class probabilities sum to 1 minus its background probability), and `deltas` "
@@ -65,13 +72,14 @@ def main(argv=None) -> int:
               "metadata `names`, `background` (1), `crop_px`, `input_px`, `margin`. "
               "`YoloDetector(classifier=...)` (`--classifier shipped` on `detect` and "
               "`detector eval`) moves each of a frame's best 100 boxes by its deltas and "
-              "gives it its classes: one box per class of probability >= 0.1, scored "
+              f"gives it its classes: one box per class of probability >= {MIN_PROB:g} "
+              "(`CLASSIFIER_MIN_PROB`), scored "
               "detector score x probability, then class-aware NMS.")
         net = ("average pooling, dropout 0.2, a linear layer for the classes and one for the "
                "deltas")
         what = ("the boxes of the training recordings' frames rendered at 1280x720, every 2 s, "
                 "domain-randomized (`dashtraj detection-dataset ... --size 1280x720 "
-                "--randomize`; the detector's recordings and split: "
+                f"--randomize`; {split_text}: "
                 f"{json.dumps(counts)}): every labelled box, a jittered copy of each (sides "
                 "moved by 8 % of the box, normal), up to 3 of the shipped detector's proposals "
                 "(score >= 0.01) per vehicle they overlap at IoU >= 0.4, and its best-scoring "
@@ -83,12 +91,13 @@ def main(argv=None) -> int:
         io = ("output `logits` (N, 15) (softmax: the 15 classes' probabilities); metadata "
               "`names`, `crop_px`, `input_px`, `margin`. `YoloDetector(classifier=...)` "
               "(`--classifier shipped` on `detect` and `detector eval`) gives each of a "
-              "frame's best 100 boxes its classes: one box per class of probability >= 0.1, "
+              "frame's best 100 boxes its classes: one box per class of probability >= "
+              f"{MIN_PROB:g} (`CLASSIFIER_MIN_PROB`), "
               "scored detector score x probability, then class-aware NMS.")
         net = "average pooling, dropout 0.2, a linear layer"
         what = ("every labelled box of the training recordings' frames rendered at 1280x720, "
                 "every 2 s, domain-randomized (`dashtraj detection-dataset ... --size 1280x720 "
-                f"--randomize`; the detector's recordings and split: {json.dumps(counts)})")
+                f"--randomize`; {split_text}: {json.dumps(counts)})")
     section = f"""{HEADING}
 
 {args.note}

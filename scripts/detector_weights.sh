@@ -9,6 +9,9 @@
 #          CARD_OUT=src/dashtraj/data/detector (where the model and its card go)
 #          STOP_AFTER=N (stop after epoch N of the EPOCHS schedule; rerun without it to go on)
 #          CARLA_FRAMES=../shared/carla_frames (scored with eval-external when present)
+#          CLASSIFIER_EXTRA_SEEDS="" (more recordings of each training town, all in the box
+#          classifier's train split: detection-dataset --train-only; e.g. "$(seq 110 119)")
+#          CLASSIFIER_EPOCHS=12 (the box classifier's epochs)
 #   The shipped gpu model (src/dashtraj/data/detector_gpu):
 #          RECIPE=gpu WORKERS=15 TRAIN_SEEDS="$(seq 100 119)" CARD_OUT=src/dashtraj/data/detector_gpu
 set -euo pipefail
@@ -27,9 +30,13 @@ TOWN10_REAL=${TOWN10_REAL:-../shared/maps/carla/Town10HD.xodr}
 mkdir -p "$WORK/recs" "$WORK/heldout"
 SIM=(--duration 45 --no-until-target-arrives --observers 6 --agents 40 --vehicle-mix balanced
      --vehicle-classes car,truck,bus,motorcycle,bicycle -q)
-# training towns: the built-in town01 and town10 and CARLA's real Town01; TRAIN_SEEDS
+# training towns: CARLA's real Town01 and the built-in town01 and town10; TRAIN_SEEDS. In this
+# order (the recordings' names sorted, as the shipped set was built): the split by recording
+# draws its val recordings by position, and so puts Town01 s102/s104, town01 s100/s101 and
+# town10 s101/s106 in val, as in the shipped detector's card (the order town01, town10,
+# Town01 used here until 2026-12-06 drew others)
 train=()
-for town in town01 town10 "$TOWN01_REAL"; do
+for town in "$TOWN01_REAL" town01 town10; do
   tag=$(basename "$town" .xodr)
   for seed in $TRAIN_SEEDS; do
     rec="$WORK/recs/${tag}_s${seed}"
@@ -73,17 +80,29 @@ fi
 # copy, the detector's own proposals (vehicle or background); trained on the same split,
 # exported beside the detector, and the held-out recordings scored with it
 if [ "${CLASSIFIER:-1}" = 1 ]; then
+  CLS_EPOCHS=${CLASSIFIER_EPOCHS:-12}
+  extra=()
+  for town in "$TOWN01_REAL" town01 town10; do
+    tag=$(basename "$town" .xodr)
+    for seed in ${CLASSIFIER_EXTRA_SEEDS:-}; do
+      rec="$WORK/recs/${tag}_s${seed}"
+      [ -f "$rec/meta.json" ] && grep -q '"complete": true' "$rec/meta.json" \
+        || "$DT" simulate --town "$town" --seed "$seed" "${SIM[@]}" -o "$rec" --overwrite
+      extra+=("$rec")
+    done
+  done
   [ -f "$WORK/set720/dataset.json" ] \
-    || "$DT" detection-dataset "${train[@]}" -o "$WORK/set720" --every 2.0 --size 1280x720 \
+    || "$DT" detection-dataset "${train[@]}" ${extra[@]:+--train-only "${extra[@]}"} \
+         -o "$WORK/set720" --every 2.0 --size 1280x720 \
          --seed 0 --randomize --randomize-seed 0 -q --workers "$WORKERS"
   [ -f "$WORK/classifier/classifier.onnx" ] \
     || "$DT" detector train-classifier "$WORK/set720" -o "$WORK/classifier" --seed "$SEED" \
-         --refine-with "$WORK/detector.onnx" --epochs 12 --threads 2
+         --refine-with "$WORK/detector.onnx" --epochs "$CLS_EPOCHS" --threads 2
   "$DT" detector eval "${held[@]}" --model "$WORK/detector.onnx" --every 8 \
     --classifier "$WORK/classifier/classifier.onnx" -o "$WORK/eval_classifier" --overwrite -q
   cp "$WORK/classifier/classifier.onnx" "$CARD_OUT/classifier.onnx"
   "${PYTHON:-.venv/bin/python}" scripts/classifier_card.py --run "$WORK/classifier" \
     --onnx "$CARD_OUT/classifier.onnx" --dataset "$WORK/set720" \
     --eval "$WORK/eval_classifier/eval.json" --eval-without "$WORK/eval/eval.json" \
-    --out "$CARD_OUT" --command "dashtraj detector train-classifier $WORK/set720 -o $WORK/classifier --seed $SEED --refine-with $WORK/detector.onnx --epochs 12 --threads 2"
+    --out "$CARD_OUT" --command "dashtraj detector train-classifier $WORK/set720 -o $WORK/classifier --seed $SEED --refine-with $WORK/detector.onnx --epochs $CLS_EPOCHS --threads 2"
 fi
