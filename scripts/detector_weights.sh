@@ -30,31 +30,32 @@ TOWN10_REAL=${TOWN10_REAL:-../shared/maps/carla/Town10HD.xodr}
 mkdir -p "$WORK/recs" "$WORK/heldout"
 SIM=(--duration 45 --no-until-target-arrives --observers 6 --agents 40 --vehicle-mix balanced
      --vehicle-classes car,truck,bus,motorcycle,bicycle -q)
+# add_recording ARRAY TOWN SEED DIR: simulate DIR/<town>_s<seed> unless it is there complete,
+# and append its path to the array named ARRAY
+add_recording() {
+  local -n into=$1
+  local rec
+  rec="$4/$(basename "$2" .xodr)_s$3"
+  [ -f "$rec/meta.json" ] && grep -q '"complete": true' "$rec/meta.json" \
+    || "$DT" simulate --town "$2" --seed "$3" "${SIM[@]}" -o "$rec" --overwrite
+  into+=("$rec")
+}
+TOWNS=("$TOWN01_REAL" town01 town10)
 # training towns: CARLA's real Town01 and the built-in town01 and town10; TRAIN_SEEDS. In this
 # order (the recordings' names sorted, as the shipped set was built): the split by recording
 # draws its val recordings by position, and so puts Town01 s102/s104, town01 s100/s101 and
 # town10 s101/s106 in val, as in the shipped detector's card (the order town01, town10,
 # Town01 used here until 2026-12-06 drew others)
 train=()
-for town in "$TOWN01_REAL" town01 town10; do
-  tag=$(basename "$town" .xodr)
-  for seed in $TRAIN_SEEDS; do
-    rec="$WORK/recs/${tag}_s${seed}"
-    [ -f "$rec/meta.json" ] && grep -q '"complete": true' "$rec/meta.json" \
-      || "$DT" simulate --town "$town" --seed "$seed" "${SIM[@]}" -o "$rec" --overwrite
-    train+=("$rec")
-  done
+for town in "${TOWNS[@]}"; do
+  for seed in $TRAIN_SEEDS; do add_recording train "$town" "$seed" "$WORK/recs"; done
 done
 # held out (never trained on): seed 900 of each training town, and CARLA's real Town10HD
 # (a town never used in training) at seeds 900 and 901
 held=()
 for spec in "town01 900" "town10 900" "$TOWN01_REAL 900" "$TOWN10_REAL 900" "$TOWN10_REAL 901"; do
   read -r town seed <<< "$spec"
-  tag=$(basename "$town" .xodr)
-  rec="$WORK/heldout/${tag}_s${seed}"
-  [ -f "$rec/meta.json" ] && grep -q '"complete": true' "$rec/meta.json" \
-    || "$DT" simulate --town "$town" --seed "$seed" "${SIM[@]}" -o "$rec" --overwrite
-  held+=("$rec")
+  add_recording held "$town" "$seed" "$WORK/heldout"
 done
 [ -f "$WORK/dataset/dataset.json" ] \
   || "$DT" detection-dataset "${train[@]}" -o "$WORK/dataset" --every 2.0 --size 640x360 \
@@ -82,14 +83,8 @@ fi
 if [ "${CLASSIFIER:-1}" = 1 ]; then
   CLS_EPOCHS=${CLASSIFIER_EPOCHS:-12}
   extra=()
-  for town in "$TOWN01_REAL" town01 town10; do
-    tag=$(basename "$town" .xodr)
-    for seed in ${CLASSIFIER_EXTRA_SEEDS:-}; do
-      rec="$WORK/recs/${tag}_s${seed}"
-      [ -f "$rec/meta.json" ] && grep -q '"complete": true' "$rec/meta.json" \
-        || "$DT" simulate --town "$town" --seed "$seed" "${SIM[@]}" -o "$rec" --overwrite
-      extra+=("$rec")
-    done
+  for town in "${TOWNS[@]}"; do
+    for seed in ${CLASSIFIER_EXTRA_SEEDS:-}; do add_recording extra "$town" "$seed" "$WORK/recs"; done
   done
   [ -f "$WORK/set720/dataset.json" ] \
     || "$DT" detection-dataset "${train[@]}" ${extra[@]:+--train-only "${extra[@]}"} \
