@@ -203,8 +203,8 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
     accepted = tuple(placed[i].key for i in res.accepted)
     shown, unlinked = (), ()
     if lookalike is not None and anchor in accepted:
-        kept = set(accepted)
-        shown = tuple(d.key for d in placed if d.key not in kept
+        gate_kept = set(accepted)
+        shown = tuple(d.key for d in placed if d.key not in gate_kept
                       and d.distance <= lookalike.distance_frac * threshold)
         if shown:
             spans = {k: (min(s.t for s in sightings[k]), max(s.t for s in sightings[k]))
@@ -212,7 +212,8 @@ def select_target_tracks(road_map: RoadMap, distances: np.ndarray, keys: Sequenc
             linked = linked_to(anchor, spans, lookalike.max_gap_s)
             unlinked = tuple(k for k in accepted if k not in linked)
             accepted = tuple(k for k in accepted if k in linked)
-    out = tuple(k for k in cand_keys if k not in set(accepted))
+    kept = set(accepted)
+    out = tuple(k for k in cand_keys if k not in kept)
     return Selection(tuple(decisions), cand_keys, accepted, out, shown, unlinked)
 
 
