@@ -2,12 +2,14 @@
 
 Usage:
     python scripts/classifier_card.py --run RUN --onnx classifier.onnx --dataset SET
-        --eval eval_with.json --eval-without eval_without.json [--out DIR] [--command TEXT]
+        --eval eval_with.json --eval-without eval_without.json [--eval-more eval_steps4.json]
+        [--out DIR] [--command TEXT] [--note TEXT]
 
 RUN is a `dashtraj detector train-classifier` folder (log.jsonl, last.pt); the eval files
 are `dashtraj detector eval --json -o` outputs (eval.json) of the same held-out recordings
-with and without ``--classifier``. Writes (replaces) the section "Second stage: box
-classifier" at the end of DIR/MODEL.md and the key "classifier" of DIR/MODEL.json.
+with and without ``--classifier``; ``--eval-more`` adds rows for more settings of the stage
+(e.g. ``--refine-steps 4``; each row named by its JSON's ``refine_steps``). Writes
+(replaces) the section "Second stage: box classifier" at the end of DIR/MODEL.md and the key "classifier" of DIR/MODEL.json.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ def main(argv=None) -> int:
     ap.add_argument("--dataset", required=True, type=Path)
     ap.add_argument("--eval", required=True, type=Path)
     ap.add_argument("--eval-without", required=True, type=Path)
+    ap.add_argument("--eval-more", type=Path, action="append", default=[])
     ap.add_argument("--out", type=Path, default=Path("src/dashtraj/data/detector"))
     ap.add_argument("--command", default="")
     ap.add_argument("--note", default="")
@@ -38,15 +41,24 @@ def main(argv=None) -> int:
     sha = hashlib.sha256(data).hexdigest()
     ds = json.loads((args.dataset / "dataset.json").read_text())
     ev, ev0 = json.loads(args.eval.read_text()), json.loads(args.eval_without.read_text())
+    more = [json.loads(p.read_text()) for p in args.eval_more]
     last = log[-1]
     rows = ["| | mAP50 | mAP50-95 | mAP50 >= 24 px | mAP50-95 >= 24 px |", "|---|---|---|---|---|"]
-    for name, e in (("detector alone", ev0), ("**with the box classifier**", ev)):
+    steps = ev.get("refine_steps", 1)
+    named = [("detector alone", ev0),
+             (f"**with the box classifier** ({steps} refining step{'s' * (steps != 1)})", ev)]
+    named += [(f"with the box classifier, `--refine-steps {e.get('refine_steps', 1)}`", e)
+              for e in more]
+    for name, e in named:
         rows.append(f"| {name} | {e['map50']:.3f} | {e['map50_95']:.3f} | {e['map50_24px']:.3f} "
                     f"| {e['map50_95_24px']:.3f} |")
-    per = ["| class | AP50 >= 24 px, detector alone | with the box classifier |", "|---|---|---|"]
+    per = ["| class | AP50 >= 24 px, detector alone | with the box classifier |"
+           + "".join(f" `--refine-steps {e.get('refine_steps', 1)}` |" for e in more),
+           "|---|---|---|" + "---|" * len(more)]
     for c, v in ev["per_class_24px"].items():
         v0 = ev0["per_class_24px"].get(c, {}).get("ap50")
-        per.append(f"| {c} | {'' if v0 is None else f'{v0:.3f}'} | {v['ap50']:.3f} |")
+        cells = [v0, v["ap50"]] + [e["per_class_24px"].get(c, {}).get("ap50") for e in more]
+        per.append(f"| {c} | " + " | ".join("" if x is None else f"{x:.3f}" for x in cells) + " |")
     refine = "iou_after" in last["val"]
     hist = "\n".join(
         f"| {x['epoch']} | {x['loss']:.3f} | {x['val']['acc']:.3f} | {x['val']['vehicle_acc']:.3f} "
@@ -141,6 +153,9 @@ without `--classifier`):
                                                            "map50_95_24px")},
                           "heldout_detector_alone": {k: ev0[k] for k in (
                               "map50", "map50_95", "map50_24px", "map50_95_24px")}}
+    for e in more:
+        card["classifier"][f"heldout_refine_steps_{e.get('refine_steps', 1)}"] = {
+            k: e[k] for k in ("map50", "map50_95", "map50_24px", "map50_95_24px")}
     jp.write_text(json.dumps(card, indent=1) + "\n", encoding="utf-8")
     print(f"{args.out}: classifier.onnx ({len(data) / 1e6:.2f} MB, sha256 {sha[:12]}...) "
           "added to MODEL.md and MODEL.json")

@@ -9,9 +9,9 @@
 #          CARD_OUT=src/dashtraj/data/detector (where the model and its card go)
 #          STOP_AFTER=N (stop after epoch N of the EPOCHS schedule; rerun without it to go on)
 #          CARLA_FRAMES=../shared/carla_frames (scored with eval-external when present)
-#          CLASSIFIER_EXTRA_SEEDS="" (more recordings of each training town, all in the box
-#          classifier's train split: detection-dataset --train-only; e.g. "$(seq 110 119)")
-#          CLASSIFIER_EPOCHS=12 (the box classifier's epochs)
+#          CLASSIFIER_EXTRA_SEEDS="110 ... 119" (more recordings of each training town, all in the box
+#          classifier's train split: detection-dataset --train-only; "" for none)
+#          CLASSIFIER_EPOCHS=8 (the box classifier's epochs)
 #   The shipped gpu model (src/dashtraj/data/detector_gpu):
 #          RECIPE=gpu WORKERS=15 TRAIN_SEEDS="$(seq 100 119)" CARD_OUT=src/dashtraj/data/detector_gpu
 set -euo pipefail
@@ -81,10 +81,10 @@ fi
 # copy, the detector's own proposals (vehicle or background); trained on the same split,
 # exported beside the detector, and the held-out recordings scored with it
 if [ "${CLASSIFIER:-1}" = 1 ]; then
-  CLS_EPOCHS=${CLASSIFIER_EPOCHS:-12}
+  CLS_EPOCHS=${CLASSIFIER_EPOCHS:-8}
   extra=()
   for town in "${TOWNS[@]}"; do
-    for seed in ${CLASSIFIER_EXTRA_SEEDS:-}; do add_recording extra "$town" "$seed" "$WORK/recs"; done
+    for seed in ${CLASSIFIER_EXTRA_SEEDS-$(seq 110 119)}; do add_recording extra "$town" "$seed" "$WORK/recs"; done
   done
   [ -f "$WORK/set720/dataset.json" ] \
     || "$DT" detection-dataset "${train[@]}" ${extra[@]:+--train-only "${extra[@]}"} \
@@ -95,9 +95,12 @@ if [ "${CLASSIFIER:-1}" = 1 ]; then
          --refine-with "$WORK/detector.onnx" --epochs "$CLS_EPOCHS" --threads 2
   "$DT" detector eval "${held[@]}" --model "$WORK/detector.onnx" --every 8 \
     --classifier "$WORK/classifier/classifier.onnx" -o "$WORK/eval_classifier" --overwrite -q
+  "$DT" detector eval "${held[@]}" --model "$WORK/detector.onnx" --every 8 \
+    --classifier "$WORK/classifier/classifier.onnx" --refine-steps 4 \
+    -o "$WORK/eval_classifier4" --overwrite -q
   cp "$WORK/classifier/classifier.onnx" "$CARD_OUT/classifier.onnx"
   "${PYTHON:-.venv/bin/python}" scripts/classifier_card.py --run "$WORK/classifier" \
     --onnx "$CARD_OUT/classifier.onnx" --dataset "$WORK/set720" \
     --eval "$WORK/eval_classifier/eval.json" --eval-without "$WORK/eval/eval.json" \
-    --out "$CARD_OUT" --command "dashtraj detector train-classifier $WORK/set720 -o $WORK/classifier --seed $SEED --refine-with $WORK/detector.onnx --epochs $CLS_EPOCHS --threads 2"
+    --eval-more "$WORK/eval_classifier4/eval.json" --out "$CARD_OUT" --command "dashtraj detector train-classifier $WORK/set720 -o $WORK/classifier --seed $SEED --refine-with $WORK/detector.onnx --epochs $CLS_EPOCHS --threads 2"
 fi
