@@ -9,7 +9,8 @@ RUN is a `dashtraj detector train-classifier` folder (log.jsonl, last.pt); the e
 are `dashtraj detector eval --json -o` outputs (eval.json) of the same held-out recordings
 with and without ``--classifier``; ``--eval-more`` adds rows for more settings of the stage
 (e.g. ``--refine-steps 4``; each row named by its JSON's ``refine_steps``). Writes
-(replaces) the section "Second stage: box classifier" at the end of DIR/MODEL.md and the key "classifier" of DIR/MODEL.json.
+(replaces) the section "Second stage: box classifier" at the end of DIR/MODEL.md and the key
+"classifier" of DIR/MODEL.json.
 """
 
 from __future__ import annotations
