@@ -424,6 +424,8 @@ CASES: list[tuple[str, list[str], str]] = [
      "argument --lr: expected a number > 0"),
     ("reid-train-epochs", ["reid", "train", "{OUT_DIR}", "-o", "{NEW_DIR}", "--epochs", "0"],
      "argument --epochs: expected an integer >= 1"),
+    ("reid-train-size", ["reid", "train", "{OUT_DIR}", "-o", "{NEW_DIR}", "--size", "160"],
+     "argument --size: expected WxH in pixels"),
     ("reid-eval-threads", ["reid", "eval", "--data", "{OUT_DIR}", "--threads", "0"],
      "argument --threads: expected an integer >= 1"),
     ("reid-eval-rerank-lambda", ["reid", "eval", "--data", "{OUT_DIR}", "--rerank-lambda", "2"],

@@ -124,6 +124,13 @@ def test_onnx_init_trains_and_refuses_what_does_not_fit(tmp_path):
     with pytest.raises(TrainError, match="takes 64x64 images"):
         train(data, tmp_path / "run", replace(r, height=96, width=96), seed=0, threads=1,
               init=path, overwrite=True, log=None)
+    # asked for (reid train --size), the 64 px ONNX is fine-tuned at 96 px: the BatchNorms
+    # calibrated at 96, the check against onnxruntime at the ONNX's 64
+    s96 = train(data, tmp_path / "run96", replace(r, height=96, width=96), seed=0, threads=1,
+                init=path, init_any_size=True, log=None)
+    i96 = json.loads((tmp_path / "run96" / "run.json").read_text())["init_onnx"]
+    assert s96["finished"] and i96["worst_cosine"] > 0.999
+    assert i96["onnx_size"] == [64, 64] and i96["size"] == [96, 96]
     with pytest.raises(TrainError, match="is a efficientnet_lite0"):
         train(data, tmp_path / "run", replace(r, model="osnet_x0_25", frozen_blocks=None),
               seed=0, threads=1, init=path, overwrite=True, log=None)

@@ -12,7 +12,7 @@ import sys
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `reid` command and its sub-commands."""
-    from dashtraj.cli._args import fraction, positive_float, positive_int, seed
+    from dashtraj.cli._args import fraction, image_size, positive_float, positive_int, seed
 
     p = subparsers.add_parser(
         "reid",
@@ -47,6 +47,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     t.add_argument("--epochs", type=positive_int, default=None, help="override the recipe's epochs")
     t.add_argument("--batch-size", type=positive_int, default=None, help="override the batch size")
     t.add_argument("--lr", type=positive_float, default=None, help="override the learning rate")
+    t.add_argument("--size", type=image_size, default=None, metavar="WxH",
+                   help="override the recipe's input size (e.g. 160x160); with --init M.onnx "
+                        "of another size, fine-tunes that model at this one")
     t.add_argument("--triplet", action="store_true", help="add the batch-hard triplet loss")
     t.add_argument("--lowres", type=fraction, default=None, metavar="P",
                    help="shrink this share of the training images to 12-48 px high and back "
@@ -162,6 +165,14 @@ def _need_torch():
         raise DashtrajError("this command needs torch: pip install -e '.[train]'")
 
 
+def _size_overrides(size: str | None) -> dict:
+    """``--size WxH`` as recipe fields (none without it)."""
+    if size is None:
+        return {}
+    w, h = (int(v) for v in size.lower().split("x"))
+    return {"height": h, "width": w}
+
+
 def run_train(args: argparse.Namespace) -> int:
     """Train or resume; prints the best validation figures; returns 0."""
     import os
@@ -174,12 +185,13 @@ def run_train(args: argparse.Namespace) -> int:
 
     recipe = recipe_for(args.recipe, args.model, epochs=args.epochs, batch_size=args.batch_size,
                         lr=args.lr, triplet=True if args.triplet else None,
-                        lowres=args.lowres)
+                        lowres=args.lowres, **_size_overrides(args.size))
     cmd = "dashtraj " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     s = train(args.data, args.output, recipe, seed=args.seed, resume=args.resume,
               overwrite=args.overwrite, max_hours=args.max_hours, threads=args.threads,
               command=cmd, init=args.init, extra_train=tuple(args.extra_train),
-              device=args.device, log=lambda m: print(m, flush=True))
+              device=args.device, init_any_size=args.size is not None,
+              log=lambda m: print(m, flush=True))
     best = s["best"]
     if args.json:
         print(json.dumps({k: s[k] for k in ("epochs_done", "finished", "train_wall_s", "best",

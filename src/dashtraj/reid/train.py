@@ -365,7 +365,8 @@ def plot_curves(history: list[dict], path: Path) -> None:
 def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
           resume: bool = False, overwrite: bool = False, max_hours: float | None = None,
           threads: int | None = None, command: str | None = None, init: str | Path | None = None,
-          extra_train: tuple[str, ...] = (), device: str | None = None, log=print) -> dict:
+          extra_train: tuple[str, ...] = (), device: str | None = None,
+          init_any_size: bool = False, log=print) -> dict:
     """Train (or resume) a run; returns the final run summary (also in run.json).
 
     Args:
@@ -381,6 +382,9 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
             (``reid export``'s, e.g. the shipped model) is rebuilt into training weights
             by `dashtraj.train.reid_onnx.init_from_onnx` (its classifier fitted to the
             training images' embeddings).
+        init_any_size: an ``.onnx`` ``init`` may take another input size than the recipe's
+            (a fine-tune at a new size, e.g. the shipped 128 px model at 160 px); without
+            it such an ONNX is refused.
         extra_train: more training folders of DATA (e.g. ``image_train_moving`` from
             ``dashtraj reid moving-train``), their images added to ``image_train``'s; every
             identity in them must be one of ``image_train``'s (the classes stay those).
@@ -436,7 +440,7 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
     if init_onnx:
         from dashtraj.train.reid_onnx import check_onnx
 
-        check_onnx(init, recipe.model, recipe.height, recipe.width)
+        check_onnx(init, recipe.model, recipe.height, recipe.width, any_size=init_any_size)
     elif init and not resume:
         try:
             init_ck = torch.load(init, map_location="cpu", weights_only=False)
@@ -517,7 +521,8 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
 
         run_info["init_onnx"] = init_from_onnx(model, init, x_train, labels, recipe.model,
                                                recipe.height, recipe.width, seed=seed,
-                                               label_smoothing=recipe.label_smoothing, log=log)
+                                               label_smoothing=recipe.label_smoothing,
+                                               any_size=init_any_size, log=log)
         _write_json(out / "run.json", run_info)
     model = model.to(dev, memory_format=torch.channels_last if recipe.channels_last
                      else torch.preserve_format)

@@ -60,19 +60,28 @@ def _onnx_tensors(path: Path):
     return convs, named, meta
 
 
-def check_onnx(path: str | Path, model_name: str, height: int, width: int):
+def onnx_input_size(meta: dict, height: int, width: int) -> tuple[int, int]:
+    """The (height, width) an exported model takes (its metadata; else the given size)."""
+    return int(meta.get("input_height", height)), int(meta.get("input_width", width))
+
+
+def check_onnx(path: str | Path, model_name: str, height: int, width: int,
+               any_size: bool = False):
     """`_onnx_tensors` of an ONNX that `init_from_onnx` can take for ``model_name`` at
-    ``height`` × ``width``. Raises TrainError otherwise (before a run folder is touched)."""
+    ``height`` × ``width`` (``any_size``: an ONNX exported at another input size too; the
+    networks end in global pooling, so the weights fit any size, and training at the new
+    size adapts them). Raises TrainError otherwise (before a run folder is touched)."""
     path = Path(path)
     convs, named, meta = _onnx_tensors(path)
     if not convs:
         raise TrainError(f"--init: {path} has no convolutions: not a ReID network")
     if meta.get("model") not in (None, model_name):
         raise TrainError(f"--init: {path} is a {meta['model']}; this run trains a {model_name}")
-    size = (int(meta.get("input_height", height)), int(meta.get("input_width", width)))
-    if size != (height, width):
+    size = onnx_input_size(meta, height, width)
+    if size != (height, width) and not any_size:
         raise TrainError(f"--init: {path} takes {size[0]}x{size[1]} images; this recipe "
-                         f"trains at {height}x{width}")
+                         f"trains at {height}x{width} (--size {width}x{height} fine-tunes it "
+                         "at that size)")
     return convs, named, meta
 
 
@@ -141,12 +150,17 @@ def init_from_onnx(model, path: str | Path, images: np.ndarray, labels: np.ndarr
                    model_name: str, height: int, width: int, per_class: int = 4,
                    calib_images: int = 512, fit_classifier: bool = True,
                    label_smoothing: float = 0.1, fit_iters: int = 100, seed: int = 0,
-                   log=print) -> dict:
+                   any_size: bool = False, log=print) -> dict:
     """Fill ``model`` (a `ReidNet` of ``model_name`` built for ``labels``' classes, on the
     CPU) from the ONNX at ``path`` (module docstring). ``images`` (N, H, W, 3) uint8 at the
     model's input size and ``labels`` (N,) class indices are the training images; up to
     ``calib_images`` of them calibrate the BatchNorms and ``per_class`` per class set the
     classifier. Returns what was done (counts, the check's worst cosine).
+
+    ``any_size``: the ONNX may take another input size (`check_onnx`); the BatchNorms are
+    then calibrated on the images at the training size, and the check against onnxruntime
+    runs on the calibration images resized to the ONNX's size (in eval mode the rebuilt
+    network is the exported one at any size).
 
     Raises TrainError: not an ONNX of ``model_name`` at ``height`` × ``width``, a network
     whose layers do not match, or embeddings that do not match onnxruntime's."""
@@ -155,7 +169,8 @@ def init_from_onnx(model, path: str | Path, images: np.ndarray, labels: np.ndarr
     from dashtraj.reid.embed import ReidEmbedder
 
     path = Path(path)
-    convs, named, _meta = check_onnx(path, model_name, height, width)
+    convs, named, meta = check_onnx(path, model_name, height, width, any_size=any_size)
+    onnx_size = onnx_input_size(meta, height, width)
     pairs = _conv_bn_pairs(model, height, width)
     if len(pairs) != len(convs):
         raise TrainError(f"--init: {path} has {len(convs)} convolutions, a {model_name} "
@@ -214,10 +229,15 @@ def init_from_onnx(model, path: str | Path, images: np.ndarray, labels: np.ndarr
             bn.running_var.copy_(var)
             bn.weight.copy_((var + bn.eps).sqrt())
             bn.bias.copy_(mu + b)
-    # 3. the check against onnxruntime
-    ours = embed_array(model, x_cal, False)
+    # 3. the check against onnxruntime, at the ONNX's own input size
+    x_chk = x_cal
+    if onnx_size != (height, width):
+        from dashtraj.reid.preprocess import resize_uint8
+
+        x_chk = np.stack([resize_uint8(a, *onnx_size) for a in x_cal])
+    ours = embed_array(model, x_chk, False)
     ours /= np.linalg.norm(ours, axis=1, keepdims=True) + 1e-12
-    ref = ReidEmbedder(path, threads=1).embed(list(x_cal))
+    ref = ReidEmbedder(path, threads=1).embed(list(x_chk))
     cos = float(np.min(np.sum(ours * ref, axis=1)))
     if cos < 0.999:
         raise TrainError(f"--init: {path}: the rebuilt {model_name} embeds the calibration "
@@ -244,6 +264,7 @@ def init_from_onnx(model, path: str | Path, images: np.ndarray, labels: np.ndarr
     info = {"onnx": str(path), "convolutions": len(convs),
             "folded_batchnorms": len(stats), "tensors_copied": copied,
             "calibration_images": len(x_cal), "classifier_images": len(pick),
+            "onnx_size": list(onnx_size), "size": [height, width],
             "worst_cosine": round(cos, 6)}
     if fit_classifier:
         before, after, acc = _fit_classifier(model, v_all, labels, label_smoothing,
