@@ -62,13 +62,13 @@ reid-data: $(STAMP)
 		--town town10 --identities 650-700 --observers 6 --agents 30 --duration 90 --seed $$s \
 		-q -o $(REID_DATA)_moving$$s || exit 1; done
 	test -d $(REID_DATA)/image_query_moving || $(VENV)/bin/dashtraj reid moving-queries \
-		$(REID_DATA) $(REID_DATA)_moving1 $(REID_DATA)_moving2
+		$(REID_DATA) $(REID_DATA)_moving1 $(REID_DATA)_moving2 --workers 2
 	for r in $(foreach s,$(MTRAIN_SEEDS),town01_s$(s) town10_s$(s)) \
 		$(foreach s,$(MTRAIN6_SEEDS),town01_s$(s)); do t=$${r%_s*}; s=$${r#*_s}; \
 		test -f $(REID_DATA)_mtrain/$$r/meta.json || $(VENV)/bin/dashtraj simulate \
 		--town $$t --identities 0-650 --observers 6 --agents 30 --duration 90 --seed $$s \
 		-q -o $(REID_DATA)_mtrain/$$r || exit 1; done
-	test -d $(REID_DATA)/image_train_moving || $(VENV)/bin/dashtraj reid moving-train \
+	test -d $(REID_DATA)/image_train_moving || $(VENV)/bin/dashtraj reid moving-train --workers 2 \
 		$(REID_DATA) $(foreach s,$(MTRAIN_SEEDS),$(REID_DATA)_mtrain/town01_s$(s)) \
 		$(foreach s,$(MTRAIN_SEEDS),$(REID_DATA)_mtrain/town10_s$(s))
 
@@ -88,7 +88,7 @@ reid-train: train-env
 		--threads $(REID_THREADS) --init $(REID_RUN)_stage4/last.pt --epochs 3 --lr 1.5e-4 \
 		--extra-train image_train_moving $$(test -f $(REID_RUN)_stage5/last.pt && echo --resume)
 	grep -q '_mtrain/town01_s$(lastword $(MTRAIN6_SEEDS))"' $(REID_DATA)/reid.json \
-		|| $(VENV)/bin/dashtraj reid moving-train $(REID_DATA) --append \
+		|| $(VENV)/bin/dashtraj reid moving-train $(REID_DATA) --append --workers 2 \
 		$(foreach s,$(MTRAIN6_SEEDS),$(REID_DATA)_mtrain/town01_s$(s))
 	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_stage6 --recipe cpu --seed 0 \
 		--threads $(REID_THREADS) --init $(REID_RUN)_stage5/last.pt --epochs 2 --lr 1.5e-4 \
@@ -105,7 +105,7 @@ REID_JOIN_RUN ?= runs/reid/efficientnet_lite0_join
 reid-join: train-env
 	test -d $(REID_DATA)/image_train_moving || $(MAKE) reid-data
 	grep -q '_mtrain/town01_s$(lastword $(MTRAIN6_SEEDS))"' $(REID_DATA)/reid.json \
-		|| $(VENV)/bin/dashtraj reid moving-train $(REID_DATA) --append \
+		|| $(VENV)/bin/dashtraj reid moving-train $(REID_DATA) --append --workers 2 \
 		$(foreach s,$(MTRAIN6_SEEDS),$(REID_DATA)_mtrain/town01_s$(s))
 	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_JOIN_RUN) --recipe cpu --seed 0 \
 		--threads 1 --init src/dashtraj/data/reid/efficientnet_lite0_cpu.onnx --epochs 2 \

@@ -40,6 +40,7 @@ def test_moving_train_command(gl_available, tmp_path, capsys, monkeypatch):
     cfg = ReidConfig(n_ids=40, n_test_ids=30, n_cameras=2, size=32, fov_deg=None)
     build_reid_dataset(cfg, tmp_path / "set")
     shutil.copytree(tmp_path / "set", tmp_path / "set2")
+    shutil.copytree(tmp_path / "set", tmp_path / "set3")
     recs = []
     for seed in (5, 2):  # seed 5's observers see only test ids, seed 2's training ids
         run = RunConfig(map="town10", seed=seed, duration_s=8.0, n_observers=2, n_agents=8,
@@ -78,6 +79,15 @@ def test_moving_train_command(gl_available, tmp_path, capsys, monkeypatch):
     info2 = json.loads((tmp_path / "set2" / "reid.json").read_text())
     assert info2["train_moving"] == info["train_moving"]
     assert info2["counts"]["train_moving"] == counts
+    # two recordings rendered at once in two processes: the same bytes
+    three = tmp_path / "set3"
+    assert main(["reid", "moving-train", str(three), *recs, "--every", "0.5", "--json",
+                 "--workers", "2"]) == 0
+    assert json.loads(capsys.readouterr().out) == counts
+    assert sorted(p.name for p in (three / "image_train_moving").iterdir()) == files
+    assert all((one / n).read_bytes() == (three / "image_train_moving" / n).read_bytes()
+               for n in files)
+    assert (three / "reid.json").read_bytes() == (tmp_path / "set" / "reid.json").read_bytes()
     assert main([*step, "--append", recs[1]]) == 2  # a recording already in the set
     assert "already in" in capsys.readouterr().err
     assert main([*step, "--append", "--every", "1", recs[1]]) == 2

@@ -342,7 +342,7 @@ def run_drive_set(args: argparse.Namespace) -> int:
 
 def _moving_arguments(p: argparse.ArgumentParser, split: str) -> None:
     """The arguments of ``moving-queries`` (split "test") and ``moving-train`` ("train")."""
-    from dashtraj.cli._args import positive_float
+    from dashtraj.cli._args import positive_float, positive_int
 
     p.add_argument("data", metavar="DATA", help="a reid-dataset output folder (with reid.json)")
     p.add_argument("recordings", nargs="+", metavar="RUN", help="recording directories")
@@ -355,6 +355,9 @@ def _moving_arguments(p: argparse.ArgumentParser, split: str) -> None:
                        help="add the recordings' crops to the existing image_train_moving "
                             "(cameras and recording numbers continue; the result equals one "
                             "run over the earlier recordings and these)")
+    p.add_argument("--workers", type=positive_int, default=1, metavar="N",
+                   help="recordings rendered at once, each in its own process (default 1; "
+                        "the same crops)")
     p.add_argument("--json", action="store_true", help="print the counts as JSON")
     p.set_defaults(func=run_moving, split=split, append=False)
 
@@ -425,7 +428,7 @@ def run_moving(args: argparse.Namespace) -> int:
                  "first_recording": len(prev["recordings"])}
     with tempfile.TemporaryDirectory(dir=root, prefix=".moving-") as tmp:
         staged = Path(tmp)
-        res = moving_crops(recs, tmp, cfg, split, **first)
+        res = moving_crops(recs, tmp, cfg, split, workers=args.workers, **first)
         if prev is not None:  # the earlier crops join the new ones in the staged folder
             res = _merge_moving(dest, staged, split, info, res)
         info["counts"][stem] = res["counts"]

@@ -506,7 +506,8 @@ moving queries' follow them): well apart from both, within VeRi's three digits."
 
 
 def moving_crops(recordings, out_dir, config: ReidConfig, split: str = "test", *,
-                 first_cam: int | None = None, first_recording: int = 0) -> dict:
+                 first_cam: int | None = None, first_recording: int = 0,
+                 workers: int = 1) -> dict:
     """Crops of one split's identities seen by the recordings' moving observers.
 
     ``split`` "test": ``image_query_moving/`` and ``name_query_moving.txt`` (see
@@ -520,9 +521,12 @@ def moving_crops(recordings, out_dir, config: ReidConfig, split: str = "test", *
     moving-train --append``): cameras are numbered from ``first_cam`` and the recordings
     indexed (the last field of a name) from ``first_recording``, so that adding
     recordings later names every crop as one run over all of them would.
+
+    ``workers`` > 1 renders that many recordings at once, each in its own process (started
+    with ``spawn``, each with its own GL context); the crops and names are the same bytes
+    as with one.
     """
     from dashtraj.datasets.frames import observer_ids
-    from dashtraj.world import catalog
 
     if split not in MOVING_STEMS:
         raise DatasetError(f"moving crops: split {split!r} is not 'test' or 'train'")
@@ -531,7 +535,6 @@ def moving_crops(recordings, out_dir, config: ReidConfig, split: str = "test", *
         config.n_cameras + 1 if split == "test" else MOVING_TRAIN_FIRST_CAM)
     out = Path(out_dir) / f"image_{stem}"
     out.mkdir(parents=True, exist_ok=True)
-    pool = catalog.identities()
     cams, cam_of = [], {}
     for ri, rec in enumerate(recordings):
         for o in observer_ids(rec):
@@ -540,33 +543,60 @@ def moving_crops(recordings, out_dir, config: ReidConfig, split: str = "test", *
     if cams and cams[-1]["cam"] > 999:
         raise DatasetError(f"{len(cams)} moving observers from camera {first} "
                            "exceed the 999 camera ids of the VeRi names")
+    jobs = [(rec if workers <= 1 else str(rec.path), str(out), config, split,
+             {o: c for (r, o), c in cam_of.items() if r == ri}, first_recording + ri)
+            for ri, rec in enumerate(recordings)]
     names, skipped = [], 0
-    for ri, rec in enumerate(recordings):
-        rows = {int(v["vehicle_id"]): v for v in rec.vehicles}
-        for rf in recording_frames(rec, config.every_s, msaa=config.msaa):
-            for lab, vehicle_id, iid in zip(rf.frame_data.labels, rf.vehicle_ids,
-                                            rf.identity_ids, strict=True):
-                b = lab.visible_box
-                if (b is None or lab.visible_fraction < config.min_visible_fraction
-                        or b[3] - b[1] < config.min_box_height_px):
-                    continue
-                row = rows[vehicle_id]
-                same_look = (0 <= iid < len(pool) and pool[iid].model.blueprint_id
-                             == row["blueprint_id"] and pool[iid].color_name == row["color"])
-                vid = iid + 1
-                if not same_look or iid >= config.n_ids or split_of(vid, config) != split:
-                    skipped += 1
-                    continue
-                name = veri_name(vid, cam_of[(ri, rf.observer_id)], rf.frame,
-                                 first_recording + ri)
-                crop_vehicle(rf.frame_data.rgb, b, config.margin, config.size).save(
-                    out / name, format="JPEG", quality=JPEG_QUALITY)
-                names.append(name)
+    if workers <= 1 or len(jobs) <= 1:
+        results = [_moving_recording(*job) for job in jobs]
+    else:
+        import multiprocessing as mp
+
+        with mp.get_context("spawn").Pool(min(workers, len(jobs))) as p:
+            results = p.starmap(_moving_recording, jobs, chunksize=1)
+    for ns, sk in results:
+        names.extend(ns)
+        skipped += sk
     names.sort()
     (Path(out_dir) / f"name_{stem}.txt").write_text("".join(f"{n}\n" for n in names),
                                                   encoding="utf-8")
     return {"counts": {"images": len(names), "ids": len({n[:4] for n in names}),
                        f"skipped_not_{split}": skipped}, "cameras": cams}
+
+
+def _moving_recording(rec, out: str, config: ReidConfig, split: str, cam_of: dict,
+                      rec_index: int) -> tuple[list[str], int]:
+    """`moving_crops` of one recording (an opened ``Recording`` or its path, in a worker):
+    writes its crops into ``out`` and returns their names and the count of crops skipped
+    as the other split's. ``cam_of``: observer id → camera number."""
+    from dashtraj.world import catalog
+
+    if isinstance(rec, str):
+        from dashtraj.world.recording import Recording
+
+        rec = Recording.open(rec)
+    pool = catalog.identities()
+    rows = {int(v["vehicle_id"]): v for v in rec.vehicles}
+    names, skipped = [], 0
+    for rf in recording_frames(rec, config.every_s, msaa=config.msaa):
+        for lab, vehicle_id, iid in zip(rf.frame_data.labels, rf.vehicle_ids,
+                                        rf.identity_ids, strict=True):
+            b = lab.visible_box
+            if (b is None or lab.visible_fraction < config.min_visible_fraction
+                    or b[3] - b[1] < config.min_box_height_px):
+                continue
+            row = rows[vehicle_id]
+            same_look = (0 <= iid < len(pool) and pool[iid].model.blueprint_id
+                         == row["blueprint_id"] and pool[iid].color_name == row["color"])
+            vid = iid + 1
+            if not same_look or iid >= config.n_ids or split_of(vid, config) != split:
+                skipped += 1
+                continue
+            name = veri_name(vid, cam_of[rf.observer_id], rf.frame, rec_index)
+            crop_vehicle(rf.frame_data.rgb, b, config.margin, config.size).save(
+                Path(out) / name, format="JPEG", quality=JPEG_QUALITY)
+            names.append(name)
+    return names, skipped
 
 
 @dataclass(frozen=True)
