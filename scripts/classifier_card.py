@@ -43,18 +43,18 @@ def main(argv=None) -> int:
     ds = json.loads((args.dataset / "dataset.json").read_text())
     ev, ev0 = json.loads(args.eval.read_text()), json.loads(args.eval_without.read_text())
     more = [json.loads(p.read_text()) for p in args.eval_more]
+    more_steps = [f"`--refine-steps {e.get('refine_steps', 1)}`" for e in more]
     last = log[-1]
     rows = ["| | mAP50 | mAP50-95 | mAP50 >= 24 px | mAP50-95 >= 24 px |", "|---|---|---|---|---|"]
     steps = ev.get("refine_steps", 1)
     named = [("detector alone", ev0),
              (f"**with the box classifier** ({steps} refining step{'s' * (steps != 1)})", ev)]
-    named += [(f"with the box classifier, `--refine-steps {e.get('refine_steps', 1)}`", e)
-              for e in more]
+    named += [(f"with the box classifier, {st}", e) for st, e in zip(more_steps, more, strict=True)]
     for name, e in named:
         rows.append(f"| {name} | {e['map50']:.3f} | {e['map50_95']:.3f} | {e['map50_24px']:.3f} "
                     f"| {e['map50_95_24px']:.3f} |")
     per = ["| class | AP50 >= 24 px, detector alone | with the box classifier |"
-           + "".join(f" `--refine-steps {e.get('refine_steps', 1)}` |" for e in more),
+           + "".join(f" {st} |" for st in more_steps),
            "|---|---|---|" + "---|" * len(more)]
     for c, v in ev["per_class_24px"].items():
         v0 = ev0["per_class_24px"].get(c, {}).get("ap50")

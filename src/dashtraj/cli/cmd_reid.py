@@ -169,7 +169,9 @@ def _size_overrides(size: str | None) -> dict:
     """``--size WxH`` as recipe fields (none without it)."""
     if size is None:
         return {}
-    w, h = (int(v) for v in size.lower().split("x"))
+    from dashtraj.datasets.frames import parse_size
+
+    w, h = parse_size(size)
     return {"height": h, "width": w}
 
 

@@ -543,17 +543,18 @@ def moving_crops(recordings, out_dir, config: ReidConfig, split: str = "test", *
     if cams and cams[-1]["cam"] > 999:
         raise DatasetError(f"{len(cams)} moving observers from camera {first} "
                            "exceed the 999 camera ids of the VeRi names")
-    jobs = [(rec if workers <= 1 else str(rec.path), str(out), config, split,
+    parallel = workers > 1 and len(recordings) > 1
+    jobs = [(str(rec.path) if parallel else rec, str(out), config, split,
              {o: c for (r, o), c in cam_of.items() if r == ri}, first_recording + ri)
             for ri, rec in enumerate(recordings)]
     names, skipped = [], 0
-    if workers <= 1 or len(jobs) <= 1:
-        results = [_moving_recording(*job) for job in jobs]
-    else:
+    if parallel:  # a worker opens its recording from the path
         import multiprocessing as mp
 
         with mp.get_context("spawn").Pool(min(workers, len(jobs))) as p:
             results = p.starmap(_moving_recording, jobs, chunksize=1)
+    else:
+        results = [_moving_recording(*job) for job in jobs]
     for ns, sk in results:
         names.extend(ns)
         skipped += sk
