@@ -43,10 +43,13 @@ train-env: $(STAMP)
 # 4: 3 more each from the previous stage's last.pt on new cosines from lr 2e-4 and 1.5e-4, then
 # stage 5: 3 more from stage 4's last.pt from lr 1.5e-4 with the training identities' dashcam
 # crops added (16 recordings of identities 0-650, town01 and town10 seeds 101-108; 'reid
-# moving-train'), then stage 6 (the shipped weights): 2 more from stage 5's last.pt from lr
-# 1.5e-4 after the crops of 8 more recordings (town01 seeds 109-116) are appended to those
-# ('reid moving-train --append', once stage 5 is done: stage 5 trains on the first 16 only);
-# each stage resumes from its own last.pt; exported with float16 weights.
+# moving-train'), then stage 6: 2 more from stage 5's last.pt from lr 1.5e-4 after the crops
+# of 8 more recordings (town01 seeds 109-116) are appended to those ('reid moving-train
+# --append', once stage 5 is done: stage 5 trains on the first 16 only), exported with float16
+# weights; then stage 7 (the shipped weights): every layer trained (the gpu recipe's settings
+# on the CPU: nothing frozen, batches of 32 ids x 4) for 3 epochs from lr 1.5e-4, from stage
+# 6's ONNX, on the same images and crops; each stage resumes from its own last.pt; exported
+# with float16 weights.
 # One torch thread by default: on these 2 shared cores two threads ran 5x slower beside other
 # jobs (barrier waits); on two otherwise idle cores REID_THREADS=2 is faster (stage 5's last two
 # epochs and stage 6: 22-27 images/s against 15 on one thread).
@@ -95,20 +98,30 @@ reid-train: train-env
 		--extra-train image_train_moving $$(test -f $(REID_RUN)_stage6/last.pt && echo --resume)
 	$(VENV)/bin/dashtraj reid export $(REID_RUN)_stage6/best.pt \
 		-o $(REID_RUN)_stage6/efficientnet_lite0_cpu.onnx --fp16-weights --overwrite
+	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_stage7 --recipe gpu --device cpu \
+		--seed 0 --threads $(REID_THREADS) --init $(REID_RUN)_stage6/efficientnet_lite0_cpu.onnx \
+		--epochs 3 --lr 1.5e-4 --extra-train image_train_moving \
+		$$(test -f $(REID_RUN)_stage7/last.pt && echo --resume)
+	$(VENV)/bin/dashtraj reid export $(REID_RUN)_stage7/best.pt \
+		-o $(REID_RUN)_stage7/efficientnet_lite0_cpu.onnx --fp16-weights --overwrite
 
-# The track-join model (efficientnet_lite0_join.onnx, `tracker eval`'s offline re-linking): the
-# shipped model (its ONNX, rebuilt in torch by --init) trained 2 more epochs from lr 1.5e-4 on
-# the same images and dashcam crops as stage 6, three images in ten shrunk to 12-48 px high and
-# scaled back up (--lowres 0.3: the small boxes that a camera's tracks are joined by); one
-# thread, about 25 min to rebuild and 48 min to train here; exported with float16 weights.
+# The track-join model (efficientnet_lite0_join.onnx, `tracker eval`'s offline re-linking):
+# stage 6's model (its ONNX, rebuilt in torch by --init; the package's ReID model until stage 7
+# replaced it: `make reid-train` writes it) trained 2 more epochs from lr 1.5e-4 on the same
+# images and dashcam crops as stage 6, three images in ten shrunk to 12-48 px high and scaled
+# back up (--lowres 0.3: the small boxes that a camera's tracks are joined by); one thread,
+# about 25 min to rebuild and 48 min to train here; exported with float16 weights.
 REID_JOIN_RUN ?= runs/reid/efficientnet_lite0_join
+REID_JOIN_INIT ?= $(REID_RUN)_stage6/efficientnet_lite0_cpu.onnx
 reid-join: train-env
+	@test -f $(REID_JOIN_INIT) || { echo "reid-join: $(REID_JOIN_INIT) (stage 6's ONNX) is \
+	missing: run make reid-train first, or give REID_JOIN_INIT=M.onnx" >&2; exit 2; }
 	test -d $(REID_DATA)/image_train_moving || $(MAKE) reid-data
 	grep -q '_mtrain/town01_s$(lastword $(MTRAIN6_SEEDS))"' $(REID_DATA)/reid.json \
 		|| $(VENV)/bin/dashtraj reid moving-train $(REID_DATA) --append --workers 2 \
 		$(foreach s,$(MTRAIN6_SEEDS),$(REID_DATA)_mtrain/town01_s$(s))
 	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_JOIN_RUN) --recipe cpu --seed 0 \
-		--threads 1 --init src/dashtraj/data/reid/efficientnet_lite0_cpu.onnx --epochs 2 \
+		--threads 1 --init $(REID_JOIN_INIT) --epochs 2 \
 		--lr 1.5e-4 --extra-train image_train_moving --lowres 0.3 \
 		$$(test -f $(REID_JOIN_RUN)/last.pt && echo --resume)
 	$(VENV)/bin/dashtraj reid export $(REID_JOIN_RUN)/best.pt \
