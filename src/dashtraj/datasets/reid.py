@@ -535,18 +535,18 @@ def moving_crops(recordings, out_dir, config: ReidConfig, split: str = "test", *
         config.n_cameras + 1 if split == "test" else MOVING_TRAIN_FIRST_CAM)
     out = Path(out_dir) / f"image_{stem}"
     out.mkdir(parents=True, exist_ok=True)
-    cams, cam_of = [], {}
-    for ri, rec in enumerate(recordings):
+    cams, cam_of = [], []  # cam_of[i]: recording i's observer id -> camera number
+    for rec in recordings:
+        cam_of.append({})
         for o in observer_ids(rec):
-            cam_of[(ri, o)] = first + len(cams)
-            cams.append({"cam": cam_of[(ri, o)], "recording": str(rec.path), "observer_id": o})
+            cam_of[-1][o] = first + len(cams)
+            cams.append({"cam": cam_of[-1][o], "recording": str(rec.path), "observer_id": o})
     if cams and cams[-1]["cam"] > 999:
         raise DatasetError(f"{len(cams)} moving observers from camera {first} "
                            "exceed the 999 camera ids of the VeRi names")
     parallel = workers > 1 and len(recordings) > 1
-    jobs = [(str(rec.path) if parallel else rec, str(out), config, split,
-             {o: c for (r, o), c in cam_of.items() if r == ri}, first_recording + ri)
-            for ri, rec in enumerate(recordings)]
+    jobs = [(str(rec.path) if parallel else rec, str(out), config, split, cam_of[ri],
+             first_recording + ri) for ri, rec in enumerate(recordings)]
     names, skipped = [], 0
     if parallel:  # a worker opens its recording from the path
         import multiprocessing as mp
