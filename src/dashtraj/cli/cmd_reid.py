@@ -1,5 +1,5 @@
-"""`dashtraj reid train|eval|export|moving-queries|moving-train|drive-set|embed|query`: vehicle
-re-identification (``embed`` and ``query`` on a sightings database run in
+"""`dashtraj reid train|eval|export|average|moving-queries|moving-train|drive-set|embed|query`:
+vehicle re-identification (``embed`` and ``query`` on a sightings database run in
 `dashtraj.cli.reid_db`)."""
 
 from __future__ import annotations
@@ -151,6 +151,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     x.add_argument("--json", action="store_true", help="print the summary as JSON")
     x.set_defaults(func=run_export)
 
+    a = sub.add_parser(
+        "average", help="average the weights of checkpoints of one run (stochastic weight "
+                        "averaging; needs the .[train] extra)",
+        description="Write the mean of two or more checkpoints of one network (a run's "
+                    "best.pt or last.pt; e.g. the ends of successive training stages, each "
+                    "continued from the last) as a checkpoint that 'reid export' takes: "
+                    "every weight and BatchNorm statistic averaged (stochastic weight "
+                    "averaging, Izmailov et al. 2018). The averaged network has the same "
+                    "size and speed.")
+    a.add_argument("checkpoints", nargs="+", metavar="CKPT", help="best.pt or last.pt files")
+    a.add_argument("-o", "--output", required=True, metavar="OUT.pt", help="checkpoint file")
+    a.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    a.add_argument("--json", action="store_true", help="print the summary as JSON")
+    a.set_defaults(func=run_average)
+
     from dashtraj.cli.reid_db import register_db_commands
 
     register_db_commands(sub)
@@ -277,6 +292,24 @@ def run_export(args: argparse.Namespace) -> int:
     else:
         print(f"{args.output}: {meta['model']} {meta['input_height']}x{meta['input_width']}, "
               f"{len(data) / 1e6:.2f} MB, sha256 {info['sha256'][:16]}...")
+    return 0
+
+
+def run_average(args: argparse.Namespace) -> int:
+    """Average checkpoints into one; prints what it averaged; returns 0."""
+    _need_torch()
+    from dashtraj.outputs import atomic_output
+    from dashtraj.train.reid_average import write_average
+
+    with atomic_output(args.output, overwrite=args.overwrite, kind="file") as tmp:
+        ck = write_average(args.checkpoints, tmp)
+    info = {"output": args.output, "averaged_from": ck["averaged_from"],
+            "model": ck["recipe"]["model"]}
+    if args.json:
+        print(json.dumps(info))
+    else:
+        print(f"{args.output}: the mean of {len(ck['averaged_from'])} {info['model']} "
+              "checkpoints (" + ", ".join(a["path"] for a in ck["averaged_from"]) + ")")
     return 0
 
 
