@@ -71,16 +71,16 @@ def test_refuses_what_cannot_be_averaged(tmp_path):
     with pytest.raises(AverageError, match="no such checkpoint"):
         average_checkpoints([a, tmp_path / "missing.pt"])
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
-    with pytest.raises(AverageError, match="junk.pt: not a torch checkpoint"):
+    with pytest.raises(AverageError, match=r"junk\.pt: not a torch checkpoint"):
         average_checkpoints([a, tmp_path / "junk.pt"])
     torch.save({"weights": 1}, tmp_path / "other.pt")
-    with pytest.raises(AverageError, match="other.pt: not a dashtraj ReID checkpoint"):
+    with pytest.raises(AverageError, match=r"other\.pt: not a dashtraj ReID checkpoint"):
         average_checkpoints([a, tmp_path / "other.pt"])
     b = _checkpoint(tmp_path / "b.pt", seed=1, n_classes=6)
-    with pytest.raises(AverageError, match="b.pt: another network"):
+    with pytest.raises(AverageError, match=r"b\.pt: another network"):
         average_checkpoints([a, b])
     c = _checkpoint(tmp_path / "c.pt", seed=1, height=96)
-    with pytest.raises(AverageError, match="c.pt: another network"):
+    with pytest.raises(AverageError, match=r"c\.pt: another network"):
         average_checkpoints([a, c])
 
 
