@@ -46,10 +46,12 @@ train-env: $(STAMP)
 # moving-train'), then stage 6: 2 more from stage 5's last.pt from lr 1.5e-4 after the crops
 # of 8 more recordings (town01 seeds 109-116) are appended to those ('reid moving-train
 # --append', once stage 5 is done: stage 5 trains on the first 16 only), exported with float16
-# weights; then stage 7 (the shipped weights): every layer trained (the gpu recipe's settings
-# on the CPU: nothing frozen, batches of 32 ids x 4) for 3 epochs from lr 1.5e-4, from stage
-# 6's ONNX, on the same images and crops; each stage resumes from its own last.pt; exported
-# with float16 weights.
+# weights; then stage 7: every layer trained (the gpu recipe's settings on the CPU: nothing
+# frozen, batches of 32 ids x 4) for 3 epochs from lr 1.5e-4, from stage 6's ONNX, on the same
+# images and crops; then two more cycles of it from the last one's last.pt, 3 and 4 epochs from
+# lr 1e-4 (stage8a, stage8b); stage 8 (the shipped weights) is the mean of the three cycles'
+# ends ('reid average': stochastic weight averaging); each stage resumes from its own last.pt;
+# exported with float16 weights.
 # One torch thread by default: on these 2 shared cores two threads ran 5x slower beside other
 # jobs (barrier waits); on two otherwise idle cores REID_THREADS=2 is faster (stage 5's last two
 # epochs and stage 6: 22-27 images/s against 15 on one thread).
@@ -104,6 +106,18 @@ reid-train: train-env
 		$$(test -f $(REID_RUN)_stage7/last.pt && echo --resume)
 	$(VENV)/bin/dashtraj reid export $(REID_RUN)_stage7/best.pt \
 		-o $(REID_RUN)_stage7/efficientnet_lite0_cpu.onnx --fp16-weights --overwrite
+	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_stage8a --recipe gpu --device cpu \
+		--seed 0 --threads $(REID_THREADS) --init $(REID_RUN)_stage7/last.pt \
+		--epochs 3 --lr 1e-4 --extra-train image_train_moving \
+		$$(test -f $(REID_RUN)_stage8a/last.pt && echo --resume)
+	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_stage8b --recipe gpu --device cpu \
+		--seed 0 --threads $(REID_THREADS) --init $(REID_RUN)_stage8a/last.pt \
+		--epochs 4 --lr 1e-4 --extra-train image_train_moving \
+		$$(test -f $(REID_RUN)_stage8b/last.pt && echo --resume)
+	$(VENV)/bin/dashtraj reid average $(REID_RUN)_stage7/last.pt $(REID_RUN)_stage8a/last.pt \
+		$(REID_RUN)_stage8b/last.pt -o $(REID_RUN)_stage8/average.pt --overwrite
+	$(VENV)/bin/dashtraj reid export $(REID_RUN)_stage8/average.pt \
+		-o $(REID_RUN)_stage8/efficientnet_lite0_cpu.onnx --fp16-weights --overwrite
 
 # The track-join model (efficientnet_lite0_join.onnx, `tracker eval`'s offline re-linking):
 # stage 6's model (its ONNX, rebuilt in torch by --init; the package's ReID model until stage 7
