@@ -20,22 +20,14 @@ checkpoint in a run's ``best.pt`` format (``model``, ``recipe``, ``num_classes``
 
 from __future__ import annotations
 
-import hashlib
 from pathlib import Path
 
+from dashtraj.digest import file_sha256
 from dashtraj.errors import DashtrajError
 
 
 class AverageError(DashtrajError):
     """Checkpoints that cannot be averaged; the message names the file."""
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def _load(path: Path) -> dict:
@@ -109,7 +101,7 @@ def average_checkpoints(paths) -> dict:
     return {"model": mean, "recipe": first["recipe"], "num_classes": first["num_classes"],
             "epoch": "average of epochs " + ", ".join(str(e) for e in epochs),
             "seed": first.get("seed"), "val": {},
-            "averaged_from": [{"path": str(p), "sha256": _sha256(p), "epoch": e}
+            "averaged_from": [{"path": str(p), "sha256": file_sha256(p), "epoch": e}
                               for p, e in zip(ps, epochs, strict=True)]}
 
 
