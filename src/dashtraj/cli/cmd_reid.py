@@ -13,6 +13,7 @@ import sys
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `reid` command and its sub-commands."""
     from dashtraj.cli._args import fraction, image_size, positive_float, positive_int, seed
+    from dashtraj.outputs import add_output_args
 
     p = subparsers.add_parser(
         "reid",
@@ -134,8 +135,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ds.add_argument("drives", nargs="+", metavar="DRIVE", help="drive folders with truth.csv")
     ds.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
     _drive_set_arguments(ds)
-    from dashtraj.outputs import add_output_args
-
     add_output_args(ds)
     ds.set_defaults(func=run_drive_set)
 
@@ -145,7 +144,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "(dynamic batch, fixed input size, metadata with the recipe).")
     x.add_argument("checkpoint", metavar="CKPT", help="best.pt or last.pt of a run")
     x.add_argument("-o", "--output", required=True, metavar="M.onnx", help="ONNX file")
-    x.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    add_output_args(x)
     x.add_argument("--fp16-weights", action="store_true",
                    help="store the weights as float16 (half the file; float32 arithmetic)")
     x.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -162,7 +161,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "size and speed.")
     a.add_argument("checkpoints", nargs="+", metavar="CKPT", help="best.pt or last.pt files")
     a.add_argument("-o", "--output", required=True, metavar="OUT.pt", help="checkpoint file")
-    a.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    add_output_args(a)
     a.add_argument("--json", action="store_true", help="print the summary as JSON")
     a.set_defaults(func=run_average)
 
