@@ -77,6 +77,12 @@ reid-data: $(STAMP)
 		$(REID_DATA) $(foreach s,$(MTRAIN_SEEDS),$(REID_DATA)_mtrain/town01_s$(s)) \
 		$(foreach s,$(MTRAIN_SEEDS),$(REID_DATA)_mtrain/town10_s$(s))
 
+# One every-layer cycle (stages 7, 8a, 8b): the gpu recipe's settings on the CPU, with the
+# dashcam crops; $(call reid_every_layer,STAGE,INIT,EPOCHS,LR) trains RUN_STAGE from INIT (a
+# checkpoint or an ONNX), resuming its own last.pt when there is one.
+reid_every_layer = $(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_$(1) --recipe gpu \
+	--device cpu --seed 0 --threads $(REID_THREADS) --init $(2) --epochs $(3) --lr $(4) \
+	--extra-train image_train_moving $$(test -f $(REID_RUN)_$(1)/last.pt && echo --resume)
 reid-train: train-env
 	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN) --recipe cpu --seed 0 \
 		--threads $(REID_THREADS) $$(test -f $(REID_RUN)/last.pt && echo --resume)
@@ -100,20 +106,11 @@ reid-train: train-env
 		--extra-train image_train_moving $$(test -f $(REID_RUN)_stage6/last.pt && echo --resume)
 	$(VENV)/bin/dashtraj reid export $(REID_RUN)_stage6/best.pt \
 		-o $(REID_RUN)_stage6/efficientnet_lite0_cpu.onnx --fp16-weights --overwrite
-	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_stage7 --recipe gpu --device cpu \
-		--seed 0 --threads $(REID_THREADS) --init $(REID_RUN)_stage6/efficientnet_lite0_cpu.onnx \
-		--epochs 3 --lr 1.5e-4 --extra-train image_train_moving \
-		$$(test -f $(REID_RUN)_stage7/last.pt && echo --resume)
+	$(call reid_every_layer,stage7,$(REID_RUN)_stage6/efficientnet_lite0_cpu.onnx,3,1.5e-4)
 	$(VENV)/bin/dashtraj reid export $(REID_RUN)_stage7/best.pt \
 		-o $(REID_RUN)_stage7/efficientnet_lite0_cpu.onnx --fp16-weights --overwrite
-	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_stage8a --recipe gpu --device cpu \
-		--seed 0 --threads $(REID_THREADS) --init $(REID_RUN)_stage7/last.pt \
-		--epochs 3 --lr 1e-4 --extra-train image_train_moving \
-		$$(test -f $(REID_RUN)_stage8a/last.pt && echo --resume)
-	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_stage8b --recipe gpu --device cpu \
-		--seed 0 --threads $(REID_THREADS) --init $(REID_RUN)_stage8a/last.pt \
-		--epochs 4 --lr 1e-4 --extra-train image_train_moving \
-		$$(test -f $(REID_RUN)_stage8b/last.pt && echo --resume)
+	$(call reid_every_layer,stage8a,$(REID_RUN)_stage7/last.pt,3,1e-4)
+	$(call reid_every_layer,stage8b,$(REID_RUN)_stage8a/last.pt,4,1e-4)
 	$(VENV)/bin/dashtraj reid average $(REID_RUN)_stage7/last.pt $(REID_RUN)_stage8a/last.pt \
 		$(REID_RUN)_stage8b/last.pt -o $(REID_RUN)_stage8/average.pt --overwrite
 	$(VENV)/bin/dashtraj reid export $(REID_RUN)_stage8/average.pt \
