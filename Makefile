@@ -48,10 +48,10 @@ train-env: $(STAMP)
 # --append', once stage 5 is done: stage 5 trains on the first 16 only), exported with float16
 # weights; then stage 7: every layer trained (the gpu recipe's settings on the CPU: nothing
 # frozen, batches of 32 ids x 4) for 3 epochs from lr 1.5e-4, from stage 6's ONNX, on the same
-# images and crops; then two more cycles of it from the last one's last.pt, 3 and 4 epochs from
-# lr 1e-4 (stage8a, stage8b); stage 8 (the shipped weights) is the mean of the three cycles'
-# ends ('reid average': stochastic weight averaging); each stage resumes from its own last.pt;
-# exported with float16 weights.
+# images and crops; then three more cycles of it from the last one's last.pt, 3, 4 and 4 epochs
+# from lr 1e-4 (stage8a, stage8b, stage8c); stage 8 is the mean of the first three cycles' ends,
+# stage 9 (the shipped weights) the mean of all four ('reid average': stochastic weight
+# averaging); each stage resumes from its own last.pt; exported with float16 weights.
 # One torch thread by default: on these 2 shared cores two threads ran 5x slower beside other
 # jobs (barrier waits); on two otherwise idle cores REID_THREADS=2 is faster (stage 5's last two
 # epochs and stage 6: 22-27 images/s against 15 on one thread).
@@ -77,7 +77,7 @@ reid-data: $(STAMP)
 		$(REID_DATA) $(foreach s,$(MTRAIN_SEEDS),$(REID_DATA)_mtrain/town01_s$(s)) \
 		$(foreach s,$(MTRAIN_SEEDS),$(REID_DATA)_mtrain/town10_s$(s))
 
-# One every-layer cycle (stages 7, 8a, 8b): the gpu recipe's settings on the CPU, with the
+# One every-layer cycle (stages 7, 8a, 8b, 8c): the gpu recipe's settings on the CPU, with the
 # dashcam crops; $(call reid_every_layer,STAGE,INIT,EPOCHS,LR) trains RUN_STAGE from INIT (a
 # checkpoint or an ONNX), resuming its own last.pt when there is one.
 reid_every_layer = $(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_$(1) --recipe gpu \
@@ -115,6 +115,12 @@ reid-train: train-env
 		$(REID_RUN)_stage8b/last.pt -o $(REID_RUN)_stage8/average.pt --overwrite
 	$(VENV)/bin/dashtraj reid export $(REID_RUN)_stage8/average.pt \
 		-o $(REID_RUN)_stage8/efficientnet_lite0_cpu.onnx --fp16-weights --overwrite
+	$(call reid_every_layer,stage8c,$(REID_RUN)_stage8b/last.pt,4,1e-4)
+	$(VENV)/bin/dashtraj reid average $(REID_RUN)_stage7/last.pt $(REID_RUN)_stage8a/last.pt \
+		$(REID_RUN)_stage8b/last.pt $(REID_RUN)_stage8c/last.pt \
+		-o $(REID_RUN)_stage9/average.pt --overwrite
+	$(VENV)/bin/dashtraj reid export $(REID_RUN)_stage9/average.pt \
+		-o $(REID_RUN)_stage9/efficientnet_lite0_cpu.onnx --fp16-weights --overwrite
 
 # The track-join model (efficientnet_lite0_join.onnx, `tracker eval`'s offline re-linking):
 # stage 6's model (its ONNX, rebuilt in torch by --init; the package's ReID model until stage 7
