@@ -84,6 +84,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     e.add_argument("--query", default="image_query", choices=("image_query",
                                                               "image_query_moving"),
                    help="query folder (default image_query)")
+    e.add_argument("--max-truncation", type=fraction, default=None, metavar="F",
+                   help="only the queries whose vehicle lies at most F (0..1) outside the "
+                        "camera's frame, by the crop labels beside a moving-observer query "
+                        "set (labels_query_moving.csv); 0: whole vehicles, as the pipeline's "
+                        "ReID uses (default: every query)")
     e.add_argument("--threads", type=positive_int, default=2,
                    help="onnxruntime threads (default 2)")
     e.add_argument("--flip", action="store_true",
@@ -230,9 +235,16 @@ def run_eval(args: argparse.Namespace) -> int:
         evaluate_features,
         has_true_match,
         open_veri,
+        within_truncation,
     )
 
     q, g = open_veri(args.data, args.query)
+    n_all = len(q)
+    if args.max_truncation is not None:
+        q = within_truncation(args.data, q, args.query, args.max_truncation)
+        if not len(q):
+            raise VeriLayoutError(f"--max-truncation {args.max_truncation:g}: no query of "
+                                  f"{args.query} is within it")
     if not has_true_match(q, g).any():  # before embedding: nothing to rank
         raise VeriLayoutError(f"--data {args.data}: no query of {args.query} has an image of "
                               "its identity from another camera in the gallery (VeRi's rule "
@@ -250,7 +262,8 @@ def run_eval(args: argparse.Namespace) -> int:
     out = {"data": args.data, "query": args.query, "model": str(emb.path), "flip": emb.flip,
            "rerank": rerank, **{k: r[k] for k in keys}, "queries": r["queries"],
            "skipped_queries": r["skipped"], "gallery": len(g),
-           "query_ids": len(set(q.pids.tolist())),
+           "query_ids": len(set(q.pids.tolist())), "max_truncation": args.max_truncation,
+           "truncated_queries_left_out": n_all - len(q),
            "embed_crops_per_s": (len(q) + len(g)) / max(dt, 1e-9)}
     if rerank:
         out["without_rerank"] = {k: plain[k] for k in keys}
@@ -263,7 +276,9 @@ def run_eval(args: argparse.Namespace) -> int:
                 f"{100 * x['rank10']:.2f} %, mAP {100 * x['map']:.2f} %, mINP "
                 f"{100 * x['minp']:.2f} %")
 
-    print(f"{args.data} ({args.query}, {r['queries']} queries, {len(g)} gallery): "
+    cut = (f", {n_all - len(q)} more than {args.max_truncation:g} outside the frame left out"
+           if args.max_truncation is not None else "")
+    print(f"{args.data} ({args.query}, {r['queries']} queries{cut}, {len(g)} gallery): "
           + line(r) + (f" ({r['skipped']} queries without a match from another camera "
                        "skipped)" if r["skipped"] else ""))
     if rerank:
@@ -408,6 +423,7 @@ def run_moving(args: argparse.Namespace) -> int:
         MOVING_TRAIN_FIRST_CAM,
         ReidConfig,
         moving_crops,
+        moving_labels_path,
     )
     from dashtraj.outputs import replace_together
     from dashtraj.reid.evaluate import VeriLayoutError
@@ -477,9 +493,13 @@ def run_moving(args: argparse.Namespace) -> int:
                 "recordings": (prev["recordings"] if prev else []) + [str(r.path) for r in recs]}
         (staged / "reid.json").write_text(json.dumps(info, indent=1, sort_keys=True) + "\n",
                                           encoding="utf-8")
-        # the image folder, its name list and reid.json (which counts them) change as one
+        # the image folder, its name list, its labels and reid.json (which counts them)
+        # change as one
+        labels = moving_labels_path(staged, stem)
         replace_together([(staged / f"image_{stem}", dest),
                           (staged / f"name_{stem}.txt", root / f"name_{stem}.txt"),
+                          *([(labels, moving_labels_path(root, stem))]
+                            if labels.is_file() else []),
                           (staged / "reid.json", meta_path)])
     c = res["counts"]
     if args.json:
@@ -498,7 +518,12 @@ def _merge_moving(dest, tmp, split: str, info: dict, res: dict) -> dict:
     import os
     import shutil
 
-    from dashtraj.datasets.reid import MOVING_STEMS
+    from dashtraj.datasets.reid import (
+        MOVING_STEMS,
+        moving_labels_path,
+        read_moving_labels,
+        write_moving_labels,
+    )
     from dashtraj.reid.evaluate import VeriLayoutError
 
     stem = MOVING_STEMS[split]
@@ -515,6 +540,15 @@ def _merge_moving(dest, tmp, split: str, info: dict, res: dict) -> dict:
     new = (tmp / f"name_{stem}.txt").read_text(encoding="utf-8").split()
     names = sorted(old + new)
     (tmp / f"name_{stem}.txt").write_text("".join(f"{n}\n" for n in names), encoding="utf-8")
+    # the crops' labels: the earlier ones join the new; a set made before the labels
+    # (2026-12-07) has none, and the merged set then has none either (not half of them)
+    old_labels, new_labels = (moving_labels_path(dest.parent, stem),
+                              moving_labels_path(tmp, stem))
+    if old_labels.is_file():
+        merged = {**read_moving_labels(old_labels), **read_moving_labels(new_labels)}
+        write_moving_labels(new_labels, [(n, *v) for n, v in merged.items()])
+    else:
+        new_labels.unlink()
     key = f"skipped_not_{split}"
     skipped = info["counts"].get(stem, {}).get(key, 0) + res["counts"][key]
     return {**res, "counts": {"images": len(names), "ids": len({n[:4] for n in names}),

@@ -31,6 +31,7 @@ Layout (VeRi-776)::
 
     out/image_train/  out/image_query/  out/image_test/   [out/image_query_moving/]
     out/name_train.txt  out/name_query.txt  out/name_test.txt  [out/name_query_moving.txt]
+    [out/labels_query_moving.csv]   (each moving crop's truncation, visibility, box)
     out/reid.json   (config, id map, cameras, counts)
 
 File names ``<id:04d>_c<cam:03d>_<frame:08d>_<n>.jpg``:
@@ -482,7 +483,8 @@ def build_reid_dataset(config: ReidConfig, out_dir, workers: int = 1, recordings
 def moving_queries(recordings, out_dir, config: ReidConfig) -> dict:
     """Crops of the test identities seen by the recordings' moving observers.
 
-    Writes ``image_query_moving/`` and ``name_query_moving.txt``: every sampled frame
+    Writes ``image_query_moving/``, ``name_query_moving.txt`` and
+    ``labels_query_moving.csv`` (`MOVING_LABEL_FIELDS`): every sampled frame
     (``config.every_s``) where a vehicle whose catalog identity is a test id shows at
     least ``min_visible_fraction`` of itself and a visible box ≥ ``min_box_height_px``
     high. Vehicles of other identities (recordings draw identities from the whole
@@ -500,6 +502,55 @@ MOVING_STEMS = {"test": "query_moving", "train": "train_moving"}
 """Split of `moving_crops` → the stem of its folder and list (``image_<stem>/``,
 ``name_<stem>.txt``) and of its key in ``reid.json``'s counts."""
 
+MOVING_LABEL_FIELDS = ("name", "truncation", "visible_fraction", "box_w_px", "box_h_px")
+"""Columns of a moving-crop set's ``labels_<stem>.csv`` (`moving_crops`): the crop's file
+name, the renderer's exact labels of the vehicle in that frame (``truncation``: the share
+of its projected silhouette outside the image; ``visible_fraction``: its visible pixels
+over its silhouette's inside the image) and its visible box's width and height, pixels."""
+
+
+def moving_labels_path(root: str | Path, stem: str) -> Path:
+    """``labels_<stem>.csv`` of a VeRi-layout folder (``stem``: e.g. ``query_moving``)."""
+    return Path(root) / f"labels_{stem}.csv"
+
+
+def write_moving_labels(path: str | Path, rows) -> None:
+    """Write `MOVING_LABEL_FIELDS` rows (tuples, any order) sorted by name."""
+    import csv
+
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f, lineterminator="\n")
+        w.writerow(MOVING_LABEL_FIELDS)
+        w.writerows(sorted(rows))
+
+
+def read_moving_labels(path: str | Path) -> dict[str, tuple[float, ...]]:
+    """{name: (truncation, visible_fraction, box_w_px, box_h_px)} of a labels file.
+
+    Raises DatasetError: a header other than `MOVING_LABEL_FIELDS` or a bad row (named
+    by its line)."""
+    import csv
+
+    p = Path(path)
+    out: dict[str, tuple[float, ...]] = {}
+    with open(p, newline="", encoding="utf-8") as f:
+        rows = csv.reader(f)
+        head = next(rows, None)
+        if tuple(head or ()) != MOVING_LABEL_FIELDS:
+            raise DatasetError(f"{p}: line 1: the header must be {','.join(MOVING_LABEL_FIELDS)}")
+        for i, row in enumerate(rows, start=2):
+            try:
+                if len(row) != len(MOVING_LABEL_FIELDS):
+                    raise ValueError(f"{len(row)} fields")
+                vals = tuple(float(v) for v in row[1:])
+                if not all(math.isfinite(v) for v in vals):
+                    raise ValueError("not finite")
+            except ValueError as exc:
+                raise DatasetError(f"{p}: line {i}: bad row ({exc})") from None
+            out[row[0]] = vals
+    return out
+
+
 MOVING_TRAIN_FIRST_CAM = 500
 """First camera number of ``image_train_moving`` (the ring's are 1 … n_cameras, the
 moving queries' follow them): well apart from both, within VeRi's three digits."""
@@ -511,7 +562,8 @@ def moving_crops(recordings, out_dir, config: ReidConfig, split: str = "test", *
     """Crops of one split's identities seen by the recordings' moving observers.
 
     ``split`` "test": ``image_query_moving/`` and ``name_query_moving.txt`` (see
-    `moving_queries`); "train": ``image_train_moving/`` and ``name_train_moving.txt``,
+    `moving_queries`); "train": ``image_train_moving/`` and ``name_train_moving.txt``;
+    each with ``labels_<stem>.csv``, every crop's truncation, visible fraction and box,
     the training identities seen from dashcams (the view and the scenes of a run's
     crops), for ``dashtraj reid train --extra-train image_train_moving``; cameras are
     numbered from `MOVING_TRAIN_FIRST_CAM`. Crops of the other split's identities are
@@ -547,7 +599,7 @@ def moving_crops(recordings, out_dir, config: ReidConfig, split: str = "test", *
     parallel = workers > 1 and len(recordings) > 1
     jobs = [(str(rec.path) if parallel else rec, str(out), config, split, cam_of[ri],
              first_recording + ri) for ri, rec in enumerate(recordings)]
-    names, skipped = [], 0
+    names, labels, skipped = [], [], 0
     if parallel:  # a worker opens its recording from the path
         import multiprocessing as mp
 
@@ -555,21 +607,23 @@ def moving_crops(recordings, out_dir, config: ReidConfig, split: str = "test", *
             results = p.starmap(_moving_recording, jobs, chunksize=1)
     else:
         results = [_moving_recording(*job) for job in jobs]
-    for ns, sk in results:
-        names.extend(ns)
+    for ls, sk in results:
+        labels.extend(ls)
+        names.extend(row[0] for row in ls)
         skipped += sk
     names.sort()
     (Path(out_dir) / f"name_{stem}.txt").write_text("".join(f"{n}\n" for n in names),
                                                   encoding="utf-8")
+    write_moving_labels(moving_labels_path(out_dir, stem), labels)
     return {"counts": {"images": len(names), "ids": len({n[:4] for n in names}),
                        f"skipped_not_{split}": skipped}, "cameras": cams}
 
 
 def _moving_recording(rec, out: str, config: ReidConfig, split: str, cam_of: dict,
-                      rec_index: int) -> tuple[list[str], int]:
+                      rec_index: int) -> tuple[list[tuple], int]:
     """`moving_crops` of one recording (an opened ``Recording`` or its path, in a worker):
-    writes its crops into ``out`` and returns their names and the count of crops skipped
-    as the other split's. ``cam_of``: observer id → camera number."""
+    writes its crops into ``out`` and returns their `MOVING_LABEL_FIELDS` rows and the
+    count of crops skipped as the other split's. ``cam_of``: observer id → camera number."""
     from dashtraj.world import catalog
 
     if isinstance(rec, str):
@@ -596,7 +650,9 @@ def _moving_recording(rec, out: str, config: ReidConfig, split: str, cam_of: dic
             name = veri_name(vid, cam_of[rf.observer_id], rf.frame, rec_index)
             crop_vehicle(rf.frame_data.rgb, b, config.margin, config.size).save(
                 Path(out) / name, format="JPEG", quality=JPEG_QUALITY)
-            names.append(name)
+            names.append((name, round(float(lab.truncation), 4),
+                          round(float(lab.visible_fraction), 4), round(float(b[2] - b[0]), 1),
+                          round(float(b[3] - b[1]), 1)))
     return names, skipped
 
 

@@ -99,6 +99,37 @@ def open_veri(root: str | Path, query: str = "image_query") -> tuple[VeriSplit, 
     return read_split(r / query), read_split(r / "image_test")
 
 
+def within_truncation(root: str | Path, q: VeriSplit, query: str,
+                      max_truncation: float) -> VeriSplit:
+    """The images of ``q`` (the folder ``query`` of ``root``) whose vehicle lies at most
+    ``max_truncation`` outside the camera's frame (the share of its projected silhouette:
+    0 whole, 1 all outside), from the crop labels ``labels_<stem>.csv`` that `dashtraj
+    reid moving-queries` writes beside ``image_<stem>/``.
+
+    Raises VeriLayoutError: no labels file (ring folders, and moving sets made before
+    2026-12-07, have none), a bad one, or an image it does not list.
+    """
+    from dashtraj.datasets.frames import DatasetError
+    from dashtraj.datasets.reid import moving_labels_path, read_moving_labels
+
+    path = moving_labels_path(root, query.removeprefix("image_"))
+    if not path.is_file():
+        raise VeriLayoutError(f"--max-truncation: {path} is missing (the crop labels that "
+                              "'dashtraj reid moving-queries' writes since 2026-12-07; rerun "
+                              "it with --overwrite)")
+    try:
+        labels = read_moving_labels(path)
+    except DatasetError as exc:
+        raise VeriLayoutError(str(exc)) from None
+    keep = []
+    for i, p in enumerate(q.paths):
+        if p.name not in labels:
+            raise VeriLayoutError(f"{path}: no row for {p.name}")
+        if labels[p.name][0] <= max_truncation:
+            keep.append(i)
+    return VeriSplit(tuple(q.paths[i] for i in keep), q.pids[keep], q.camids[keep])
+
+
 def l2_normalize(x: np.ndarray) -> np.ndarray:
     """Rows scaled to unit length (zero rows stay zero), float32."""
     x = np.asarray(x, np.float32)
