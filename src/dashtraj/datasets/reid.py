@@ -632,7 +632,7 @@ def _moving_recording(rec, out: str, config: ReidConfig, split: str, cam_of: dic
         rec = Recording.open(rec)
     pool = catalog.identities()
     rows = {int(v["vehicle_id"]): v for v in rec.vehicles}
-    rows, skipped = [], 0
+    labels, skipped = [], 0
     for rf in recording_frames(rec, config.every_s, msaa=config.msaa):
         for lab, vehicle_id, iid in zip(rf.frame_data.labels, rf.vehicle_ids,
                                         rf.identity_ids, strict=True):
@@ -650,10 +650,10 @@ def _moving_recording(rec, out: str, config: ReidConfig, split: str, cam_of: dic
             name = veri_name(vid, cam_of[rf.observer_id], rf.frame, rec_index)
             crop_vehicle(rf.frame_data.rgb, b, config.margin, config.size).save(
                 Path(out) / name, format="JPEG", quality=JPEG_QUALITY)
-            rows.append((name, round(float(lab.truncation), 4),
-                         round(float(lab.visible_fraction), 4), round(float(b[2] - b[0]), 1),
-                         round(float(b[3] - b[1]), 1)))
-    return rows, skipped
+            labels.append((name, round(float(lab.truncation), 4),
+                           round(float(lab.visible_fraction), 4),
+                           round(float(b[2] - b[0]), 1), round(float(b[3] - b[1]), 1)))
+    return labels, skipped
 
 
 @dataclass(frozen=True)
