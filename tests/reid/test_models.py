@@ -153,6 +153,40 @@ def test_extra_train_folders_join_image_train(tmp_path):
               extra_train=("image_train",), log=None)
 
 
+def test_extra_train_keeps_the_crops_within_a_truncation(tmp_path):
+    import shutil
+
+    from dashtraj.datasets.reid import moving_labels_path, write_moving_labels
+    from dashtraj.reid.train import TrainError, train
+
+    _tiny_set(tmp_path / "data")
+    extra = tmp_path / "data" / "image_train_moving"
+    extra.mkdir()
+    for f in sorted((tmp_path / "data" / "image_train").iterdir())[::2]:
+        shutil.copyfile(f, extra / f.name.replace("_c0", "_c5", 1))
+    names = sorted(p.name for p in extra.iterdir())  # 10 crops, truncation 0, 0.1, ... 0.9
+    kw = {"seed": 3, "threads": 1, "extra_train": ("image_train_moving",), "log": None}
+    with pytest.raises(TrainError, match=r"extra-max-truncation: .*labels_train_moving\.csv is "
+                                         r"missing"):
+        train(tmp_path / "data", tmp_path / "a", _recipe(1), extra_max_truncation=0.5, **kw)
+    assert not (tmp_path / "a").exists()
+    write_moving_labels(moving_labels_path(tmp_path / "data", "train_moving"),
+                        [(n, i / 10, 1.0, 30.0, 20.0) for i, n in enumerate(names)])
+    s = train(tmp_path / "data", tmp_path / "a", _recipe(1), extra_max_truncation=0.45, **kw)
+    info = json.loads((tmp_path / "a" / "run.json").read_text())
+    assert info["train_images"] == 20 + 5 and info["extra_max_truncation"] == 0.45
+    assert s["finished"]
+    # the filtered crops are cached apart from the whole folder's
+    assert (tmp_path / "a" / "cache" / "train_moving_t0.45_32x32.u8").is_file()
+    assert not (tmp_path / "a" / "cache" / "train_moving_32x32.u8").exists()
+    with pytest.raises(TrainError, match=r"extra-max-truncation 0\.45, not 0\.3"):
+        train(tmp_path / "data", tmp_path / "a", _recipe(1), resume=True,
+              extra_max_truncation=0.3, **kw)
+    with pytest.raises(TrainError, match="no --extra-train folder"):
+        train(tmp_path / "data", tmp_path / "b", _recipe(1), seed=3, threads=1,
+              extra_max_truncation=0.5, log=None)
+
+
 def test_overwrite_keeps_the_old_run_when_an_input_is_bad(tmp_path):
     """--overwrite empties OUT only after every input checked out: a typo in --extra-train
     or --init fails with the previous run's files untouched."""

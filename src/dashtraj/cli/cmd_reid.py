@@ -64,6 +64,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     t.add_argument("--extra-train", action="append", default=[], metavar="FOLDER",
                    help="another folder of DATA whose images join image_train's (repeatable; "
                         "e.g. image_train_moving from 'dashtraj reid moving-train')")
+    t.add_argument("--extra-max-truncation", type=fraction, default=None, metavar="F",
+                   help="only the --extra-train images whose vehicle lies at most F (0..1) "
+                        "outside its camera's frame, by the crop labels beside each folder "
+                        "(labels_<stem>.csv; default: all)")
     t.add_argument("--overwrite", action="store_true", help="start afresh in a non-empty DIR")
     t.add_argument("--max-hours", type=positive_float, default=None,
                    help="stop (resumable) after this many hours of this call")
@@ -212,6 +216,7 @@ def run_train(args: argparse.Namespace) -> int:
               overwrite=args.overwrite, max_hours=args.max_hours, threads=args.threads,
               command=cmd, init=args.init, extra_train=tuple(args.extra_train),
               device=args.device, init_any_size=args.size is not None,
+              extra_max_truncation=args.extra_max_truncation,
               log=lambda m: print(m, flush=True))
     best = s["best"]
     if args.json:
@@ -241,7 +246,10 @@ def run_eval(args: argparse.Namespace) -> int:
     q, g = open_veri(args.data, args.query)
     n_all = len(q)
     if args.max_truncation is not None:
-        q = within_truncation(args.data, q, args.query, args.max_truncation)
+        try:
+            q = within_truncation(args.data, q, args.query, args.max_truncation)
+        except VeriLayoutError as exc:
+            raise VeriLayoutError(f"--max-truncation: {exc}") from None
         if not len(q):
             raise VeriLayoutError(f"--max-truncation {args.max_truncation:g}: no query of "
                                   f"{args.query} is within it")

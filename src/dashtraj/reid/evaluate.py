@@ -104,7 +104,7 @@ def within_truncation(root: str | Path, q: VeriSplit, query: str,
     """The images of ``q`` (the folder ``query`` of ``root``) whose vehicle lies at most
     ``max_truncation`` outside the camera's frame (the share of its projected silhouette:
     0 whole, 1 all outside), from the crop labels ``labels_<stem>.csv`` that `dashtraj
-    reid moving-queries` writes beside ``image_<stem>/``.
+    reid moving-queries` and ``moving-train`` write beside ``image_<stem>/``.
 
     Raises VeriLayoutError: no labels file (ring folders, and moving sets made before
     2026-12-07, have none), a bad one, or an image it does not list.
@@ -114,9 +114,9 @@ def within_truncation(root: str | Path, q: VeriSplit, query: str,
 
     path = moving_labels_path(root, query.removeprefix("image_"))
     if not path.is_file():
-        raise VeriLayoutError(f"--max-truncation: {path} is missing (the crop labels that "
-                              "'dashtraj reid moving-queries' writes since 2026-12-07; rerun "
-                              "it with --overwrite)")
+        raise VeriLayoutError(f"{path} is missing (the crop labels that 'dashtraj reid "
+                              "moving-queries' and 'moving-train' write since 2026-12-07; "
+                              "rerun it with --overwrite)")
     try:
         labels = read_moving_labels(path)
     except DatasetError as exc:

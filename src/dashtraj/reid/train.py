@@ -49,7 +49,14 @@ from pathlib import Path
 import numpy as np
 
 from dashtraj.errors import DashtrajError
-from dashtraj.reid.evaluate import QUERY_SETS, VeriSplit, evaluate_features, read_split
+from dashtraj.reid.evaluate import (
+    QUERY_SETS,
+    VeriLayoutError,
+    VeriSplit,
+    evaluate_features,
+    read_split,
+    within_truncation,
+)
 from dashtraj.reid.preprocess import IMAGENET_MEAN, IMAGENET_STD, resize_uint8
 
 
@@ -366,7 +373,8 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
           resume: bool = False, overwrite: bool = False, max_hours: float | None = None,
           threads: int | None = None, command: str | None = None, init: str | Path | None = None,
           extra_train: tuple[str, ...] = (), device: str | None = None,
-          init_any_size: bool = False, log=print) -> dict:
+          init_any_size: bool = False, extra_max_truncation: float | None = None,
+          log=print) -> dict:
     """Train (or resume) a run; returns the final run summary (also in run.json).
 
     Args:
@@ -388,6 +396,9 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
         extra_train: more training folders of DATA (e.g. ``image_train_moving`` from
             ``dashtraj reid moving-train``), their images added to ``image_train``'s; every
             identity in them must be one of ``image_train``'s (the classes stay those).
+        extra_max_truncation: only the ``extra_train`` images whose vehicle lies at most
+            this share outside its camera's frame, by the crop labels beside each folder
+            (``labels_<stem>.csv``, `dashtraj.reid.evaluate.within_truncation`); None: all.
         device: "auto" or None (a GPU when torch sees one), "cpu", "cuda", "cuda:N"
             (``resolve_device``). On a GPU cuDNN picks its fastest kernels and TF32
             matrix products are allowed: runs repeat only approximately there.
@@ -420,6 +431,8 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
     pids = sorted(set(train_split.pids.tolist()))
     label_of = {p: i for i, p in enumerate(pids)}
     extra_train = tuple(extra_train)
+    if extra_max_truncation is not None and not extra_train:
+        raise TrainError("--extra-max-truncation: no --extra-train folder to filter")
     extra_splits = []
     for name in extra_train:
         if name == "image_train" or "/" in name or name.startswith("."):
@@ -427,6 +440,11 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
         if not (data / name).is_dir():
             raise TrainError(f"--extra-train {name}: no such folder in {data}")
         sp = read_split(data / name)
+        if extra_max_truncation is not None:
+            try:
+                sp = within_truncation(data, sp, name, extra_max_truncation)
+            except VeriLayoutError as exc:
+                raise TrainError(f"--extra-max-truncation: {exc}") from None
         alien = sorted(set(sp.pids.tolist()) - set(pids))
         if alien:
             raise TrainError(f"--extra-train {name}: {len(alien)} identities not in "
@@ -489,6 +507,8 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
                 "threads": torch.get_num_threads(), "device": str(dev)}
     if extra_train:
         run_info["extra_train"] = list(extra_train)
+    if extra_max_truncation is not None:
+        run_info["extra_max_truncation"] = extra_max_truncation
     if resume:
         old = json.loads((out / "run.json").read_text())
         if not _same_recipe(old["recipe"], recipe) or old["seed"] != seed:
@@ -497,6 +517,9 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
         if old.get("extra_train", []) != list(extra_train):
             raise TrainError(f"--resume: {out} was trained with --extra-train "
                              f"{old.get('extra_train', [])}, not {list(extra_train)}")
+        if old.get("extra_max_truncation") != extra_max_truncation:
+            raise TrainError(f"--resume: {out} was trained with --extra-max-truncation "
+                             f"{old.get('extra_max_truncation')}, not {extra_max_truncation}")
     _write_json(out / "run.json", run_info)
 
     cache = out / "cache"
@@ -504,9 +527,10 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
     log(f"caching {len(labels)} train images at {size[0]}x{size[1]} ...")
     x_train = image_cache(train_split, *size, cache / f"train_{size[0]}x{size[1]}.u8", log)
     if extra_splits:
+        cut = "" if extra_max_truncation is None else f"_t{extra_max_truncation:g}"
         x_train = np.concatenate([x_train] + [
             image_cache(sp, *size, cache / f"{name[6:] if name.startswith('image_') else name}"
-                        f"_{size[0]}x{size[1]}.u8", log)
+                        f"{cut}_{size[0]}x{size[1]}.u8", log)
             for name, sp in zip(extra_train, extra_splits, strict=True)])
     x_gal = x_val = None
     if gallery is not None:
