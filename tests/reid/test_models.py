@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -117,16 +118,25 @@ def test_resume_mid_epoch_is_exact(tmp_path):
     assert all(torch.equal(wa[k], wb[k]) for k in wa)
 
 
+def _tiny_set_with_extra(root: Path) -> Path:
+    """`_tiny_set` plus ``image_train_moving``: every other training image again, on
+    camera 5 (10 crops); returns that folder."""
+    import shutil
+
+    _tiny_set(root)
+    extra = root / "image_train_moving"
+    extra.mkdir()
+    for f in sorted((root / "image_train").iterdir())[::2]:
+        shutil.copyfile(f, extra / f.name.replace("_c0", "_c5", 1))
+    return extra
+
+
 def test_extra_train_folders_join_image_train(tmp_path):
     import shutil
 
     from dashtraj.reid.train import TrainError, train
 
-    _tiny_set(tmp_path / "data")
-    extra = tmp_path / "data" / "image_train_moving"
-    extra.mkdir()
-    for f in sorted((tmp_path / "data" / "image_train").iterdir())[::2]:
-        shutil.copyfile(f, extra / f.name.replace("_c0", "_c5", 1))
+    extra = _tiny_set_with_extra(tmp_path / "data")
     s = train(tmp_path / "data", tmp_path / "a", _recipe(1), seed=3, threads=1,
               extra_train=("image_train_moving",), log=None)
     info = json.loads((tmp_path / "a" / "run.json").read_text())
@@ -154,16 +164,10 @@ def test_extra_train_folders_join_image_train(tmp_path):
 
 
 def test_extra_train_keeps_the_crops_within_a_truncation(tmp_path):
-    import shutil
-
     from dashtraj.datasets.reid import moving_labels_path, write_moving_labels
     from dashtraj.reid.train import TrainError, train
 
-    _tiny_set(tmp_path / "data")
-    extra = tmp_path / "data" / "image_train_moving"
-    extra.mkdir()
-    for f in sorted((tmp_path / "data" / "image_train").iterdir())[::2]:
-        shutil.copyfile(f, extra / f.name.replace("_c0", "_c5", 1))
+    extra = _tiny_set_with_extra(tmp_path / "data")
     names = sorted(p.name for p in extra.iterdir())  # 10 crops, truncation 0, 0.1, ... 0.9
     kw = {"seed": 3, "threads": 1, "extra_train": ("image_train_moving",), "log": None}
     with pytest.raises(TrainError, match=r"extra-max-truncation: .*labels_train_moving\.csv is "
