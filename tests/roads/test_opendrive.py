@@ -152,6 +152,16 @@ def test_opendrive_without_roads_raises():
         RoadMap.from_string("<OpenDRIVE><header/></OpenDRIVE>", name="empty.xodr")
 
 
+def test_opendrive_whose_roads_all_lack_lanes_says_so():
+    """Roads present but every one skipped: the error says none is usable, not that none exist."""
+    text = ('<OpenDRIVE><header/><road id="1" length="10" junction="-1"><planView>'
+            '<geometry s="0" x="0" y="0" hdg="0" length="10"><line/></geometry>'
+            '</planView></road></OpenDRIVE>')
+    with pytest.warns(OpenDriveWarning, match="no <lanes>"), \
+            pytest.raises(OpenDriveError, match="none of the OpenDRIVE file's <road> elements"):
+        RoadMap.from_string(text, name="nolanes.xodr")
+
+
 def test_junction_lane_link_to_missing_lane_warns(xodr):
     """A junction's laneLink to a lane the connecting road lacks: warning, map loads."""
     x = xodr

@@ -255,6 +255,9 @@ def parse_opendrive(data: bytes | str, name: str = "<string>") -> OpenDrive:
     except _NotANumber as exc:
         raise OpenDriveError(f"{name}: {exc}") from None
     if not roads:
+        if root.find("road") is not None:
+            raise OpenDriveError(f"{name}: none of the OpenDRIVE file's <road> elements "
+                                 "is usable (see the warnings above)")
         raise OpenDriveError(f"{name}: the OpenDRIVE file has no <road> elements")
     od = OpenDrive(name=name, header=header, roads=roads, junctions=junctions)
     _check_links(od)
