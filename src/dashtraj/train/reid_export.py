@@ -37,10 +37,16 @@ def load_checkpoint(path: str | Path):
         raise ExportError(f"{p}: no such checkpoint")
     try:
         ck = torch.load(p, map_location="cpu", weights_only=False)
+    except Exception as e:  # a pickle or zip error of any kind: not a checkpoint
+        raise ExportError(f"{p}: not a torch checkpoint ({type(e).__name__}: {e})") from e
+    try:
         recipe = ck["recipe"]
         model = build_model(recipe["model"], int(ck["num_classes"]), pretrained=False)
         model.load_state_dict(ck["model"])
-    except (KeyError, RuntimeError, OSError, ValueError) as e:
+    except KeyError as e:
+        raise ExportError(f"{p}: not a dashtraj ReID checkpoint (no {e} entry: give a run's "
+                          "best.pt or last.pt)") from e
+    except (TypeError, RuntimeError, OSError, ValueError) as e:
         raise ExportError(f"{p}: not a dashtraj ReID checkpoint ({e})") from e
     return model.eval(), ck
 
