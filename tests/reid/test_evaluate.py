@@ -165,3 +165,68 @@ def test_cli_rerank_reports_both_and_scores_like_the_library(tmp_path, capsys):
     assert out["rerank"] == {"k1": 2, "k2": 1, "lambda_value": 0.3}
     assert out["map"] == pytest.approx(rr["map"]) and out["rank1"] == rr["rank1"]
     assert out["without_rerank"]["map"] == pytest.approx(plain["map"])
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_rank1_errors_are_the_reference_misses(seed):
+    """`rank1_errors` lists exactly the queries the brute-force reference ranks wrong, with
+    the reference's nearest image and first true rank, under VeRi's exclusion rule."""
+    from pathlib import Path
+
+    from dashtraj.reid.evaluate import VeriSplit, rank1_errors
+
+    rng = np.random.default_rng(seed)
+    nq, ng, ids, cams = 30, 200, 10, 5
+    q_pids, g_pids = rng.integers(0, ids, nq), rng.integers(0, ids, ng)
+    q_cams, g_cams = rng.integers(0, cams, nq), rng.integers(0, cams, ng)
+    centres = rng.normal(size=(ids, 16))
+    dist = distance_matrix(centres[q_pids] + rng.normal(scale=1.2, size=(nq, 16)),
+                           centres[g_pids] + rng.normal(scale=1.2, size=(ng, 16)))
+    q = VeriSplit(tuple(Path(f"q{i}.jpg") for i in range(nq)), q_pids, q_cams)
+    g = VeriSplit(tuple(Path(f"g{j}.jpg") for j in range(ng)), g_pids, g_cams)
+    want = []
+    for i in range(nq):
+        ranked = sorted(range(ng), key=lambda j: (dist[i][j], j))
+        kept = [j for j in ranked if not (g_pids[j] == q_pids[i] and g_cams[j] == q_cams[i])]
+        rel = [g_pids[j] == q_pids[i] for j in kept]
+        if any(rel) and not rel[0]:
+            want.append((f"q{i}.jpg", f"g{kept[0]}.jpg", rel.index(True) + 1))
+    got = rank1_errors(dist, q, g)
+    assert [(e["query"], e["nearest"], e["true_rank"]) for e in got] == want
+    ref = reference(dist.tolist(), q_pids.tolist(), g_pids.tolist(), q_cams.tolist(),
+                    g_cams.tolist())
+    assert 0 < len(got) == round((1 - ref["rank1"]) * ref["queries"])
+    assert all(e["nearest_id"] != e["query_id"] and e["distance"] <= e["true_distance"]
+               for e in got)
+
+
+def test_cli_errors_lists_the_misses_with_catalog_keys(tmp_path, capsys):
+    """`reid eval --errors`: one entry per rank-1 miss of the library's figures, both
+    identities' keys from reid.json, the confusions counted; a broken reid.json is exit 2."""
+    import json
+
+    from PIL import Image
+
+    rng = np.random.default_rng(5)
+    for sub, names in (("image_query", [f"000{i}_c001_q.jpg" for i in (1, 2, 3)]),
+                       ("image_test", [f"000{i}_c00{c}_g.jpg" for i in (1, 2, 3)
+                                       for c in (2, 3)])):
+        (tmp_path / sub).mkdir()
+        for n in names:
+            Image.fromarray(rng.integers(0, 255, (40, 60, 3), np.uint8)).save(tmp_path / sub / n)
+    keys = {1: "vehicle.a/red", 2: "vehicle.b/red", 3: "vehicle.c/blue"}
+    (tmp_path / "reid.json").write_text(json.dumps(
+        {"ids": [{"id": i, "key": k} for i, k in keys.items()]}))
+    assert main(["reid", "eval", "--data", str(tmp_path), "--errors", "--json",
+                 "--threads", "1"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    errs = out["rank1_errors"]
+    assert errs  # noise images: any model misses some (the shipped one 2 of 3)
+    assert len(errs) == round((1 - out["rank1"]) * out["queries"])
+    for e in errs:
+        assert e["query_key"] == keys[e["query_id"]] and e["nearest_key"] == keys[e["nearest_id"]]
+    assert sum(c["errors"] for c in out["confusions"]) == len(errs)
+    (tmp_path / "reid.json").write_text("{not json")
+    assert main(["reid", "eval", "--data", str(tmp_path), "--errors", "--threads", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "reid.json" in err

@@ -107,6 +107,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="re-ranking: neighbours of the local query expansion (default 6)")
     e.add_argument("--rerank-lambda", type=fraction, default=0.3, metavar="L",
                    help="re-ranking: weight of the original distance, 0..1 (default 0.3)")
+    e.add_argument("--errors", action="store_true",
+                   help="also list the rank-1 errors: each query whose nearest gallery image "
+                        "is another identity, that image, the rank of the first true match, "
+                        "and both identities' catalog keys when the folder has a reid.json "
+                        "(JSON: rank1_errors, confusions)")
     e.add_argument("--json", action="store_true", help="print the figures as JSON")
     e.set_defaults(func=run_eval)
 
@@ -239,11 +244,13 @@ def run_eval(args: argparse.Namespace) -> int:
         VeriLayoutError,
         evaluate_features,
         has_true_match,
+        identity_keys,
         open_veri,
         within_truncation,
     )
 
     q, g = open_veri(args.data, args.query)
+    keys = identity_keys(args.data) if args.errors else {}
     n_all = len(q)
     if args.max_truncation is not None:
         try:
@@ -264,17 +271,22 @@ def run_eval(args: argparse.Namespace) -> int:
     dt = time.time() - t0
     rerank = ({"k1": args.rerank_k1, "k2": args.rerank_k2, "lambda_value": args.rerank_lambda}
               if args.rerank else None)
-    r = evaluate_features(qf, gf, q, g, rerank=rerank)
+    r = evaluate_features(qf, gf, q, g, rerank=rerank, errors=args.errors)
     plain = r["without_rerank"] if rerank else r
-    keys = ("rank1", "rank5", "rank10", "map", "minp")
+    figures = ("rank1", "rank5", "rank10", "map", "minp")
     out = {"data": args.data, "query": args.query, "model": str(emb.path), "flip": emb.flip,
-           "rerank": rerank, **{k: r[k] for k in keys}, "queries": r["queries"],
+           "rerank": rerank, **{k: r[k] for k in figures}, "queries": r["queries"],
            "skipped_queries": r["skipped"], "gallery": len(g),
            "query_ids": len(set(q.pids.tolist())), "max_truncation": args.max_truncation,
            "truncated_queries_left_out": n_all - len(q),
            "embed_crops_per_s": (len(q) + len(g)) / max(dt, 1e-9)}
     if rerank:
-        out["without_rerank"] = {k: plain[k] for k in keys}
+        out["without_rerank"] = {k: plain[k] for k in figures}
+    if args.errors:
+        errs = [{**e, "query_key": keys.get(e["query_id"]),
+                 "nearest_key": keys.get(e["nearest_id"])} for e in r["rank1_errors"]]
+        out["rank1_errors"] = errs
+        out["confusions"] = _confusions(errs, bool(keys))
     if args.json:
         print(json.dumps(out))
         return 0
@@ -292,7 +304,27 @@ def run_eval(args: argparse.Namespace) -> int:
     if rerank:
         print(f"  re-ranked (k1 {args.rerank_k1}, k2 {args.rerank_k2}, lambda "
               f"{args.rerank_lambda}); without re-ranking: " + line(plain))
+    if args.errors:
+        print(f"rank-1 errors: {len(out['rank1_errors'])} of {r['queries']} queries")
+        for e in out["rank1_errors"]:
+            who = (f" ({e['query_key']} -> {e['nearest_key']})" if keys else "")
+            print(f"  {e['query']} -> {e['nearest']}{who}, distance {e['distance']:.4f}; first "
+                  f"true match at rank {e['true_rank']} ({e['true_distance']:.4f})")
+        if out["confusions"]:
+            print("most confused (query -> nearest: errors): " + "; ".join(
+                f"{c['query']} -> {c['nearest']}: {c['errors']}" for c in out["confusions"][:10]))
     return 0
+
+
+def _confusions(errors: list[dict], by_key: bool) -> list[dict]:
+    """Rank-1 errors counted per (query identity, nearest identity), most first: by catalog
+    key when the set has them, else by id."""
+    from collections import Counter
+
+    field = "key" if by_key else "id"
+    n = Counter((e[f"query_{field}"], e[f"nearest_{field}"]) for e in errors)
+    return [{"query": a, "nearest": b, "errors": k}
+            for (a, b), k in sorted(n.items(), key=lambda kv: (-kv[1], str(kv[0])))]
 
 
 def run_export(args: argparse.Namespace) -> int:

@@ -205,21 +205,67 @@ def evaluate_rank(distmat: np.ndarray, q_pids, g_pids, q_camids, g_camids,
 
 
 def evaluate_features(qf, gf, q: VeriSplit, g: VeriSplit, normalize: bool = True,
-                      rerank: dict | None = None) -> dict:
+                      rerank: dict | None = None, errors: bool = False) -> dict:
     """``evaluate_rank`` on the squared L2 distances of (optionally L2-normalised) features.
 
     ``rerank``: None, or the keyword arguments (``k1``, ``k2``, ``lambda_value``) of
     ``dashtraj.reid.rerank.k_reciprocal_rerank``, which then re-ranks the distances (it
     sees every query and gallery image; VeRi's same-camera rule applies to the result);
     the figures of the plain distances come beside, under ``"without_rerank"``.
+    ``errors``: also list the rank-1 errors of the (re-ranked) distances under
+    ``"rank1_errors"`` (``rank1_errors``).
     """
     if normalize:
         qf, gf = l2_normalize(qf), l2_normalize(gf)
     d = distance_matrix(qf, gf)
     plain = evaluate_rank(d, q.pids, g.pids, q.camids, g.camids)
     if rerank is None:
-        return plain
+        return {**plain, "rank1_errors": rank1_errors(d, q, g)} if errors else plain
     from dashtraj.reid.rerank import k_reciprocal_rerank
 
     d = k_reciprocal_rerank(d, distance_matrix(qf, qf), distance_matrix(gf, gf), **rerank)
-    return {**evaluate_rank(d, q.pids, g.pids, q.camids, g.camids), "without_rerank": plain}
+    out = {**evaluate_rank(d, q.pids, g.pids, q.camids, g.camids), "without_rerank": plain}
+    return {**out, "rank1_errors": rank1_errors(d, q, g)} if errors else out
+
+
+def rank1_errors(distmat: np.ndarray, q: VeriSplit, g: VeriSplit) -> list[dict]:
+    """The queries whose nearest gallery image is another identity, under VeRi's rule (the
+    query identity's images from the query's camera removed first), in query order.
+
+    Each: ``query`` and ``nearest`` (file names), ``query_id`` and ``nearest_id``,
+    ``distance`` (to the nearest), ``true_rank`` (1-based rank of the first true match)
+    and ``true_distance``. Queries without a true match from another camera are left out,
+    as ``evaluate_rank`` skips them. Ties are broken by gallery order, as there.
+    """
+    d = np.asarray(distmat, np.float64)
+    order = np.argsort(d, axis=1, kind="stable")
+    out = []
+    for i in range(d.shape[0]):
+        o = order[i]
+        o = o[~((g.pids[o] == q.pids[i]) & (g.camids[o] == q.camids[i]))]
+        m = g.pids[o] == q.pids[i]
+        if not m.any() or m[0]:
+            continue
+        first = int(np.argmax(m))
+        out.append({"query": q.paths[i].name, "query_id": int(q.pids[i]),
+                    "nearest": g.paths[o[0]].name, "nearest_id": int(g.pids[o[0]]),
+                    "distance": float(d[i, o[0]]), "true_rank": first + 1,
+                    "true_distance": float(d[i, o[first]])})
+    return out
+
+
+def identity_keys(root: str | Path) -> dict[int, str]:
+    """Each identity's catalog key (``model/colour``) from the ``reid.json`` that
+    ``dashtraj reid-dataset`` writes, by the id in the image names; {} for a folder
+    without one (the real VeRi-776). Raises VeriLayoutError for an unreadable one."""
+    import json
+
+    path = Path(root) / "reid.json"
+    if not path.is_file():
+        return {}
+    try:
+        ids = json.loads(path.read_text(encoding="utf-8"))["ids"]
+        return {int(e["id"]): str(e["key"]) for e in ids}
+    except (ValueError, KeyError, TypeError, UnicodeDecodeError) as exc:
+        raise VeriLayoutError(f"{path}: not the reid.json of 'dashtraj reid-dataset' (no "
+                              f"readable ids list with id and key: {exc})") from None
