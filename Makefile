@@ -50,8 +50,11 @@ train-env: $(STAMP)
 # frozen, batches of 32 ids x 4) for 3 epochs from lr 1.5e-4, from stage 6's ONNX, on the same
 # images and crops; then three more cycles of it from the last one's last.pt, 3, 4 and 4 epochs
 # from lr 1e-4 (stage8a, stage8b, stage8c); stage 8 is the mean of the first three cycles' ends,
-# stage 9 (the shipped weights) the mean of all four ('reid average': stochastic weight
-# averaging); each stage resumes from its own last.pt; exported with float16 weights.
+# stage 9 the mean of all four ('reid average': stochastic weight averaging); then a fifth
+# cycle, 4 epochs from lr 1e-4 from stage 9's averaged weights without the dashcam crops of
+# vehicles more than half outside the frame (stage10t: --extra-max-truncation 0.5, read from
+# the crops' labels_train_moving.csv), and stage 10 (the shipped weights), the mean of the five
+# cycles' ends; each stage resumes from its own last.pt; exported with float16 weights.
 # One torch thread by default: on these 2 shared cores two threads ran 5x slower beside other
 # jobs (barrier waits); on two otherwise idle cores REID_THREADS=2 is faster (stage 5's last two
 # epochs and stage 6: 22-27 images/s against 15 on one thread).
@@ -77,12 +80,13 @@ reid-data: $(STAMP)
 		$(REID_DATA) $(foreach s,$(MTRAIN_SEEDS),$(REID_DATA)_mtrain/town01_s$(s)) \
 		$(foreach s,$(MTRAIN_SEEDS),$(REID_DATA)_mtrain/town10_s$(s))
 
-# One every-layer cycle (stages 7, 8a, 8b, 8c): the gpu recipe's settings on the CPU, with the
-# dashcam crops; $(call reid_every_layer,STAGE,INIT,EPOCHS,LR) trains RUN_STAGE from INIT (a
-# checkpoint or an ONNX), resuming its own last.pt when there is one.
+# One every-layer cycle (stages 7, 8a, 8b, 8c, 10t): the gpu recipe's settings on the CPU, with
+# the dashcam crops; $(call reid_every_layer,STAGE,INIT,EPOCHS,LR[,MORE]) trains RUN_STAGE from
+# INIT (a checkpoint or an ONNX), resuming its own last.pt when there is one; MORE: more
+# arguments of 'reid train'.
 reid_every_layer = $(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_$(1) --recipe gpu \
 	--device cpu --seed 0 --threads $(REID_THREADS) --init $(2) --epochs $(3) --lr $(4) \
-	--extra-train image_train_moving $$(test -f $(REID_RUN)_$(1)/last.pt && echo --resume)
+	--extra-train image_train_moving $(5) $$(test -f $(REID_RUN)_$(1)/last.pt && echo --resume)
 reid-train: train-env
 	$(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN) --recipe cpu --seed 0 \
 		--threads $(REID_THREADS) $$(test -f $(REID_RUN)/last.pt && echo --resume)
@@ -121,6 +125,12 @@ reid-train: train-env
 		-o $(REID_RUN)_stage9/average.pt --overwrite
 	$(VENV)/bin/dashtraj reid export $(REID_RUN)_stage9/average.pt \
 		-o $(REID_RUN)_stage9/efficientnet_lite0_cpu.onnx --fp16-weights --overwrite
+	$(call reid_every_layer,stage10t,$(REID_RUN)_stage9/average.pt,4,1e-4,--extra-max-truncation 0.5)
+	$(VENV)/bin/dashtraj reid average $(REID_RUN)_stage7/last.pt $(REID_RUN)_stage8a/last.pt \
+		$(REID_RUN)_stage8b/last.pt $(REID_RUN)_stage8c/last.pt $(REID_RUN)_stage10t/last.pt \
+		-o $(REID_RUN)_stage10/average.pt --overwrite
+	$(VENV)/bin/dashtraj reid export $(REID_RUN)_stage10/average.pt \
+		-o $(REID_RUN)_stage10/efficientnet_lite0_cpu.onnx --fp16-weights --overwrite
 
 # The track-join model (efficientnet_lite0_join.onnx, `tracker eval`'s offline re-linking):
 # stage 6's model (its ONNX, rebuilt in torch by --init; the package's ReID model until stage 7
