@@ -177,13 +177,9 @@ def evaluate_rank(distmat: np.ndarray, q_pids, g_pids, q_camids, g_camids,
     if len(q_pids) != nq or len(g_pids) != ng:
         raise ValueError(f"distance matrix {d.shape} does not match {len(q_pids)} queries and "
                          f"{len(g_pids)} gallery images")
-    order = np.argsort(d, axis=1, kind="stable")
-    matches = g_pids[order] == q_pids[:, None]
-    remove = matches & (g_camids[order] == q_camids[:, None])
     cmc_sum = np.zeros(max_rank)
     aps, inps, skipped = [], [], 0
-    for i in range(nq):
-        m = matches[i][~remove[i]]
+    for _, m in _veri_ranked(d, q_pids, g_pids, q_camids, g_camids):
         if not m.any():
             skipped += 1
             continue
@@ -202,6 +198,17 @@ def evaluate_rank(distmat: np.ndarray, q_pids, g_pids, q_camids, g_camids,
     return {"cmc": cmc, "map": float(np.mean(aps)), "minp": float(np.mean(inps)),
             "rank1": float(cmc[0]), "rank5": float(cmc[min(4, max_rank - 1)]),
             "rank10": float(cmc[min(9, max_rank - 1)]), "queries": n, "skipped": skipped}
+
+
+def _veri_ranked(d: np.ndarray, q_pids, g_pids, q_camids, g_camids):
+    """Per query, VeRi's ranking: (gallery indices by distance, ties by gallery order,
+    with the query identity's images from the query's camera removed; whether each is
+    a true match)."""
+    order = np.argsort(d, axis=1, kind="stable")
+    matches = g_pids[order] == q_pids[:, None]
+    keep = ~(matches & (g_camids[order] == q_camids[:, None]))
+    for i in range(d.shape[0]):
+        yield order[i][keep[i]], matches[i][keep[i]]
 
 
 def evaluate_features(qf, gf, q: VeriSplit, g: VeriSplit, normalize: bool = True,
@@ -238,12 +245,8 @@ def rank1_errors(distmat: np.ndarray, q: VeriSplit, g: VeriSplit) -> list[dict]:
     as ``evaluate_rank`` skips them. Ties are broken by gallery order, as there.
     """
     d = np.asarray(distmat, np.float64)
-    order = np.argsort(d, axis=1, kind="stable")
     out = []
-    for i in range(d.shape[0]):
-        o = order[i]
-        o = o[~((g.pids[o] == q.pids[i]) & (g.camids[o] == q.camids[i]))]
-        m = g.pids[o] == q.pids[i]
+    for i, (o, m) in enumerate(_veri_ranked(d, q.pids, g.pids, q.camids, g.camids)):
         if not m.any() or m[0]:
             continue
         first = int(np.argmax(m))
