@@ -179,6 +179,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     a.add_argument("--json", action="store_true", help="print the summary as JSON")
     a.set_defaults(func=run_average)
 
+    en = sub.add_parser(
+        "ensemble", help="join exported models into one ONNX model (their embeddings "
+                         "concatenated; needs onnx)",
+        description="Write one ONNX model that runs every given 'reid export' model on one "
+                    "input (the largest member's size; a smaller member reads it resized, "
+                    "linear and antialiased) and concatenates their L2-normalised embeddings, "
+                    "each scaled by the square root of its share of the weights: the squared "
+                    "distance of two embeddings is the weighted mean of the members'. Models "
+                    "trained at different input sizes err differently; an ensemble of them "
+                    "ranks better than either and costs the members' time together.")
+    en.add_argument("models", nargs="+", metavar="M.onnx", help="two or more exported models")
+    en.add_argument("-o", "--output", required=True, metavar="OUT.onnx", help="ONNX file")
+    en.add_argument("--weights", type=_weights, default=None, metavar="W1,W2,...",
+                    help="one positive weight per model (default equal)")
+    en.add_argument("--int8-weights", action="store_true",
+                    help="store the weights as int8, one scale per output channel (half of "
+                         "float16's file; float32 arithmetic); default float16")
+    add_output_args(en)
+    en.add_argument("--json", action="store_true", help="print the summary as JSON")
+    en.set_defaults(func=run_ensemble)
+
     from dashtraj.cli.reid_db import register_db_commands
 
     register_db_commands(sub)
@@ -364,6 +385,44 @@ def run_average(args: argparse.Namespace) -> int:
     else:
         print(f"{args.output}: the mean of {len(ck['averaged_from'])} {info['model']} "
               "checkpoints (" + ", ".join(a["path"] for a in ck["averaged_from"]) + ")")
+    return 0
+
+
+def _weights(text: str) -> list[float]:
+    """``--weights W1,W2,...``: positive numbers."""
+    from dashtraj.cli._args import positive_float
+
+    return [positive_float(t) for t in text.split(",")]
+
+
+def run_ensemble(args: argparse.Namespace) -> int:
+    """Join exported models into one ONNX file; prints its size and sha256; returns 0."""
+    import hashlib
+    import importlib.util
+    from pathlib import Path
+
+    from dashtraj.errors import DashtrajError
+    from dashtraj.outputs import atomic_output
+
+    if importlib.util.find_spec("onnx") is None:
+        raise DashtrajError("this command needs onnx: pip install onnx (or -e '.[train]')")
+    from dashtraj.train.reid_ensemble import build_ensemble
+
+    if args.weights is not None and len(args.weights) != len(args.models):
+        raise DashtrajError(f"--weights: {len(args.weights)} weights for "
+                            f"{len(args.models)} models")
+    with atomic_output(args.output, overwrite=args.overwrite, kind="file") as tmp:
+        meta = build_ensemble(args.models, tmp, args.weights, int8=args.int8_weights)
+    data = Path(args.output).read_bytes()
+    info = {"output": args.output, "bytes": len(data),
+            "sha256": hashlib.sha256(data).hexdigest(), **meta,
+            "ensemble": json.loads(meta["ensemble"])}
+    if args.json:
+        print(json.dumps(info))
+    else:
+        print(f"{args.output}: {meta['model']}, input {meta['input_width']}x"
+              f"{meta['input_height']}, {meta['feature_dim']}-d, {meta['weights_dtype']} "
+              f"weights, {len(data) / 1e6:.2f} MB, sha256 {info['sha256'][:16]}...")
     return 0
 
 

@@ -140,7 +140,7 @@ def run(args) -> int:
                         "identity_range": (rec_meta.get("config") or {}).get("identity_range"),
                         "detector": cfg.get("detector"), "look": cfg.get("look"),
                         "size": cfg.get("size"), "crops": len(keep)})
-    e = np.concatenate(embs) if embs else np.zeros((0, 512), np.float32)
+    e = np.concatenate(embs) if embs else np.zeros((0, 0), np.float32)
     if len(set(ids)) < 2:
         raise DashtrajError(f"{args.databases[0]}: fewer than two identities with crops; "
                             "calibration needs training recordings with traffic")

@@ -1,9 +1,10 @@
 """Embedding vehicle crops with an ONNX ReID model (onnxruntime; no torch).
 
 ``ReidEmbedder`` takes crops as file paths, Pillow images or (H, W, 3) uint8 RGB arrays
-and returns (N, 512) float32 L2-normalised embeddings: the squared L2 distance of two
-embeddings is 2 − 2 × their cosine similarity, so an inner-product and an L2 gallery
-rank the same. The default model is the one shipped in ``dashtraj/data/reid/``.
+and returns (N, D) float32 L2-normalised embeddings (D = 512 for one exported model, the
+sum of its members' for an ensemble, `dashtraj.train.reid_ensemble`): the squared L2
+distance of two embeddings is 2 − 2 × their cosine similarity, so an inner-product and an
+L2 gallery rank the same. The default model is the one shipped in ``dashtraj/data/reid/``.
 
 Example:
     >>> e = ReidEmbedder()  # doctest: +SKIP
@@ -95,6 +96,11 @@ class ReidEmbedder:
         self.flip = bool(flip)
         self.metadata = dict(meta)
         self._input = self.session.get_inputs()[0].name
+        out = self.session.get_outputs()[0].shape
+        try:
+            self.dim = int(meta.get("feature_dim", out[1]))
+        except (TypeError, ValueError, IndexError) as e:
+            raise ModelFileError(f"{p}: no fixed embedding size") from e
 
     def preprocess(self, crops: Iterable) -> np.ndarray:
         """Crops → (N, H, W, 3) uint8 at the model's input size."""
@@ -105,7 +111,7 @@ class ReidEmbedder:
 
     def embed_array(self, images: np.ndarray, batch_size: int = 64,
                     normalize: bool = True) -> np.ndarray:
-        """(N, H, W, 3) uint8 at the input size → (N, 512) float32 embeddings."""
+        """(N, H, W, 3) uint8 at the input size → (N, `dim`) float32 embeddings."""
         images = np.asarray(images)
         if images.ndim != 4 or images.shape[1:] != (self.height, self.width, 3):
             raise ValueError(f"images must be (N, {self.height}, {self.width}, 3) uint8, got "
@@ -119,30 +125,27 @@ class ReidEmbedder:
                 xf = np.ascontiguousarray(x[..., ::-1])
                 f = f + self.session.run(None, {self._input: xf})[0]
             out.append(f)
-        f = np.concatenate(out) if out else np.zeros((0, 512), np.float32)
+        f = np.concatenate(out) if out else np.zeros((0, self.dim), np.float32)
         return l2_normalize(f) if normalize else f.astype(np.float32)
 
     def embed_boxes(self, rgb: np.ndarray, boxes: np.ndarray,
                     min_height_px: float = 0.0) -> np.ndarray:
         """The boxes (N, 4; x0, y0, x1, y1 pixels) of one (H, W, 3) uint8 image embedded:
-        (N, 512) float32, L2-normalised; each box is cropped with 10 % margin as the
+        (N, `dim`) float32, L2-normalised; each box is cropped with 10 % margin as the
         sightings' crops are (`dashtraj.datasets.frames.crop_vehicle`). A box under
         ``min_height_px`` high gets a NaN row."""
         from dashtraj.datasets.frames import crop_vehicle
 
         boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
         big = np.flatnonzero(boxes[:, 3] - boxes[:, 1] >= min_height_px)
-        out = np.full((len(boxes), 512), np.nan, np.float32)
+        out = np.full((len(boxes), self.dim), np.nan, np.float32)
         if len(big):
-            f = self.embed([crop_vehicle(rgb, boxes[i], 0.1) for i in big])
-            if f.shape[1] != out.shape[1]:
-                out = np.full((len(boxes), f.shape[1]), np.nan, np.float32)
-            out[big] = f
+            out[big] = self.embed([crop_vehicle(rgb, boxes[i], 0.1) for i in big])
         return out
 
     def embed(self, crops: Iterable, batch_size: int = 64, normalize: bool = True) -> np.ndarray:
-        """Crops (paths, Pillow images or uint8 RGB arrays) → (N, 512) float32 embeddings."""
+        """Crops (paths, Pillow images or uint8 RGB arrays) → (N, `dim`) float32 embeddings."""
         crops = list(crops)
         out = [self.embed_array(self.preprocess(crops[i:i + 256]), batch_size, normalize)
                for i in range(0, len(crops), 256)]
-        return np.concatenate(out) if out else np.zeros((0, 512), np.float32)
+        return np.concatenate(out) if out else np.zeros((0, self.dim), np.float32)

@@ -9,7 +9,7 @@ The threshold is calibrated on embeddings of TRAINING identities
 
 Distances are cosine distances between L2-normalised embeddings,
 ``d = 1 − q·g`` in [0, 2] (= ½‖q − g‖²); the embedder of `dashtraj.reid` returns
-L2-normalised 512-d vectors.
+L2-normalised vectors (512-d for one exported model, more for an ensemble).
 
 Aggregation (`AGGREGATORS`, chosen by name; default ``median``):
 

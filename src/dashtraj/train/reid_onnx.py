@@ -44,6 +44,10 @@ def _onnx_tensors(path: Path):
         m = onnx.load(str(path))
     except Exception as e:  # onnx raises DecodeError, OSError and others alike
         raise TrainError(f"--init: {path}: not an ONNX model ({type(e).__name__})") from None
+    meta = {p.key: p.value for p in m.metadata_props}
+    if "ensemble" in meta:
+        raise TrainError(f"--init: {path} is an ensemble ({meta.get('model')}, 'dashtraj reid "
+                         "ensemble'); start from one of its members")
     raw = {i.name: numpy_helper.to_array(i) for i in m.graph.initializer}
     # float16 weights reach their node through a Cast (`reid export --fp16-weights`)
     alias = {n.output[0]: n.input[0] for n in m.graph.node
@@ -56,7 +60,6 @@ def _onnx_tensors(path: Path):
              if not alias_name.endswith("__fp16")}
     convs = [(value(n.input[1]), value(n.input[2]) if len(n.input) > 2 and n.input[2] else None)
              for n in m.graph.node if n.op_type == "Conv"]
-    meta = {p.key: p.value for p in m.metadata_props}
     return convs, named, meta
 
 
