@@ -5,17 +5,19 @@ threads (2: this project's machines): crops/s of the network alone on (N, H, W, 
 crops at its input size, and crops/s from 256-pixel JPEG-sized Pillow crops (resize
 included). Target ≥ 300 crops/s.
 
-Gallery: one query at a time, k = 10, over ``--gallery`` (100,000) unit 512-d
-vectors clustered like embeddings (10 views per identity):
+Gallery: one query at a time, k = 10, over ``--gallery`` (100,000) unit vectors of the
+model's embedding size (``--dim``; 1,024 for the shipped ensemble, 512 for one network)
+clustered like embeddings (10 views per identity):
 ``dashtraj.reid.gallery.Gallery`` on faiss (flat inner product, exact; IVF with 1024
 cells of which 16 are probed, with its recall@10 against the exact answer; HNSW with
 ``--hnsw``) against a numpy brute force (matrix-vector product + argpartition)
 measured in the same run. Target <= 1 ms per query over 100k: an exact scan reads the
-whole 205 MB gallery per query, so only the IVF index can meet it on these machines.
+whole gallery (205 MB at 512-d, 410 MB at 1,024) per query, so only the IVF index can
+meet it on these machines.
 
 Usage:
     .venv/bin/python bench/bench_reid.py [--model M.onnx] [--threads 2]
-        [--gallery 100000] [--queries 100] [--json out.json]
+        [--gallery 100000] [--dim D] [--queries 100] [--json out.json]
 """
 
 from __future__ import annotations
@@ -45,7 +47,8 @@ def bench_embed(model, threads: int, n: int) -> dict:
     t0 = time.perf_counter()
     emb.embed(crops, batch_size=64)
     full = len(crops) / (time.perf_counter() - t0)
-    return {"model": str(emb.path), "input": f"{emb.height}x{emb.width}", "threads": threads,
+    return {"model": str(emb.path), "input": f"{emb.height}x{emb.width}", "dim": emb.dim,
+            "threads": threads,
             "crops_per_s_network": round(net, 1), "crops_per_s_with_resize": round(full, 1),
             "target_crops_per_s": 300}
 
@@ -66,14 +69,14 @@ def clustered_vectors(n: int, nq: int, dim: int = 512, views: int = 10, seed: in
     return g.astype(np.float32), q.astype(np.float32)
 
 
-def bench_gallery(n: int, nq: int, threads: int, hnsw: bool = False) -> dict:
+def bench_gallery(n: int, nq: int, threads: int, hnsw: bool = False, dim: int = 512) -> dict:
     import faiss
 
     from dashtraj.reid.gallery import Gallery
 
     faiss.omp_set_num_threads(threads)
-    g, q = clustered_vectors(n, nq)
-    out = {"gallery": n, "queries": nq, "k": 10}
+    g, q = clustered_vectors(n, nq, dim)
+    out = {"gallery": n, "dim": dim, "queries": nq, "k": 10}
 
     def per_query(fn):
         fn(q[:1])
@@ -86,7 +89,7 @@ def bench_gallery(n: int, nq: int, threads: int, hnsw: bool = False) -> dict:
         return round(float(np.mean([len(set(a) & set(b)) / 10
                                     for a, b in zip(exact, ids, strict=True)])), 3)
 
-    flat = Gallery(512, "ip", "flat")
+    flat = Gallery(dim, "ip", "flat")
     flat.add(g)
     exact = flat.search(q, 10)[1]
     out["faiss_flat_ms"] = round(per_query(lambda x: flat.search(x, 10)), 3)
@@ -101,14 +104,14 @@ def bench_gallery(n: int, nq: int, threads: int, hnsw: bool = False) -> dict:
     flat.search(q, 10)
     out["faiss_flat_batch_ms_per_query"] = round(1000 * (time.perf_counter() - t0) / nq, 3)
     t0 = time.perf_counter()
-    ivf = Gallery(512, "ip", "ivf", nlist=1024, nprobe=16)
+    ivf = Gallery(dim, "ip", "ivf", nlist=1024, nprobe=16)
     ivf.add(g)
     out["ivf_build_s"] = round(time.perf_counter() - t0, 1)
     out["faiss_ivf_ms"] = round(per_query(lambda x: ivf.search(x, 10)), 3)
     out["ivf_recall_at_10"] = recall(ivf.search(q, 10)[1])
     if hnsw:
         t0 = time.perf_counter()
-        h = Gallery(512, "ip", "hnsw", ef_search=64)
+        h = Gallery(dim, "ip", "hnsw", ef_search=64)
         h.add(g)
         out["hnsw_build_s"] = round(time.perf_counter() - t0, 1)
         out["faiss_hnsw_ms"] = round(per_query(lambda x: h.search(x, 10)), 3)
@@ -125,17 +128,20 @@ def main(argv=None) -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--crops", type=int, default=1024)
     ap.add_argument("--gallery", type=int, default=100_000)
+    ap.add_argument("--dim", type=int, default=None,
+                    help="gallery vector size (default: the model's embedding size)")
     ap.add_argument("--queries", type=int, default=100)
     ap.add_argument("--hnsw", action="store_true", help="also build an HNSW index (slow)")
     ap.add_argument("--json", default=None, help="also write the figures here")
     a = ap.parse_args(argv)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    res = {"embed": bench_embed(a.model, a.threads, a.crops),
-           "gallery": bench_gallery(a.gallery, a.queries, a.threads, a.hnsw)}
+    emb = bench_embed(a.model, a.threads, a.crops)
+    res = {"embed": emb, "gallery": bench_gallery(a.gallery, a.queries, a.threads, a.hnsw,
+                                                  a.dim or emb["dim"])}
     e, g = res["embed"], res["gallery"]
     print(f"embed ({e['input']}, {e['threads']} threads): {e['crops_per_s_network']} crops/s "
           f"network, {e['crops_per_s_with_resize']} with resize (target >= 300)")
-    print(f"query over {g['gallery']:,} x 512, k=10, one at a time: faiss flat "
+    print(f"query over {g['gallery']:,} x {g['dim']}, k=10, one at a time: faiss flat "
           f"{g['faiss_flat_ms']} ms (batched {g['faiss_flat_batch_ms_per_query']} ms/query), "
           f"numpy brute force {g['numpy_brute_ms']} ms ({g['ratio_numpy_over_faiss_flat']}x "
           f"faiss flat), faiss IVF1024/16 {g['faiss_ivf_ms']} ms (recall@10 "

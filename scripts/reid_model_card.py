@@ -6,7 +6,8 @@ Usage:
 
 RUN_DIR is a `dashtraj reid train` folder (run.json, log.jsonl); each --eval file is the
 output of `dashtraj reid eval --json`. The card states the data, recipe, command,
-hardware, wall time, sha256 and the evaluation table.
+hardware, wall time, sha256 and the evaluation table. For an ensemble (`dashtraj reid
+ensemble`), RUN_DIR is its newest member's run and the card lists every member.
 """
 
 from __future__ import annotations
@@ -38,15 +39,27 @@ def main() -> None:
     r = info["recipe"]
     prog = info.get("progress", {})
     wall = prog.get("train_wall_s") or (epochs[-1]["wall_s"] if epochs else 0.0)
-    lines = [f"# {Path(a.onnx).name}: vehicle ReID embedding ({r['model']}, {r['name']} recipe)",
+    from dashtraj.reid.embed import ReidEmbedder
+
+    emb = ReidEmbedder(a.onnx, threads=1)
+    members = json.loads(emb.metadata["ensemble"]) if "ensemble" in emb.metadata else []
+    what = (f"an ensemble of {len(members)} {r['model']} models, "
+            + ", ".join(f"{m['input_height']} px" for m in members)
+            if members else f"{r['model']}, {r['name']} recipe")
+    lines = [f"# {Path(a.onnx).name}: vehicle ReID embedding ({what})",
              "", a.note, "",
              "## Files", "",
-             f"- `{Path(a.onnx).name}`: {len(onnx):,} bytes, sha256 `{sha}`",
+             f"- `{Path(a.onnx).name}`: {len(onnx):,} bytes, sha256 `{sha}`"
+             + (f" ({emb.metadata['weights_dtype']} weights)" if members else ""),
              "- input `images` (N, 3, "
-             f"{r['height']}, {r['width']}) float32 RGB, /255, ImageNet mean/std "
-             "(`dashtraj.reid.preprocess`); output `embedding` (N, 512) float32 "
-             "(L2-normalised by `dashtraj.reid.embed`)", "",
-             "## Data", ""]
+             f"{emb.height}, {emb.width}) float32 RGB, /255, ImageNet mean/std "
+             f"(`dashtraj.reid.preprocess`); output `embedding` (N, {emb.dim}) float32 "
+             "(L2-normalised by `dashtraj.reid.embed`)"]
+    for i, m in enumerate(members):
+        lines.append(f"- member {i + 1}: `{m['file']}` ({m['model']}, {m['input_height']}x"
+                     f"{m['input_width']}, {m['feature_dim']}-d, weight {m['weight']:g}), "
+                     f"sha256 `{m['sha256']}`")
+    lines += ["", "## Data", ""]
     lines.append(f"- training folder: `{info['data']}`: {info['train_images']:,} images of "
                  f"{info['num_classes']} identities (ids {info['class_pids'][0]}–"
                  f"{info['class_pids'][-1]})"
@@ -70,7 +83,8 @@ def main() -> None:
                          f"moving-train`): {c['train_moving']['images']:,} crops of "
                          f"{c['train_moving']['ids']} ids from {len(tm.get('recordings', []))} "
                          f"recordings ({len(tm.get('cameras', []))} moving observers)")
-    lines += ["", "## Recipe", "", "```json", json.dumps(r, indent=1), "```", "",
+    lines += ["", "## Recipe" + (" (the newest member's run)" if members else ""), "",
+              "```json", json.dumps(r, indent=1), "```", "",
               f"- seed {info['seed']}; torch {info['torch']}, {info['threads']} threads",
               f"- epochs done: {prog.get('epochs_done', len(epochs))} of {r['epochs']}; best "
               f"epoch {prog.get('best', {}).get('epoch') if prog.get('best') else '-'}",

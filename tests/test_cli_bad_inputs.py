@@ -478,7 +478,7 @@ CASES: list[tuple[str, list[str], str]] = [
     ("reid-query-aggregate", ["reid", "query", "{QUERY_DB}", "--track", "2", "--aggregate",
                               "max"], "argument --aggregate: invalid choice"),
     ("reid-query-dim-mismatch", ["reid", "query", "{DIM_DB}", "--image", "{QUERY_JPG}"],
-     "outputs 512-d vectors but"),
+     "-d vectors but"),
     ("reid-query-sheet-exists", ["reid", "query", "{QUERY_DB}", "--track", "2", "-o",
                                  "{OUT_PNG}"], "--overwrite"),
     ("reid-query-sheet-suffix", ["reid", "query", "{QUERY_DB}", "--track", "2", "-o",

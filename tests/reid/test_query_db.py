@@ -62,7 +62,7 @@ def _json(capsys) -> dict:
 def test_embed_adds_every_crop_once_and_another_model_its_own(run_db, tmp_path, capsys):
     import onnxruntime as ort
 
-    from dashtraj.reid.embed import shipped_model_path
+    from dashtraj.reid.embed import ReidEmbedder, shipped_model_path
 
     path = tmp_path / "run.db"
     shutil.copy(run_db, path)
@@ -71,7 +71,8 @@ def test_embed_adds_every_crop_once_and_another_model_its_own(run_db, tmp_path, 
     assert n > 150
     assert main(["reid", "embed", str(path), "--batch", "50", "--json"]) == 0
     first = _json(capsys)
-    assert (first["crops"], first["already"], first["added"], first["dim"]) == (n, 0, n, 512)
+    dim = ReidEmbedder(threads=1).dim
+    assert (first["crops"], first["already"], first["added"], first["dim"]) == (n, 0, n, dim)
     assert first["batches"] == -(-n // 50)
     assert main(["reid", "embed", str(path), "--json"]) == 0  # a rerun adds nothing
     again = _json(capsys)
@@ -137,7 +138,7 @@ def test_gallery_search_equals_brute_force_on_the_database_vectors(embedded):
 
     with SightingsDB.open(embedded) as db:
         e = db.embeddings(_sha(db))
-    g = Gallery(512, metric="ip")
+    g = Gallery(e.vectors.shape[1], metric="ip")
     g.add(e.vectors, ids=np.arange(len(e)) + 1000)
     s, i = g.search(e.vectors[:40], k=15)
     bs, bi = brute_force_search(e.vectors, e.vectors[:40], 15, "ip", np.arange(len(e)) + 1000)

@@ -128,13 +128,15 @@ def _road12_db(path, m, rows_of, tracks):
     """A sightings DB of observer 1 driving Town01's road 12 (lane -1) at 10 m/s from
     s = 10 m, a frame every 0.2 s for 20 frames. ``rows_of(f, t)`` gives a frame's
     detections as (track, box, score, location, truth id, depicted id, axis); each has a
-    crop whose embedding for the shipped ReID model is the unit vector along ``axis``.
+    crop whose embedding for the shipped ReID model is the unit vector along ``axis`` (of the
+    model's embedding size).
     ``tracks``: the `TrackRow`s. Returns the model's path."""
     from dashtraj.reid.database import file_sha256
-    from dashtraj.reid.embed import shipped_model_path
+    from dashtraj.reid.embed import ReidEmbedder, shipped_model_path
     from dashtraj.store import CropRow
 
     model = shipped_model_path()
+    dim = ReidEmbedder(model, threads=1).dim
     with SightingsDB.create(path) as db:
         db.write_run("runs/x", "town01", None, {"width_px": 640, "height_px": 360}, {},
                      [(1, None)])
@@ -150,7 +152,7 @@ def _road12_db(path, m, rows_of, tracks):
                                          vid, dep))
                 crops.append(CropRow(1, f, idx, b"\xff", 1, 1))
                 keys.append((1, f, idx))
-                vecs.append(np.eye(512, dtype=np.float32)[axis])
+                vecs.append(np.eye(dim, dtype=np.float32)[axis])
         db.add_frames(poses, dets, crops, tracks)
         db.add_embeddings(model.name, file_sha256(model), keys, np.array(vecs))
         db.finish_observer(1)
