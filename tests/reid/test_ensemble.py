@@ -190,6 +190,53 @@ def test_ensemble_command(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.onnx", "b.onnx", "ens.onnx"]
 
 
+@pytest.mark.parametrize("int8", [False, True], ids=["float16", "int8"])
+def test_a_member_comes_back_out_whole(tmp_path, int8):
+    """`extract_member`: each member of an ensemble written back alone embeds as the model it
+    was built from (to the storage's rounding), at its own input size, with its metadata."""
+    from dashtraj.reid.embed import ReidEmbedder
+    from dashtraj.train.reid_ensemble import EnsembleError, build_ensemble, extract_member
+
+    a = _member(tmp_path / "a.onnx", 16, seed=0)
+    b = _member(tmp_path / "b.onnx", 20, seed=1, dim=8)
+    ens = tmp_path / "ens.onnx"
+    build_ensemble([a, b], ens, int8=int8)
+    for i, (src, size, dim) in enumerate([(a, 16, 16), (b, 20, 8)], start=1):
+        out = tmp_path / f"m{i}.onnx"
+        meta = extract_member(ens, i, out)
+        assert (meta["input_height"], meta["feature_dim"]) == (str(size), str(dim))
+        x = np.random.default_rng(i).normal(0, 1, (4, 3, size, size)).astype(np.float32)
+        got, want = _unit(_run(out, x)), _unit(_run(src, x))
+        assert got.shape == (4, dim)
+        assert (got * want).sum(1).min() > (0.999 if int8 else 0.99999)
+        e = ReidEmbedder(out, threads=1)
+        assert (e.height, e.dim) == (size, dim) and "ensemble" not in e.metadata
+    with pytest.raises(EnsembleError, match="has members 1 to 2"):
+        extract_member(ens, 3, tmp_path / "x.onnx")
+    with pytest.raises(EnsembleError, match="not an ensemble"):
+        extract_member(a, 1, tmp_path / "x.onnx")
+
+
+def test_member_command(tmp_path, capsys):
+    from dashtraj.cli import main
+    from dashtraj.train.reid_ensemble import build_ensemble
+
+    ens = tmp_path / "ens.onnx"
+    build_ensemble([_member(tmp_path / "a.onnx", 16, 0), _member(tmp_path / "b.onnx", 20, 1)],
+                   ens, int8=True)
+    out = tmp_path / "m2.onnx"
+    assert main(["reid", "member", str(ens), "2", "-o", str(out), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["input_height"] == "20"
+    first = out.read_bytes()
+    for args, why in [([str(ens), "3", "-o", str(out), "--overwrite"], "has members 1 to 2"),
+                      ([str(ens), "0", "-o", str(out), "--overwrite"], "argument N"),
+                      ([str(ens), "1", "-o", str(out)], "--overwrite")]:
+        assert main(["reid", "member", *args]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and why in err and "Traceback" not in err, err
+        assert out.read_bytes() == first
+
+
 def test_training_refuses_an_ensemble_as_init(tmp_path):
     from dashtraj.reid.train import TrainError
     from dashtraj.train.reid_ensemble import build_ensemble
@@ -198,5 +245,5 @@ def test_training_refuses_an_ensemble_as_init(tmp_path):
     out = tmp_path / "ens.onnx"
     build_ensemble([_member(tmp_path / "a.onnx", 16, 0), _member(tmp_path / "b.onnx", 16, 1)],
                    out)
-    with pytest.raises(TrainError, match="is an ensemble"):
+    with pytest.raises(TrainError, match=r"is an ensemble.*reid member ens\.onnx N"):
         check_onnx(out, "efficientnet_lite0", 16, 16)

@@ -200,6 +200,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     en.add_argument("--json", action="store_true", help="print the summary as JSON")
     en.set_defaults(func=run_ensemble)
 
+    mb = sub.add_parser(
+        "member", help="write one member of an ensemble as a standalone model (needs onnx)",
+        description="Write member N (1-based, in the order 'reid ensemble' took them) of an "
+                    "ensemble as the standalone ONNX model it was: its input size, nodes and "
+                    "metadata, its weights as the ensemble stores them (float32). 'reid eval' "
+                    "scores it alone, 'reid train --init' trains it on.")
+    mb.add_argument("ensemble", metavar="ENS.onnx", help="an ensemble of 'reid ensemble'")
+    mb.add_argument("index", type=positive_int, metavar="N", help="member number, from 1")
+    mb.add_argument("-o", "--output", required=True, metavar="M.onnx", help="ONNX file")
+    add_output_args(mb)
+    mb.add_argument("--json", action="store_true", help="print the summary as JSON")
+    mb.set_defaults(func=run_member)
+
     from dashtraj.cli.reid_db import register_db_commands
 
     register_db_commands(sub)
@@ -398,14 +411,12 @@ def _weights(text: str) -> list[float]:
 def run_ensemble(args: argparse.Namespace) -> int:
     """Join exported models into one ONNX file; prints its size and sha256; returns 0."""
     import hashlib
-    import importlib.util
     from pathlib import Path
 
     from dashtraj.errors import DashtrajError
     from dashtraj.outputs import atomic_output
 
-    if importlib.util.find_spec("onnx") is None:
-        raise DashtrajError("this command needs onnx: pip install onnx (or -e '.[train]')")
+    _need_onnx()
     from dashtraj.train.reid_ensemble import build_ensemble
 
     if args.weights is not None and len(args.weights) != len(args.models):
@@ -423,6 +434,39 @@ def run_ensemble(args: argparse.Namespace) -> int:
         print(f"{args.output}: {meta['model']}, input {meta['input_width']}x"
               f"{meta['input_height']}, {meta['feature_dim']}-d, {meta['weights_dtype']} "
               f"weights, {len(data) / 1e6:.2f} MB, sha256 {info['sha256'][:16]}...")
+    return 0
+
+
+def _need_onnx() -> None:
+    import importlib.util
+
+    from dashtraj.errors import DashtrajError
+
+    if importlib.util.find_spec("onnx") is None:  # looks, does not import it
+        raise DashtrajError("this command needs onnx: pip install onnx (or -e '.[train]')")
+
+
+def run_member(args: argparse.Namespace) -> int:
+    """Write one member of an ensemble as a standalone model; returns 0."""
+    import hashlib
+    from pathlib import Path
+
+    from dashtraj.outputs import atomic_output
+
+    _need_onnx()
+    from dashtraj.train.reid_ensemble import extract_member
+
+    with atomic_output(args.output, overwrite=args.overwrite, kind="file") as tmp:
+        meta = extract_member(args.ensemble, args.index, tmp)
+    data = Path(args.output).read_bytes()
+    info = {"output": args.output, "bytes": len(data),
+            "sha256": hashlib.sha256(data).hexdigest(), **meta}
+    if args.json:
+        print(json.dumps(info))
+    else:
+        print(f"{args.output}: member {args.index} of {args.ensemble}, {meta.get('model')} "
+              f"{meta.get('input_height')}x{meta.get('input_width')}, {len(data) / 1e6:.2f} MB, "
+              f"sha256 {info['sha256'][:16]}...")
     return 0
 
 

@@ -69,6 +69,11 @@ def _member(path: Path):
     return m, meta, size, int(out[1].dim_value)
 
 
+def _opset(m) -> int:
+    """The default-domain opset a model imports."""
+    return next((o.version for o in m.opset_import if o.domain in ("", "ai.onnx")), OPSET)
+
+
 def _weights_as_float32(g) -> None:
     """Every float16 initializer that a ``Cast`` to float32 reads (`reid export
     --fp16-weights`) replaced by its float32 values under the Cast's output name; the Casts
@@ -204,7 +209,9 @@ def build_ensemble(paths, output, weights=None, int8: bool = False) -> dict:
                              name=pre + "scaled")])
         info.append({"file": p.name, "model": meta.get("model"), "input_height": mh,
                      "input_width": mw, "feature_dim": dim, "weight": wt,
-                     "sha256": hashlib.sha256(p.read_bytes()).hexdigest()})
+                     "sha256": hashlib.sha256(p.read_bytes()).hexdigest(),
+                     "opset": _opset(members[i][0]), "input": src[len(pre):],
+                     "output": out[len(pre):], "metadata": meta})
     dim = sum(d for _, _, _, d in members)
     nodes.append(helper.make_node("Concat", [f"m{i}/scaled" for i in range(len(members))],
                                   ["embedding"], axis=1, name="concat"))
@@ -238,3 +245,80 @@ def build_ensemble(paths, output, weights=None, int8: bool = False) -> dict:
         p.key, p.value = k, v
     onnx.save(model, str(output))
     return meta
+
+
+def extract_member(path, index: int, output) -> dict:
+    """Member ``index`` (1-based) of an ensemble written back as a standalone ReID model at
+    ``output``: its nodes and weights (float32, as the ensemble stores them: an int8
+    ensemble's member differs from the file it was built from by the rounding), its input
+    size, opset and metadata. `reid eval` scores it alone; `reid train --init` trains it on.
+
+    Returns the member's metadata as written. Raises EnsembleError: not an ensemble, no
+    such member, or an ensemble written before members kept their metadata.
+    """
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    path = Path(path)
+    try:
+        m = onnx.load(str(path))
+    except FileNotFoundError:
+        raise EnsembleError(f"{path}: no such file") from None
+    except Exception as e:  # onnx raises protobuf's DecodeError and its own types
+        raise EnsembleError(f"{path}: not an ONNX model ({type(e).__name__})") from None
+    meta = {p.key: p.value for p in m.metadata_props}
+    if "ensemble" not in meta:
+        raise EnsembleError(f"{path}: not an ensemble of 'dashtraj reid ensemble'")
+    members = json.loads(meta["ensemble"])
+    if not 1 <= index <= len(members):
+        raise EnsembleError(f"member {index}: {path} has members 1 to {len(members)}")
+    info = members[index - 1]
+    if "metadata" not in info:
+        raise EnsembleError(f"{path}: written before ensembles kept their members' metadata; "
+                            "build it again from the members")
+    pre = f"m{index - 1}/"
+    g = m.graph
+    raw = {i.name: numpy_helper.to_array(i) for i in g.initializer if i.name.startswith(pre)}
+    weights = {}
+    for name, arr in raw.items():  # the storage of `_store_int8` / `store_weights_fp16`
+        if name.endswith("__int8"):
+            base = name[:-len("__int8")]
+            weights[base] = arr.astype(np.float32) * raw[base + "__scale"]
+        elif name.endswith("__fp16"):
+            weights[name[:-len("__fp16")]] = arr.astype(np.float32)
+        elif not name.endswith("__scale"):
+            weights[name] = arr
+    src, out = pre + info["input"], pre + info["output"]
+    added = {src, pre + "norm", pre + "norm_eps", pre + "unit", pre + "scaled"}
+    nodes = [n for n in g.node if n.output and all(o.startswith(pre) for o in n.output)
+             and not any(o in added or o in weights or o.endswith("__float")
+                         for o in n.output)]
+    used = {i for n in nodes for i in n.input}
+
+    def bare(name: str) -> str:
+        return name[len(pre):] if name.startswith(pre) else name
+
+    for n in nodes:
+        n.input[:] = [bare(i) for i in n.input]
+        n.output[:] = [bare(o) for o in n.output]
+        n.name = bare(n.name)
+    graph = helper.make_graph(
+        nodes, "dashtraj_reid_member",
+        [helper.make_tensor_value_info(bare(src), TensorProto.FLOAT,
+                                       ["batch", 3, info["input_height"], info["input_width"]])],
+        [helper.make_tensor_value_info(bare(out), TensorProto.FLOAT,
+                                       ["batch", info["feature_dim"]])],
+        initializer=[numpy_helper.from_array(np.asarray(a), bare(k))
+                     for k, a in weights.items() if k in used])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", info["opset"])],
+                              producer_name="dashtraj reid member")
+    model.ir_version = min(model.ir_version, 8)
+    onnx.checker.check_model(model)
+    mmeta = {**info["metadata"], "weights_dtype": "float32",
+             "weights": f"float32, member {index} of {path.name} ({meta.get('weights_dtype')} "
+                        "there)"}
+    for k, v in mmeta.items():
+        p = model.metadata_props.add()
+        p.key, p.value = k, v
+    onnx.save(model, str(output))
+    return mmeta

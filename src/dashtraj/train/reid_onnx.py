@@ -46,8 +46,8 @@ def _onnx_tensors(path: Path):
         raise TrainError(f"--init: {path}: not an ONNX model ({type(e).__name__})") from None
     meta = {p.key: p.value for p in m.metadata_props}
     if "ensemble" in meta:
-        raise TrainError(f"--init: {path} is an ensemble ({meta.get('model')}, 'dashtraj reid "
-                         "ensemble'); start from one of its members")
+        raise TrainError(f"--init: {path} is an ensemble ({meta.get('model')}); start from one "
+                         f"of its members ('dashtraj reid member {path.name} N -o M.onnx')")
     raw = {i.name: numpy_helper.to_array(i) for i in m.graph.initializer}
     # float16 weights reach their node through a Cast (`reid export --fp16-weights`)
     alias = {n.output[0]: n.input[0] for n in m.graph.node
