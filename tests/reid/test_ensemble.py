@@ -238,6 +238,7 @@ def test_member_command(tmp_path, capsys):
 
 
 def test_training_refuses_an_ensemble_as_init(tmp_path):
+    pytest.importorskip("torch")  # dashtraj.reid.train's TrainError
     from dashtraj.reid.train import TrainError
     from dashtraj.train.reid_ensemble import build_ensemble
     from dashtraj.train.reid_onnx import check_onnx

@@ -227,9 +227,9 @@ def build_ensemble(paths, output, weights=None, int8: bool = False) -> dict:
         n_q = _store_int8(model.graph)
         dtype = "int8 per output channel"
     else:
-        from dashtraj.train.detector_model import store_weights_fp16
+        from dashtraj.train.reid_export import fp16_weights  # torch-free, as this module
 
-        n_q = store_weights_fp16(model)
+        n_q = fp16_weights(model)
         dtype = "float16"
     onnx.checker.check_model(model)
     first = members[0][1]
@@ -280,7 +280,7 @@ def extract_member(path, index: int, output) -> dict:
     g = m.graph
     raw = {i.name: numpy_helper.to_array(i) for i in g.initializer if i.name.startswith(pre)}
     weights = {}
-    for name, arr in raw.items():  # the storage of `_store_int8` / `store_weights_fp16`
+    for name, arr in raw.items():  # the storage of `_store_int8` / `fp16_weights`
         if name.endswith("__int8"):
             base = name[:-len("__int8")]
             weights[base] = arr.astype(np.float32) * raw[base + "__scale"]
