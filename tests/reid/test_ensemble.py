@@ -12,10 +12,12 @@ onnx = pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
 
 
-def _member(path, size: int, seed: int, dim: int = 16, mean: str = "[0.485, 0.456, 0.406]"):
+def _member(path, size: int, seed: int, dim: int = 16, mean: str = "[0.485, 0.456, 0.406]",
+            reduce_mean: bool = False):
     """A small ReID-shaped ONNX model as `reid export` writes one: images (batch, 3, size,
     size) → Conv 3→64 (3x3) → Relu → global pooling → Gemm → ``dim``; metadata with the
-    input size and normalisation; weights from ``seed``."""
+    input size and normalisation; weights from ``seed``. ``reduce_mean``: pool with opset
+    17's ReduceMean (its axes an attribute, an input from opset 18 on)."""
     from onnx import TensorProto, helper, numpy_helper
 
     rng = np.random.default_rng(seed)
@@ -25,7 +27,8 @@ def _member(path, size: int, seed: int, dim: int = 16, mean: str = "[0.485, 0.45
     fb = rng.normal(0, 0.1, dim).astype(np.float32)
     nodes = [helper.make_node("Conv", ["images", "w", "b"], ["c"], pads=[1, 1, 1, 1]),
              helper.make_node("Relu", ["c"], ["r"]),
-             helper.make_node("GlobalAveragePool", ["r"], ["p"]),
+             helper.make_node("ReduceMean", ["r"], ["p"], axes=[2, 3], keepdims=1)
+             if reduce_mean else helper.make_node("GlobalAveragePool", ["r"], ["p"]),
              helper.make_node("Flatten", ["p"], ["f"]),
              helper.make_node("Gemm", ["f", "fc", "fb"], ["embedding"], transB=1)]
     g = helper.make_graph(
@@ -91,6 +94,23 @@ def test_ensemble_is_the_weighted_concatenation_of_its_members(tmp_path):
     c = np.full((1, 3, 20, 20), 0.7, np.float32)
     np.testing.assert_allclose(_run(out, c)[:, :16],
                                0.5 * _unit(_run(a, np.full((1, 3, 16, 16), 0.7, np.float32))),
+                               atol=2e-3)
+
+
+def test_a_member_of_an_older_opset_is_converted(tmp_path):
+    """A member whose operators opset 18 changed (here ReduceMean) is converted before it
+    joins; the ensemble still embeds as the member does, and the member comes back out."""
+    from dashtraj.train.reid_ensemble import build_ensemble, extract_member
+
+    a = _member(tmp_path / "a.onnx", 16, seed=0, reduce_mean=True)
+    b = _member(tmp_path / "b.onnx", 16, seed=1)
+    ens = tmp_path / "ens.onnx"
+    build_ensemble([a, b], ens)
+    x = np.random.default_rng(5).normal(0, 1, (3, 3, 16, 16)).astype(np.float32)
+    np.testing.assert_allclose(_run(ens, x)[:, :16], np.sqrt(0.5) * _unit(_run(a, x)),
+                               atol=2e-3)
+    extract_member(ens, 1, tmp_path / "m1.onnx")
+    np.testing.assert_allclose(_unit(_run(tmp_path / "m1.onnx", x)), _unit(_run(a, x)),
                                atol=2e-3)
 
 

@@ -38,6 +38,16 @@ from dashtraj.errors import DashtrajError
 OPSET = 18
 """The ensemble's opset (Resize's ``antialias`` and ``axes`` need 18)."""
 
+CHANGED_BY_18 = frozenset({
+    "ReduceL1", "ReduceL2", "ReduceLogSum", "ReduceLogSumExp", "ReduceMax", "ReduceMean",
+    "ReduceMin", "ReduceProd", "ReduceSumSquare", "Resize", "Pad", "Split", "ScatterElements",
+    "ScatterND", "LpPool", "Col2Im", "CenterCropPad", "GroupNormalization",
+    "OptionalHasElement", "OptionalGetElement", "BitwiseAnd", "BitwiseOr", "BitwiseXor",
+    "BitwiseNot"})
+"""Operators that opset 18 defines anew (new versions or new operators): a member of an older
+opset that uses one is converted (`onnx.version_converter`) before it joins the ensemble;
+the others keep their nodes as they are."""
+
 
 class EnsembleError(DashtrajError):
     """A member is not an exported dashtraj ReID model, or the members do not fit together."""
@@ -149,11 +159,13 @@ def build_ensemble(paths, output, weights=None, int8: bool = False) -> dict:
         int8: store the weights as int8 per output channel instead of float16.
 
     Returns:
-        The metadata written into the file (``input_height``, ``feature_dim``, ``members``…).
+        The metadata written into the file (``input_height``, ``feature_dim``, ``ensemble``:
+        the members as JSON…).
 
     Raises:
         EnsembleError: fewer than two members, a member that is not an exported ReID model
-            or an ensemble already, members with different mean/std, bad weights.
+            or an ensemble already, members with different mean/std or input sizes that do
+            not nest, a member of a newer opset, bad weights.
     """
     import onnx
     from onnx import TensorProto, compose, helper, numpy_helper
@@ -181,6 +193,17 @@ def build_ensemble(paths, output, weights=None, int8: bool = False) -> dict:
     for i, ((m, meta, (mh, mw), dim), wt, p) in enumerate(
             zip(members, weights, paths, strict=True)):
         _weights_as_float32(m.graph)
+        if _opset(m) < OPSET and any(n.op_type in CHANGED_BY_18 for n in m.graph.node):
+            from onnx import version_converter
+
+            try:
+                m = version_converter.convert_version(m, OPSET)
+            except Exception as e:  # the converter raises its own and RuntimeError types
+                raise EnsembleError(f"{p}: cannot convert its opset {_opset(m)} to {OPSET} "
+                                    f"({type(e).__name__})") from None
+        elif _opset(m) > OPSET:
+            raise EnsembleError(f"{p}: opset {_opset(m)}; an ensemble is opset {OPSET}")
+        opset = _opset(m)
         pre = f"m{i}/"
         m = compose.add_prefix(m, pre)
         g = m.graph
@@ -210,7 +233,7 @@ def build_ensemble(paths, output, weights=None, int8: bool = False) -> dict:
         info.append({"file": p.name, "model": meta.get("model"), "input_height": mh,
                      "input_width": mw, "feature_dim": dim, "weight": wt,
                      "sha256": hashlib.sha256(p.read_bytes()).hexdigest(),
-                     "opset": _opset(members[i][0]), "input": src[len(pre):],
+                     "opset": opset, "input": src[len(pre):],
                      "output": out[len(pre):], "metadata": meta})
     dim = sum(d for _, _, _, d in members)
     nodes.append(helper.make_node("Concat", [f"m{i}/scaled" for i in range(len(members))],
@@ -231,7 +254,11 @@ def build_ensemble(paths, output, weights=None, int8: bool = False) -> dict:
 
         n_q = fp16_weights(model)
         dtype = "float16"
-    onnx.checker.check_model(model)
+    try:
+        onnx.checker.check_model(model)
+    except onnx.checker.ValidationError as e:
+        raise EnsembleError("the joined graph is not valid ONNX: "
+                            + str(e).strip().splitlines()[0]) from None
     first = members[0][1]
     meta = {"model": "ensemble(" + ", ".join(f"{x['model']}@{x['input_height']}"
                                             for x in info) + ")",
