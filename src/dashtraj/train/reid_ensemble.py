@@ -53,8 +53,8 @@ class EnsembleError(DashtrajError):
     """A member is not an exported dashtraj ReID model, or the members do not fit together."""
 
 
-def _member(path: Path):
-    """(onnx model, metadata dict, (height, width), embedding size) of one exported model."""
+def _load(path: Path):
+    """(onnx model, metadata dict) of an ONNX file; EnsembleError naming it otherwise."""
     import onnx
 
     try:
@@ -63,7 +63,22 @@ def _member(path: Path):
         raise EnsembleError(f"{path}: no such file") from None
     except Exception as e:  # onnx raises protobuf's DecodeError and its own types
         raise EnsembleError(f"{path}: not an ONNX model ({type(e).__name__})") from None
-    meta = {p.key: p.value for p in m.metadata_props}
+    return m, {p.key: p.value for p in m.metadata_props}
+
+
+def _save(model, meta: dict[str, str], output) -> None:
+    """Write ``model`` to ``output`` with ``meta`` as its metadata."""
+    import onnx
+
+    for k, v in meta.items():
+        p = model.metadata_props.add()
+        p.key, p.value = k, v
+    onnx.save(model, str(output))
+
+
+def _member(path: Path):
+    """(onnx model, metadata dict, (height, width), embedding size) of one exported model."""
+    m, meta = _load(path)
     if "ensemble" in meta:
         raise EnsembleError(f"{path}: already an ensemble; give its members instead")
     if "model" not in meta or "input_height" not in meta:
@@ -267,10 +282,7 @@ def build_ensemble(paths, output, weights=None, int8: bool = False) -> dict:
             "std": first.get("std", "[0.229, 0.224, 0.225]"), "feature_dim": str(dim),
             "weights_dtype": dtype, "weights": f"{dtype} storage of {n_q} tensors, float32 "
                                                 "inference"}
-    for k, v in meta.items():
-        p = model.metadata_props.add()
-        p.key, p.value = k, v
-    onnx.save(model, str(output))
+    _save(model, meta, output)
     return meta
 
 
@@ -287,13 +299,7 @@ def extract_member(path, index: int, output) -> dict:
     from onnx import TensorProto, helper, numpy_helper
 
     path = Path(path)
-    try:
-        m = onnx.load(str(path))
-    except FileNotFoundError:
-        raise EnsembleError(f"{path}: no such file") from None
-    except Exception as e:  # onnx raises protobuf's DecodeError and its own types
-        raise EnsembleError(f"{path}: not an ONNX model ({type(e).__name__})") from None
-    meta = {p.key: p.value for p in m.metadata_props}
+    m, meta = _load(path)
     if "ensemble" not in meta:
         raise EnsembleError(f"{path}: not an ensemble of 'dashtraj reid ensemble'")
     members = json.loads(meta["ensemble"])
@@ -344,8 +350,5 @@ def extract_member(path, index: int, output) -> dict:
     mmeta = {**info["metadata"], "weights_dtype": "float32",
              "weights": f"float32, member {index} of {path.name} ({meta.get('weights_dtype')} "
                         "there)"}
-    for k, v in mmeta.items():
-        p = model.metadata_props.add()
-        p.key, p.value = k, v
-    onnx.save(model, str(output))
+    _save(model, mmeta, output)
     return mmeta
