@@ -218,13 +218,32 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     register_db_commands(sub)
 
 
-def _need_torch():
+def _need(module: str, install: str) -> None:
+    """DashtrajError telling how to install ``module`` when it is missing."""
     import importlib.util
 
     from dashtraj.errors import DashtrajError
 
-    if importlib.util.find_spec("torch") is None:  # looks, does not import it
-        raise DashtrajError("this command needs torch: pip install -e '.[train]'")
+    if importlib.util.find_spec(module) is None:  # looks, does not import it
+        raise DashtrajError(f"this command needs {module}: {install}")
+
+
+def _need_torch() -> None:
+    _need("torch", "pip install -e '.[train]'")
+
+
+def _need_onnx() -> None:
+    _need("onnx", "pip install onnx (or -e '.[train]')")
+
+
+def _written(output: str, meta: dict) -> dict:
+    """The summary of an ONNX file a command wrote: path, size, sha256 and ``meta``."""
+    import hashlib
+    from pathlib import Path
+
+    data = Path(output).read_bytes()
+    return {"output": output, "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest(),
+            **meta}
 
 
 def _size_overrides(size: str | None) -> dict:
@@ -364,22 +383,17 @@ def _confusions(errors: list[dict], by_key: bool) -> list[dict]:
 def run_export(args: argparse.Namespace) -> int:
     """Export a checkpoint to ONNX; prints size and sha256; returns 0."""
     _need_torch()
-    import hashlib
-    from pathlib import Path
-
     from dashtraj.outputs import atomic_output
     from dashtraj.train.reid_export import export_onnx
 
     with atomic_output(args.output, overwrite=args.overwrite, kind="file") as tmp:
         meta = export_onnx(args.checkpoint, tmp, fp16=args.fp16_weights)
-    data = Path(args.output).read_bytes()
-    info = {"output": args.output, "bytes": len(data),
-            "sha256": hashlib.sha256(data).hexdigest(), **meta}
+    info = _written(args.output, meta)
     if args.json:
         print(json.dumps(info))
     else:
         print(f"{args.output}: {meta['model']} {meta['input_height']}x{meta['input_width']}, "
-              f"{len(data) / 1e6:.2f} MB, sha256 {info['sha256'][:16]}...")
+              f"{info['bytes'] / 1e6:.2f} MB, sha256 {info['sha256'][:16]}...")
     return 0
 
 
@@ -410,9 +424,6 @@ def _weights(text: str) -> list[float]:
 
 def run_ensemble(args: argparse.Namespace) -> int:
     """Join exported models into one ONNX file; prints its size and sha256; returns 0."""
-    import hashlib
-    from pathlib import Path
-
     from dashtraj.errors import DashtrajError
     from dashtraj.outputs import atomic_output
 
@@ -424,33 +435,18 @@ def run_ensemble(args: argparse.Namespace) -> int:
                             f"{len(args.models)} models")
     with atomic_output(args.output, overwrite=args.overwrite, kind="file") as tmp:
         meta = build_ensemble(args.models, tmp, args.weights, int8=args.int8_weights)
-    data = Path(args.output).read_bytes()
-    info = {"output": args.output, "bytes": len(data),
-            "sha256": hashlib.sha256(data).hexdigest(), **meta,
-            "ensemble": json.loads(meta["ensemble"])}
+    info = {**_written(args.output, meta), "ensemble": json.loads(meta["ensemble"])}
     if args.json:
         print(json.dumps(info))
     else:
         print(f"{args.output}: {meta['model']}, input {meta['input_width']}x"
               f"{meta['input_height']}, {meta['feature_dim']}-d, {meta['weights_dtype']} "
-              f"weights, {len(data) / 1e6:.2f} MB, sha256 {info['sha256'][:16]}...")
+              f"weights, {info['bytes'] / 1e6:.2f} MB, sha256 {info['sha256'][:16]}...")
     return 0
-
-
-def _need_onnx() -> None:
-    import importlib.util
-
-    from dashtraj.errors import DashtrajError
-
-    if importlib.util.find_spec("onnx") is None:  # looks, does not import it
-        raise DashtrajError("this command needs onnx: pip install onnx (or -e '.[train]')")
 
 
 def run_member(args: argparse.Namespace) -> int:
     """Write one member of an ensemble as a standalone model; returns 0."""
-    import hashlib
-    from pathlib import Path
-
     from dashtraj.outputs import atomic_output
 
     _need_onnx()
@@ -458,15 +454,13 @@ def run_member(args: argparse.Namespace) -> int:
 
     with atomic_output(args.output, overwrite=args.overwrite, kind="file") as tmp:
         meta = extract_member(args.ensemble, args.index, tmp)
-    data = Path(args.output).read_bytes()
-    info = {"output": args.output, "bytes": len(data),
-            "sha256": hashlib.sha256(data).hexdigest(), **meta}
+    info = _written(args.output, meta)
     if args.json:
         print(json.dumps(info))
     else:
         print(f"{args.output}: member {args.index} of {args.ensemble}, {meta.get('model')} "
-              f"{meta.get('input_height')}x{meta.get('input_width')}, {len(data) / 1e6:.2f} MB, "
-              f"sha256 {info['sha256'][:16]}...")
+              f"{meta.get('input_height')}x{meta.get('input_width')}, "
+              f"{info['bytes'] / 1e6:.2f} MB, sha256 {info['sha256'][:16]}...")
     return 0
 
 

@@ -244,7 +244,7 @@ def crop_embeddings(db, embedder) -> tuple[list[tuple[int, int, int]], np.ndarra
     from dashtraj.reid.database import embed_database, file_sha256
 
     if db.count("crops") == 0:
-        return [], np.zeros((0, getattr(embedder, "dim", 512)), np.float32)
+        return [], np.zeros((0, embedder.dim), np.float32)
     embed_database(db, embedder)
     es = db.embeddings(file_sha256(embedder.path))
     keys = list(zip(es.observer_id.tolist(), es.frame.tolist(), es.idx.tolist(), strict=True))
