@@ -55,6 +55,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     t.add_argument("--lowres", type=fraction, default=None, metavar="P",
                    help="shrink this share of the training images to 12-48 px high and back "
                         "(dashcam crops are that small; default: the recipe's, 0)")
+    t.add_argument("--truncate", type=fraction, default=None, metavar="P",
+                   help="cut this share of the training images at one border (10-70 %% of "
+                        "the width or height) and stretch the rest back, as a vehicle partly "
+                        "outside a dashcam's frame is cropped (default: the recipe's, 0)")
+    t.add_argument("--erasing", type=fraction, default=None, metavar="P",
+                   help="random erasing: paint one random rectangle (2-40 %% of the area) of "
+                        "this share of the training images the mean colour (default: the "
+                        "recipe's, 0)")
     t.add_argument("--resume", action="store_true", help="continue the run in DIR")
     t.add_argument("--init", default=None, metavar="CKPT.pt|M.onnx",
                    help="start from another run's weights (a second stage with its own "
@@ -268,7 +276,8 @@ def run_train(args: argparse.Namespace) -> int:
 
     recipe = recipe_for(args.recipe, args.model, epochs=args.epochs, batch_size=args.batch_size,
                         lr=args.lr, triplet=True if args.triplet else None,
-                        lowres=args.lowres, **_size_overrides(args.size))
+                        lowres=args.lowres, truncate=args.truncate,
+                        erasing=args.erasing, **_size_overrides(args.size))
     cmd = "dashtraj " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     s = train(args.data, args.output, recipe, seed=args.seed, resume=args.resume,
               overwrite=args.overwrite, max_hours=args.max_hours, threads=args.threads,

@@ -85,6 +85,14 @@ class Recipe:
             average, as a camera samples a far vehicle) and enlarged back (bilinear, as
             `dashtraj.reid.preprocess` enlarges a small crop): dashcam crops are 10–40 px
             high where the ring's are 100 or more. 0: off (no draw is made).
+        truncate: the share of images cut at one border, as a vehicle partly outside a
+            dashcam's frame is: a fraction drawn from ``truncate_max`` (uniform, within
+            (0.1, max)) of the width (left or right side, 0.4 each) or of the height
+            (bottom or top, 0.1 each) is removed and the rest stretched back to the input
+            size, as a clipped box's crop is. 0: off (no draw is made).
+        erasing: the share of images with one random rectangle (2-40 % of the area, aspect
+            0.3-3.3) painted the ImageNet mean colour (random erasing, Zhong et al. 2020):
+            occluders. 0: off (no draw is made).
     """
 
     name: str
@@ -109,6 +117,9 @@ class Recipe:
     frozen_blocks: int | None = None
     lowres: float = 0.0
     lowres_px: tuple[int, int] = (12, 48)
+    truncate: float = 0.0
+    truncate_max: float = 0.7
+    erasing: float = 0.0
 
 
 RECIPES = {
@@ -247,10 +258,14 @@ def epoch_batches(labels: np.ndarray, recipe: Recipe, seed: int, epoch: int) -> 
 
 
 def augment(images: np.ndarray, recipe: Recipe, rng: np.random.Generator) -> np.ndarray:
-    """Random low resolution (``Recipe.lowres``), horizontal flip and translation
-    (edge-replicated), (N, H, W, 3) uint8."""
+    """Random truncation at a border (``Recipe.truncate``), low resolution
+    (``Recipe.lowres``), horizontal flip, translation (edge-replicated) and random erasing
+    (``Recipe.erasing``), in that order; (N, H, W, 3) uint8. A share of 0 draws no random
+    number, so runs without it repeat."""
     out = np.array(images)
     n, h, w, _ = out.shape
+    if recipe.truncate > 0:
+        _truncate(out, recipe.truncate, recipe.truncate_max, rng)
     if recipe.lowres > 0:
         from PIL import Image
 
@@ -272,7 +287,43 @@ def augment(images: np.ndarray, recipe: Recipe, rng: np.random.Generator) -> np.
         dx = rng.integers(0, 2 * pw + 1, n)
         for i in range(n):
             out[i] = padded[i, dy[i]:dy[i] + h, dx[i]:dx[i] + w]
+    if recipe.erasing > 0:
+        _erase(out, recipe.erasing, rng)
     return out
+
+
+def _truncate(out: np.ndarray, share: float, max_cut: float, rng: np.random.Generator) -> None:
+    """`Recipe.truncate` in place on (N, H, W, 3) uint8."""
+    from PIL import Image
+
+    n, h, w, _ = out.shape
+    hit = rng.random(n) < share
+    cut = rng.uniform(0.1, max(0.1, max_cut), n)
+    side = rng.choice(4, n, p=(0.4, 0.4, 0.1, 0.1))  # left, right, bottom, top removed
+    for i in np.flatnonzero(hit):
+        if side[i] < 2:
+            k = min(w - 1, max(1, round(w * cut[i])))
+            part = out[i, :, k:] if side[i] == 0 else out[i, :, :w - k]
+        else:
+            k = min(h - 1, max(1, round(h * cut[i])))
+            part = out[i, :h - k] if side[i] == 2 else out[i, k:]
+        out[i] = np.asarray(Image.fromarray(np.ascontiguousarray(part)).resize(
+            (w, h), Image.Resampling.BILINEAR))
+
+
+def _erase(out: np.ndarray, share: float, rng: np.random.Generator) -> None:
+    """`Recipe.erasing` in place on (N, H, W, 3) uint8."""
+    n, h, w, _ = out.shape
+    hit = rng.random(n) < share
+    area = rng.uniform(0.02, 0.4, n) * h * w
+    aspect = np.exp(rng.uniform(np.log(0.3), np.log(1 / 0.3), n))
+    fy, fx = rng.random(n), rng.random(n)
+    fill = np.round(np.asarray(IMAGENET_MEAN) * 255).astype(np.uint8)
+    for i in np.flatnonzero(hit):
+        eh = int(min(h, max(1, round(np.sqrt(area[i] * aspect[i])))))
+        ew = int(min(w, max(1, round(np.sqrt(area[i] / aspect[i])))))
+        y0, x0 = int(fy[i] * (h - eh + 1)), int(fx[i] * (w - ew + 1))
+        out[i, y0:y0 + eh, x0:x0 + ew] = fill
 
 
 def _to_tensor(batch: np.ndarray, channels_last: bool, device=None):
