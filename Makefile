@@ -55,9 +55,12 @@ train-env: $(STAMP)
 # vehicles more than half outside the frame (stage10t: --extra-max-truncation 0.5, read from
 # the crops' labels_train_moving.csv), and stage 10, the mean of the five cycles' ends; then
 # two cycles at 160x160 (stage11a: 3 epochs from stage 9's averaged weights; stage11b: 3 more
-# from 11a's last.pt without those crops), their mean exported, and stage 11 (the shipped
-# model): 'reid ensemble' of stage 10 (128 px) and that 160-px mean, int8 weights; each stage
-# resumes from its own last.pt; exported with float16 weights.
+# from 11a's last.pt without those crops), their mean exported, and stage 11: 'reid ensemble'
+# of stage 10 (128 px) and that 160-px mean, int8 weights; then two more 160-px cycles
+# (stage12a: 3 epochs from 11b's last.pt with every dashcam crop; stage12b: 3 more from 12a's,
+# seed 1, with occlusion augmentations: --truncate 0.3 --erasing 0.5; '--seed 1' after the
+# macro's '--seed 0' wins), and stage 12 (the shipped model): the mean of 11b, 12a and 12b,
+# one 160-px network; each stage resumes from its own last.pt; exported with float16 weights.
 # One torch thread by default: on these 2 shared cores two threads ran 5x slower beside other
 # jobs (barrier waits); on two otherwise idle cores REID_THREADS=2 is faster (stage 5's last two
 # epochs and stage 6: 22-27 images/s against 15 on one thread).
@@ -83,7 +86,7 @@ reid-data: $(STAMP)
 		$(REID_DATA) $(foreach s,$(MTRAIN_SEEDS),$(REID_DATA)_mtrain/town01_s$(s)) \
 		$(foreach s,$(MTRAIN_SEEDS),$(REID_DATA)_mtrain/town10_s$(s))
 
-# One every-layer cycle (stages 7, 8a, 8b, 8c, 10t, 11a, 11b): the gpu recipe's settings on the
+# One every-layer cycle (stages 7, 8a, 8b, 8c, 10t, 11a, 11b, 12a, 12b): the gpu recipe's settings on the
 # CPU, with the dashcam crops; $(call reid_every_layer,STAGE,INIT,EPOCHS,LR[,MORE]) trains
 # RUN_STAGE from INIT (a checkpoint or an ONNX), resuming its own last.pt when there is one;
 # MORE: more arguments of 'reid train'.
@@ -144,6 +147,13 @@ reid-train: train-env
 	$(VENV)/bin/dashtraj reid ensemble $(REID_RUN)_stage10/efficientnet_lite0_cpu.onnx \
 		$(REID_RUN)_stage11/efficientnet_lite0_160.onnx --int8-weights \
 		-o $(REID_RUN)_stage11/efficientnet_lite0_cpu.onnx --overwrite
+	$(call reid_every_layer,stage12a,$(REID_RUN)_stage11b/last.pt,3,1e-4,--size 160x160)
+	$(call reid_every_layer,stage12b,$(REID_RUN)_stage12a/last.pt,3,1e-4,--size 160x160 \
+		--seed 1 --truncate 0.3 --erasing 0.5)
+	$(VENV)/bin/dashtraj reid average $(REID_RUN)_stage11b/last.pt $(REID_RUN)_stage12a/last.pt \
+		$(REID_RUN)_stage12b/last.pt -o $(REID_RUN)_stage12/average.pt --overwrite
+	$(VENV)/bin/dashtraj reid export $(REID_RUN)_stage12/average.pt \
+		-o $(REID_RUN)_stage12/efficientnet_lite0_cpu.onnx --fp16-weights --overwrite
 
 # The track-join model (efficientnet_lite0_join.onnx, `tracker eval`'s offline re-linking):
 # stage 6's model (its ONNX, rebuilt in torch by --init; the package's ReID model until stage 7
