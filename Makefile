@@ -86,10 +86,10 @@ reid-data: $(STAMP)
 		$(REID_DATA) $(foreach s,$(MTRAIN_SEEDS),$(REID_DATA)_mtrain/town01_s$(s)) \
 		$(foreach s,$(MTRAIN_SEEDS),$(REID_DATA)_mtrain/town10_s$(s))
 
-# One every-layer cycle (stages 7, 8a, 8b, 8c, 10t, 11a, 11b, 12a, 12b): the gpu recipe's settings on the
-# CPU, with the dashcam crops; $(call reid_every_layer,STAGE,INIT,EPOCHS,LR[,MORE]) trains
-# RUN_STAGE from INIT (a checkpoint or an ONNX), resuming its own last.pt when there is one;
-# MORE: more arguments of 'reid train'.
+# One every-layer cycle (stages 7, 8a, 8b, 8c, 10t, 11a, 11b, 12a, 12b): the gpu recipe's
+# settings on the CPU, with the dashcam crops; $(call reid_every_layer,STAGE,INIT,EPOCHS,LR[,
+# MORE]) trains RUN_STAGE from INIT (a checkpoint or an ONNX), resuming its own last.pt when
+# there is one; MORE: more arguments of 'reid train'.
 reid_every_layer = $(VENV)/bin/dashtraj reid train $(REID_DATA) -o $(REID_RUN)_$(1) --recipe gpu \
 	--device cpu --seed 0 --threads $(REID_THREADS) --init $(2) --epochs $(3) --lr $(4) \
 	--extra-train image_train_moving $(5) $$(test -f $(REID_RUN)_$(1)/last.pt && echo --resume)

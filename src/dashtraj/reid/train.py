@@ -86,10 +86,10 @@ class Recipe:
             `dashtraj.reid.preprocess` enlarges a small crop): dashcam crops are 10–40 px
             high where the ring's are 100 or more. 0: off (no draw is made).
         truncate: the share of images cut at one border, as a vehicle partly outside a
-            dashcam's frame is: a fraction drawn from ``truncate_max`` (uniform, within
-            (0.1, max)) of the width (left or right side, 0.4 each) or of the height
-            (bottom or top, 0.1 each) is removed and the rest stretched back to the input
-            size, as a clipped box's crop is. 0: off (no draw is made).
+            dashcam's frame is: a fraction, uniform between 0.1 and ``truncate_max``, of
+            the width (the left or right side, 0.4 each) or of the height (the bottom or
+            top, 0.1 each) is removed and the rest stretched back to the input size, as a
+            clipped box's crop is. 0: off (no draw is made).
         erasing: the share of images with one random rectangle (2-40 % of the area, aspect
             0.3-3.3) painted the ImageNet mean colour (random erasing, Zhong et al. 2020):
             occluders. 0: off (no draw is made).
