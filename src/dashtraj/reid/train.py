@@ -276,7 +276,7 @@ def augment(images: np.ndarray, recipe: Recipe, rng: np.random.Generator) -> np.
             hh = int(heights[i])
             small = Image.fromarray(out[i]).resize((max(1, round(w * hh / h)), hh),
                                                    Image.Resampling.BOX)
-            out[i] = np.asarray(small.resize((w, h), Image.Resampling.BILINEAR))
+            out[i] = resize_uint8(small, h, w)  # enlarged back as the run time does
     if recipe.flip:
         f = rng.random(n) < 0.5
         out[f] = out[f, :, ::-1]
@@ -293,9 +293,8 @@ def augment(images: np.ndarray, recipe: Recipe, rng: np.random.Generator) -> np.
 
 
 def _truncate(out: np.ndarray, share: float, max_cut: float, rng: np.random.Generator) -> None:
-    """`Recipe.truncate` in place on (N, H, W, 3) uint8."""
-    from PIL import Image
-
+    """`Recipe.truncate` in place on (N, H, W, 3) uint8; the rest is stretched back by the
+    run time's own crop resize (`resize_uint8`)."""
     n, h, w, _ = out.shape
     hit = rng.random(n) < share
     cut = rng.uniform(0.1, max(0.1, max_cut), n)
@@ -307,8 +306,7 @@ def _truncate(out: np.ndarray, share: float, max_cut: float, rng: np.random.Gene
         else:
             k = min(h - 1, max(1, round(h * cut[i])))
             part = out[i, :h - k] if side[i] == 2 else out[i, k:]
-        out[i] = np.asarray(Image.fromarray(np.ascontiguousarray(part)).resize(
-            (w, h), Image.Resampling.BILINEAR))
+        out[i] = resize_uint8(np.ascontiguousarray(part), h, w)
 
 
 def _erase(out: np.ndarray, share: float, rng: np.random.Generator) -> None:
