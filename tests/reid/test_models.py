@@ -219,6 +219,28 @@ def test_overwrite_keeps_the_old_run_when_an_input_is_bad(tmp_path):
     assert not (tmp_path / "new").exists()
 
 
+def test_colour_grouped_batches_train_and_check_their_inputs(tmp_path):
+    """--group-batches reads the identities' colours from reid.json; without it, or
+    without the triplet loss, the run is refused before OUT is made."""
+    from dashtraj.reid.train import TrainError, train
+
+    _tiny_set(tmp_path / "data")
+    r = replace(_recipe(1), group_batches=1.0)
+    with pytest.raises(TrainError, match=r"reid\.json missing"):
+        train(tmp_path / "data", tmp_path / "run", r, seed=3, threads=1, log=None)
+    ids = [{"id": v, "key": f"vehicle.m{v}/{'red' if v <= 2 else 'blue'}"} for v in range(1, 7)]
+    (tmp_path / "data" / "reid.json").write_text(json.dumps({"ids": ids}))
+    with pytest.raises(TrainError, match="--triplet"):
+        train(tmp_path / "data", tmp_path / "run", replace(r, triplet=False), seed=3,
+              threads=1, log=None)
+    assert not (tmp_path / "run").exists()
+    s = train(tmp_path / "data", tmp_path / "run", r, seed=3, threads=1, log=None)
+    assert s["finished"]
+    info = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert info["batch_groups"] == {"by": "colour", "groups": 2}
+    assert info["recipe"]["group_batches"] == 1.0
+
+
 def test_onnx_export_equals_torch(tmp_path):
     pytest.importorskip("onnx")
     pytest.importorskip("onnxruntime")

@@ -63,6 +63,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="random erasing: paint one random rectangle (2-40 %% of the area) of "
                         "this share of the training images the mean colour (default: the "
                         "recipe's, 0)")
+    t.add_argument("--group-batches", type=fraction, default=None, metavar="P",
+                   help="with the triplet loss: draw this share of the identities' image "
+                        "groups into batches of one colour (reid.json's identity keys), so "
+                        "the hardest negatives differ by shape alone (default: the recipe's, 0)")
     t.add_argument("--resume", action="store_true", help="continue the run in DIR")
     t.add_argument("--init", default=None, metavar="CKPT.pt|M.onnx",
                    help="start from another run's weights (a second stage with its own "
@@ -277,7 +281,8 @@ def run_train(args: argparse.Namespace) -> int:
     recipe = recipe_for(args.recipe, args.model, epochs=args.epochs, batch_size=args.batch_size,
                         lr=args.lr, triplet=True if args.triplet else None,
                         lowres=args.lowres, truncate=args.truncate,
-                        erasing=args.erasing, **_size_overrides(args.size))
+                        erasing=args.erasing, group_batches=args.group_batches,
+                        **_size_overrides(args.size))
     cmd = "dashtraj " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     s = train(args.data, args.output, recipe, seed=args.seed, resume=args.resume,
               overwrite=args.overwrite, max_hours=args.max_hours, threads=args.threads,

@@ -93,6 +93,11 @@ class Recipe:
         erasing: the share of images with one random rectangle (2-40 % of the area, aspect
             0.3-3.3) painted the ImageNet mean colour (random erasing, Zhong et al. 2020):
             occluders. 0: off (no draw is made).
+        group_batches: with ``triplet``, the share of the identity chunks drawn into
+            batches whose identities all share one colour (``colour_groups``), so that the
+            batch-hard negatives are vehicles of the anchor's colour told apart by shape
+            alone, the confusion left on the ring queries. A colour with fewer identities
+            than a batch holds joins the mixed batches. 0: off (no draw is made).
     """
 
     name: str
@@ -120,6 +125,7 @@ class Recipe:
     truncate: float = 0.0
     truncate_max: float = 0.7
     erasing: float = 0.0
+    group_batches: float = 0.0
 
 
 RECIPES = {
@@ -212,11 +218,16 @@ def image_cache(split: VeriSplit, height: int, width: int, path: Path, log=None)
     return np.memmap(path, np.uint8, "r", shape=shape)
 
 
-def epoch_batches(labels: np.ndarray, recipe: Recipe, seed: int, epoch: int) -> list[np.ndarray]:
+def epoch_batches(labels: np.ndarray, recipe: Recipe, seed: int, epoch: int,
+                  groups: np.ndarray | None = None) -> list[np.ndarray]:
     """The epoch's batches of image indices (deterministic per seed and epoch).
 
     Softmax: a permutation cut into full batches. Triplet: identities shuffled and
-    ``instances`` images of each (with replacement when an identity has fewer).
+    ``instances`` images of each (with replacement when an identity has fewer), no identity
+    twice in a batch. With ``recipe.group_batches`` > 0, ``groups`` (an int per class, e.g.
+    ``colour_groups``) is required: that share of the chunks is drawn into batches of one
+    group each (a group with fewer identities than a batch holds, and a group's last
+    partial batch, go back to the mixed ones).
     """
     rng = np.random.default_rng([seed, epoch])
     if not recipe.triplet:
@@ -236,25 +247,65 @@ def epoch_batches(labels: np.ndarray, recipe: Recipe, seed: int, epoch: int) -> 
             chunks.append(sel)
     order = rng.permutation(len(chunks))
     chunks = [chunks[i] for i in order]
-    # no identity twice in a batch: greedy fill
+    cls = [int(labels[ch[0]]) for ch in chunks]
+    if recipe.group_batches <= 0:
+        return _fill_batches(chunks, cls, range(len(chunks)), p)[0]
+    if groups is None:
+        raise ValueError("recipe.group_batches needs the classes' groups")
+    grouped = rng.random(len(chunks)) < recipe.group_batches
+    batches, mixed = [], [i for i in range(len(chunks)) if not grouped[i]]
+    for g in np.unique(groups):
+        members = [i for i in range(len(chunks)) if grouped[i] and groups[cls[i]] == g]
+        got, left = _fill_batches(chunks, cls, members, p)
+        batches += got
+        mixed += left
+    batches += _fill_batches(chunks, cls, sorted(mixed), p)[0]
+    return [batches[i] for i in rng.permutation(len(batches))]
+
+
+def _fill_batches(chunks: list[np.ndarray], cls: list[int], pending, p: int
+                  ) -> tuple[list[np.ndarray], list[int]]:
+    """Greedy fill of ``p`` chunks a batch, in ``pending``'s order, no class twice in a
+    batch; returns the full batches and the chunk positions left over."""
     batches, cur, used = [], [], set()
-    pending = list(range(len(chunks)))
+    pending = list(pending)
     while pending:
         rest = []
         for i in pending:
-            cid = int(labels[chunks[i][0]])
-            if cid in used:
+            if cls[i] in used:
                 rest.append(i)
                 continue
-            cur.append(chunks[i])
-            used.add(cid)
+            cur.append(i)
+            used.add(cls[i])
             if len(cur) == p:
-                batches.append(np.concatenate(cur))
+                batches.append(np.concatenate([chunks[j] for j in cur]))
                 cur, used = [], set()
         if rest == pending:
             break
         pending = rest
-    return batches
+    return batches, cur + pending  # the partial batch and the chunks never placed
+
+
+def colour_groups(data: Path, class_pids: list[int]) -> np.ndarray:
+    """Each class's colour as a group number, from the set's ``reid.json`` (``dashtraj
+    reid-dataset``: each identity's ``key`` is ``model/colour``).
+
+    Raises TrainError: no ``reid.json``, or a class it does not list.
+    """
+    path = Path(data) / "reid.json"
+    if not path.is_file():
+        raise TrainError(f"--group-batches: {path} missing (the identities' colours of a "
+                         "'dashtraj reid-dataset' set)")
+    try:
+        ids = json.loads(path.read_text())["ids"]
+        colour = {int(i["id"]): str(i["key"]).rsplit("/", 1)[-1] for i in ids}
+    except (ValueError, KeyError, TypeError) as exc:
+        raise TrainError(f"--group-batches: {path}: no identity keys ({exc})") from None
+    missing = [p for p in class_pids if p not in colour]
+    if missing:
+        raise TrainError(f"--group-batches: {path} lists no identity {missing[0]}")
+    names = sorted({colour[p] for p in class_pids})
+    return np.asarray([names.index(colour[p]) for p in class_pids], np.int64)
 
 
 def augment(images: np.ndarray, recipe: Recipe, rng: np.random.Generator) -> np.ndarray:
@@ -500,6 +551,12 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
                              f"image_train (e.g. {alien[0]}); extra images must be of its "
                              "identities")
         extra_splits.append(sp)
+    groups = None
+    if recipe.group_batches > 0:
+        if not recipe.triplet:
+            raise TrainError("--group-batches: batches of one colour serve the triplet loss; "
+                             "add --triplet (or a recipe with it)")
+        groups = colour_groups(data, pids)
     init_ck = None
     init_onnx = bool(init) and not resume and Path(init).suffix.lower() == ".onnx"
     if init and not resume and not Path(init).is_file():
@@ -558,6 +615,8 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
         run_info["extra_train"] = list(extra_train)
     if extra_max_truncation is not None:
         run_info["extra_max_truncation"] = extra_max_truncation
+    if groups is not None:
+        run_info["batch_groups"] = {"by": "colour", "groups": int(groups.max()) + 1}
     if resume:
         old = json.loads((out / "run.json").read_text())
         if not _same_recipe(old["recipe"], recipe) or old["seed"] != seed:
@@ -627,7 +686,7 @@ def train(data: str | Path, out: str | Path, recipe: Recipe, seed: int = 0,
     try:
         while state["epoch"] < recipe.epochs:
             ep = state["epoch"]
-            batches = epoch_batches(labels, recipe, seed, ep)
+            batches = epoch_batches(labels, recipe, seed, ep, groups)
             nb = len(batches)
             acc_loss, acc_hit, acc_n = state.get("epoch_acc", {}).get(str(ep), [0.0, 0, 0])
             model.train()
