@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 export MPLBACKEND := Agg
 
-.PHONY: setup demo test lint bench clean weights train-env reid-data reid-train reid-join reid-osnet reid-threshold results
+.PHONY: setup demo test lint bench clean weights train-env reid-data reid-heldout reid-train reid-join reid-osnet reid-threshold results
 
 $(STAMP): pyproject.toml scripts/install_render_deps.sh scripts/fetch_mesa.sh
 	bash scripts/install_render_deps.sh || echo "warning: could not install the EGL/Mesa packages; rendering tests will skip"
@@ -85,6 +85,19 @@ reid-data: $(STAMP)
 	test -d $(REID_DATA)/image_train_moving || $(VENV)/bin/dashtraj reid moving-train --workers 2 \
 		$(REID_DATA) $(foreach s,$(MTRAIN_SEEDS),$(REID_DATA)_mtrain/town01_s$(s)) \
 		$(foreach s,$(MTRAIN_SEEDS),$(REID_DATA)_mtrain/town10_s$(s))
+
+# A second evaluation set of the 50 test identities for choosing among models without
+# choosing on REID_DATA's own queries: another town (town01; the ring set is staged in
+# town10), another camera seed (99) and look seed (99), and moving queries from a town01
+# recording of the test ids (seed 3; REID_DATA's come from town10 seeds 1 and 2).
+REID_HELDOUT ?= $(REID_DATA)_heldout
+reid-heldout: $(STAMP)
+	test -f $(REID_HELDOUT)_moving/meta.json || $(VENV)/bin/dashtraj simulate --town town01 \
+		--identities 650-700 --observers 6 --agents 30 --duration 90 --seed 3 -q \
+		-o $(REID_HELDOUT)_moving
+	test -f $(REID_HELDOUT)/reid.json || $(VENV)/bin/dashtraj reid-dataset -o $(REID_HELDOUT) \
+		--test-only --town town01 --seed 99 --randomize --randomize-seed 99 --workers 2 \
+		--from-recordings $(REID_HELDOUT)_moving
 
 # One every-layer cycle (stages 7, 8a, 8b, 8c, 10t, 11a, 11b, 12a, 12b): the gpu recipe's
 # settings on the CPU, with the dashcam crops; $(call reid_every_layer,STAGE,INIT,EPOCHS,LR[,
