@@ -107,10 +107,11 @@ def bench_gallery(n: int, nq: int, threads: int, hnsw: bool = False, dim: int = 
     # 1,024 cells for the 100k default; a smaller --gallery gets about 39 vectors a cell
     # (faiss' own minimum for training), so any size from 39 runs
     nlist = max(1, min(1024, len(g) // 39))
-    ivf = Gallery(dim, "ip", "ivf", nlist=nlist, nprobe=min(16, nlist))
+    nprobe = min(16, nlist)
+    ivf = Gallery(dim, "ip", "ivf", nlist=nlist, nprobe=nprobe)
     ivf.add(g)
     out["ivf_build_s"] = round(time.perf_counter() - t0, 1)
-    out["ivf_nlist"], out["ivf_nprobe"] = nlist, min(16, nlist)
+    out["ivf_nlist"], out["ivf_nprobe"] = nlist, nprobe
     out["faiss_ivf_ms"] = round(per_query(lambda x: ivf.search(x, 10)), 3)
     out["ivf_recall_at_10"] = recall(ivf.search(q, 10)[1])
     if hnsw:

@@ -54,6 +54,7 @@ from dashtraj.reid.evaluate import (
     VeriLayoutError,
     VeriSplit,
     evaluate_features,
+    identity_keys,
     read_split,
     within_truncation,
 )
@@ -253,10 +254,14 @@ def epoch_batches(labels: np.ndarray, recipe: Recipe, seed: int, epoch: int,
     if groups is None:
         raise ValueError("recipe.group_batches needs the classes' groups")
     grouped = rng.random(len(chunks)) < recipe.group_batches
-    batches, mixed = [], [i for i in range(len(chunks)) if not grouped[i]]
-    for g in np.unique(groups):
-        members = [i for i in range(len(chunks)) if grouped[i] and groups[cls[i]] == g]
-        got, left = _fill_batches(chunks, cls, members, p)
+    batches, mixed, by_group = [], [], {}
+    for i in range(len(chunks)):
+        if grouped[i]:
+            by_group.setdefault(int(groups[cls[i]]), []).append(i)
+        else:
+            mixed.append(i)
+    for g in sorted(by_group):
+        got, left = _fill_batches(chunks, cls, by_group[g], p)
         batches += got
         mixed += left
     batches += _fill_batches(chunks, cls, sorted(mixed), p)[0]
@@ -293,14 +298,14 @@ def colour_groups(data: Path, class_pids: list[int]) -> np.ndarray:
     Raises TrainError: no ``reid.json``, or a class it does not list.
     """
     path = Path(data) / "reid.json"
-    if not path.is_file():
+    try:
+        keys = identity_keys(data)
+    except VeriLayoutError as exc:
+        raise TrainError(f"--group-batches: no identity keys ({exc})") from None
+    if not keys:
         raise TrainError(f"--group-batches: {path} missing (the identities' colours of a "
                          "'dashtraj reid-dataset' set)")
-    try:
-        ids = json.loads(path.read_text())["ids"]
-        colour = {int(i["id"]): str(i["key"]).rsplit("/", 1)[-1] for i in ids}
-    except (ValueError, KeyError, TypeError) as exc:
-        raise TrainError(f"--group-batches: {path}: no identity keys ({exc})") from None
+    colour = {pid: key.rsplit("/", 1)[-1] for pid, key in keys.items()}
     missing = [p for p in class_pids if p not in colour]
     if missing:
         raise TrainError(f"--group-batches: {path} lists no identity {missing[0]}")
