@@ -21,8 +21,8 @@ from pathlib import Path
 
 EVALS = (("ring", "ring"), ("moving", "moving"), ("whole", "moving, whole vehicles"),
          ("ring99", "second set ring"), ("moving99", "second set moving"))
-E2E = (("ten", "the ten"), ("ten_twins", "the ten, --twins 3"), ("dev", "development"),
-       ("dev_twins", "development, --twins 3"))
+E2E = (("ten", "the ten"), ("ten_twins", "the ten, `--twins 3`"), ("dev", "development"),
+       ("dev_twins", "development, `--twins 3`"))
 
 
 def _read(path: Path) -> dict | None:
