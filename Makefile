@@ -223,8 +223,8 @@ reid-threshold: $(STAMP)
 
 # Judge ReID models on every measure of the README's model tables (scripts/reid_judge.sh): both
 # evaluation sets, the threshold, and the four end-to-end sets re-scored on the same perception;
-# the sets are built once into REID_JUDGE (about 1.5 h of two cores, E2E=0: 20 min), then a few
-# minutes a model. REID_MODELS: ONNX files (default: the shipped model).
+# the sets are built once into REID_JUDGE (about 2.5 h of two cores; E2E=0: about 40 min), then
+# a few minutes a model. REID_MODELS: ONNX files (default: the shipped model).
 REID_JUDGE ?= runs/reid_judge
 REID_MODELS ?= src/dashtraj/data/reid/efficientnet_lite0_cpu.onnx
 reid-judge: $(STAMP)

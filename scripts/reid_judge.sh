@@ -7,8 +7,9 @@
 # The sets (nothing of the training identities; built with the shipped models where a model is
 # needed, the same for every candidate):
 #   WORK/veri     make reid-data's test part: the ring query and gallery images of the 50 test
-#                 identities (reid-dataset --test-only gives the full set's test images byte for
-#                 byte) and its moving-observer queries (two town10 recordings, seeds 1 and 2)
+#                 identities (reid-dataset --test-only: the shipped model scores on them as on
+#                 the full set) and its moving-observer queries (two town10 recordings, seeds
+#                 1 and 2)
 #   WORK/veri99   make reid-heldout's set: the test identities in town01, camera and look seeds
 #                 99, moving queries from a town01 recording (seed 3)
 #   WORK/thr      the threshold calibration's four training recordings (scripts/reid_threshold.sh)
@@ -20,8 +21,8 @@
 # both sets, and the four re-scorings.
 #
 # Usage: [E2E=0] [LOOK=preset] [WORKERS=2] scripts/reid_judge.sh WORK MODEL.onnx [MODEL.onnx ...]
-# E2E=0 leaves out the end-to-end runs (about an hour of two cores to build, a few minutes a
-# model to re-score); LOOK: the render look the models were trained on ("" the default, as the
+# E2E=0 leaves out the end-to-end runs (about two hours of two cores to build, seconds to a
+# few minutes a model to re-score); LOOK: the render look the models were trained on ("" the default, as the
 # shipped model's). Each step writes its file whole (a temporary name, then a rename), so a
 # stopped judge is resumed by running it again.
 set -euo pipefail
