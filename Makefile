@@ -72,11 +72,7 @@ MTRAIN6_SEEDS := 109 110 111 112 113 114 115 116
 reid-data: $(STAMP)
 	test -f $(REID_DATA)/reid.json || $(VENV)/bin/dashtraj reid-dataset -o $(REID_DATA) \
 		--workers 2 --randomize --randomize-seed 0
-	for s in 1 2; do test -f $(REID_DATA)_moving$$s/meta.json || $(VENV)/bin/dashtraj simulate \
-		--town town10 --identities 650-700 --observers 6 --agents 30 --duration 90 --seed $$s \
-		-q -o $(REID_DATA)_moving$$s || exit 1; done
-	test -d $(REID_DATA)/image_query_moving || $(VENV)/bin/dashtraj reid moving-queries \
-		$(REID_DATA) $(REID_DATA)_moving1 $(REID_DATA)_moving2 --workers 2
+	DASHTRAJ=$(VENV)/bin/dashtraj bash scripts/reid_moving_queries.sh $(REID_DATA)
 	for r in $(foreach s,$(MTRAIN_SEEDS),town01_s$(s) town10_s$(s)) \
 		$(foreach s,$(MTRAIN6_SEEDS),town01_s$(s)); do t=$${r%_s*}; s=$${r#*_s}; \
 		test -f $(REID_DATA)_mtrain/$$r/meta.json || $(VENV)/bin/dashtraj simulate \
@@ -92,12 +88,7 @@ reid-data: $(STAMP)
 # recording of the test ids (seed 3; REID_DATA's come from town10 seeds 1 and 2).
 REID_HELDOUT ?= $(REID_DATA)_heldout
 reid-heldout: $(STAMP)
-	test -f $(REID_HELDOUT)_moving/meta.json || $(VENV)/bin/dashtraj simulate --town town01 \
-		--identities 650-700 --observers 6 --agents 30 --duration 90 --seed 3 -q \
-		-o $(REID_HELDOUT)_moving
-	test -f $(REID_HELDOUT)/reid.json || $(VENV)/bin/dashtraj reid-dataset -o $(REID_HELDOUT) \
-		--test-only --town town01 --seed 99 --randomize --randomize-seed 99 --workers 2 \
-		--from-recordings $(REID_HELDOUT)_moving
+	DASHTRAJ=$(VENV)/bin/dashtraj bash scripts/reid_heldout.sh $(REID_HELDOUT)
 
 # One every-layer cycle (stages 7, 8a, 8b, 8c, 10t, 11a, 11b, 12a, 12b): the gpu recipe's
 # settings on the CPU, with the dashcam crops; $(call reid_every_layer,STAGE,INIT,EPOCHS,LR[,

@@ -22,9 +22,9 @@
 #
 # Usage: [E2E=0] [LOOK=preset] [WORKERS=2] scripts/reid_judge.sh WORK MODEL.onnx [MODEL.onnx ...]
 # E2E=0 leaves out the end-to-end runs (about two hours of two cores to build, seconds to a
-# few minutes a model to re-score); LOOK: the render look the models were trained on ("" the default, as the
-# shipped model's). Each step writes its file whole (a temporary name, then a rename), so a
-# stopped judge is resumed by running it again.
+# few minutes a model to re-score); LOOK: the render look the models were trained on ("" the
+# default, as the shipped model's). Each step writes its file whole (a temporary name, then a
+# rename), so a stopped judge is resumed by running it again.
 set -euo pipefail
 if [ $# -lt 2 ]; then
   echo "usage: [E2E=0] [LOOK=preset] [WORKERS=2] $0 WORK MODEL.onnx [MODEL.onnx ...]" >&2
@@ -43,19 +43,12 @@ mkdir -p "$WORK/e2e" "$WORK/models"
 V=$WORK/veri
 test -f "$V/reid.json" || $D reid-dataset -o "$V" --test-only --workers "$W" --randomize \
     --randomize-seed 0
-for s in 1 2; do
-  test -f "${V}_moving$s/meta.json" || $D simulate --town town10 --identities 650-700 \
-      --observers 6 --agents 30 --duration 90 --seed "$s" -q -o "${V}_moving$s"
-done
-test -d "$V/image_query_moving" || $D reid moving-queries "$V" "${V}_moving1" "${V}_moving2" \
-    --workers "$W"
+DASHTRAJ=$D WORKERS=$W bash "$HERE/reid_moving_queries.sh" "$V"
 H=$WORK/veri99
-test -f "${H}_moving/meta.json" || $D simulate --town town01 --identities 650-700 --observers 6 \
-    --agents 30 --duration 90 --seed 3 -q -o "${H}_moving"
-test -f "$H/reid.json" || $D reid-dataset -o "$H" --test-only --town town01 --seed 99 \
-    --randomize --randomize-seed 99 --workers "$W" --from-recordings "${H}_moving"
+DASHTRAJ=$D WORKERS=$W bash "$HERE/reid_heldout.sh" "$H"
 
-E2E_SETS="ten:--seeds 0-4|ten_twins:--twins 3 --seeds 0-4|dev:--seeds 5-9|dev_twins:--twins 3 --seeds 5-9"
+E2E_SETS="ten:--seeds 0-4|ten_twins:--twins 3 --seeds 0-4|dev:--seeds 5-9"
+E2E_SETS+="|dev_twins:--twins 3 --seeds 5-9"
 if [ "${E2E:-1}" != 0 ]; then
   IFS='|' read -ra specs <<< "$E2E_SETS"
   for spec in "${specs[@]}"; do
@@ -71,7 +64,9 @@ for m in "$@"; do
   sha=$(sha256sum "$m" | cut -c1-12)
   O=$WORK/models/$(basename "$m" .onnx)_$sha
   mkdir -p "$O"
-  if [ ! -f "$O/model.onnx" ]; then cp "$m" "$O/model.onnx.tmp"; mv "$O/model.onnx.tmp" "$O/model.onnx"; fi
+  if [ ! -f "$O/model.onnx" ]; then
+    cp "$m" "$O/model.onnx.tmp"; mv "$O/model.onnx.tmp" "$O/model.onnx"
+  fi
   echo "$m" > "$O/source.txt"
   test -f "$O/model.threshold.json" || DASHTRAJ=$D bash "$HERE/reid_threshold.sh" "$WORK/thr" \
       "$O/model.onnx" "${LOOK:-}"

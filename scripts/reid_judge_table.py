@@ -14,7 +14,6 @@ marked.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import sys
 from pathlib import Path
@@ -34,9 +33,11 @@ def _read(path: Path) -> dict | None:
 
 def shipped_sha256() -> str | None:
     """The sha256 of the package's ReID model, or None where it is not there."""
-    path = (Path(__file__).resolve().parent.parent / "src" / "dashtraj" / "data" / "reid"
-            / "efficientnet_lite0_cpu.onnx")
-    return hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else None
+    from dashtraj.digest import file_sha256
+    from dashtraj.reid.embed import shipped_model_path
+
+    path = shipped_model_path()
+    return file_sha256(path) if path.is_file() else None
 
 
 def model_figures(folder: Path) -> dict:
