@@ -13,8 +13,8 @@ Usage:
         [--co-observed-m M] [--heading-min-m M] [--heading-window-s S]
         [--pin-anchor | --no-pin-anchor] [--watch | --no-watch] [--watch-range-m M] ...
         [--lookalike | --no-lookalike] [--lookalike-frac F] [--lookalike-gap S]
-        [--split | --no-split] [--min-score S] [--no-pose-sigma] [--gallery-range M]
-        [--route-range M] [--json]
+        [--split | --no-split] [--young-jump N] [--min-score S] [--no-pose-sigma]
+        [--gallery-range M] [--route-range M] [--json]
 
 Prints one row per run (ReID precision/recall, hmm and shortest-path SSPD over the whole
 trip and the seen stretch) and the means, with the same aggregation as `experiments`.
@@ -56,6 +56,7 @@ def main(argv: list[str] | None = None) -> int:
         SPLIT_TRACKS,
         VISION_GATE,
         WATCH,
+        YOUNG_JUMP,
         load_threshold,
         target_from_db,
     )
@@ -104,6 +105,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--split", action=argparse.BooleanOptionalAction, default=SPLIT_TRACKS,
                     help="cut tracks where their crops' look changes (default: the library's, "
                          "dashtraj.reidentify.vision.SPLIT_TRACKS)")
+    ap.add_argument("--young-jump", type=int, default=YOUNG_JUMP, metavar="N",
+                    help="cut a track where its box jumps (no overlap with the one before) "
+                         "before its N-th detection (default: the library's, "
+                         "dashtraj.reidentify.vision.YOUNG_JUMP; 0: never)")
     ap.add_argument("--min-score", type=float, default=SIGHTING_MIN_SCORE,
                     help="use only detections scored at least this (default: the library's, "
                          "dashtraj.reidentify.vision.SIGHTING_MIN_SCORE; 0: all)")
@@ -152,6 +157,7 @@ def main(argv: list[str] | None = None) -> int:
                                 gate=(gate_cfg or True) if gate_on else False,
                                 max_distance_m=config.max_distance_m, sample_s=SAMPLE_S,
                                 pin_anchor=args.pin_anchor, split=args.split,
+                                young_jump=args.young_jump,
                                 min_score=args.min_score,
                                 gallery_m=(config.gallery_m if args.gallery_range is None
                                            else args.gallery_range),

@@ -617,6 +617,10 @@ def vision_sightings(config: ExperimentConfig, rec, out: Path, road_map,
         line += (f"; {n} track{'s' if n > 1 else ''} cut where {'their' if n > 1 else 'its'} "
                  f"crops' look changes ({s['reid_split_parts']} more part"
                  f"{'s' if s['reid_split_parts'] > 1 else ''})")
+    if s.get("reid_jump_cuts"):
+        n = s["reid_jump_cuts"]
+        line += (f"; {n} young track{'s' if n > 1 else ''} cut where {'their' if n > 1 else 'its'}"
+                 " box jumps")
     qc = s.get("reid_query_crops")
     if qc and qc["used"]:
         line += f" (query: the mean of {qc['used']} of its track's {qc['of']} crops)"

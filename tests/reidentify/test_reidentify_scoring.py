@@ -294,3 +294,71 @@ def test_the_query_is_a_tracked_crop(tmp_path, town01):
     assert (s["reid_true_matches"], s["reid_false_matches"], s["reid_misses"]) == (1, 0, 0)
     assert s["reid_candidates"] == 2 and s["reid_gated_out"] == 1
     assert {x.track_id for x in tt.sightings} == {5}
+
+
+def test_a_young_track_that_jumps_to_another_box_is_cut(tmp_path, town01):
+    """Track 6 follows the target until 1.6 s. Track 5 starts at 2.0 s on another car
+    (vehicle 7, beside the target on the other lane) cut by the frame's left edge, and the
+    tracker's gate joins the target's box elsewhere in the image 0.4 s later to it (as
+    town10 seed 4's track 145 of the ten from pixels). The cut crop is not read, so the
+    decision accepts track 5 on the target's crop; the other car's box is its one sampled
+    sighting, so the track is a false match and that car's position joins the route. Cut
+    where the young track jumped (`start_jumps`), the car's part has no crop to decide on
+    and the target's part is a true match."""
+    from dashtraj.reid.embed import ReidEmbedder
+    from dashtraj.reidentify.decision import EXPANDED_RECIPE
+    from dashtraj.reidentify.vision import start_jumps, target_from_db
+
+    def rows_of(f, t):
+        target = town01.waypoint(12, 0, -1, 20.0 + 10.0 * t).transform.location
+        other = town01.waypoint(12, 0, 1, 20.0 + 10.0 * t).transform.location
+        if f <= 8:
+            return [(6, (300, 150, 360, 200), 0.9, target, 0, 0, 0)]
+        if f == 10:
+            return [(5, (0, 150, 60, 200), 0.9, other, 7, 7, 1)]
+        if f == 12:
+            return [(5, (400, 150, 460, 200), 0.9, target, 0, 0, 0)]
+        return []
+
+    path = tmp_path / "jump.db"
+    model = _road12_db(path, town01, rows_of, [TrackRow(1, 6, "car", 0.0, 1.6, 9, 0),
+                                               TrackRow(1, 5, "car", 2.0, 2.4, 2, 7)])
+    kw = dict(embedder=ReidEmbedder(model, threads=1), threshold=0.4, recipe=EXPANDED_RECIPE,
+              sample_s=0.5)
+    whole = target_from_db(path, town01, 0, young_jump=0, **kw)
+    s = whole.summary
+    assert (s["reid_true_matches"], s["reid_false_matches"], s["reid_misses"]) == (1, 1, 0)
+    assert "reid_jump_cuts" not in s
+    car = town01.waypoint(12, 0, 1, 40.0).transform.location
+    assert any(math.hypot(x.x - car.x, x.y - car.y) < 1e-6 for x in whole.sightings)
+
+    with SightingsDB.open(path) as db:
+        assert start_jumps(db.detections(), 2) == {(1, 5): [pytest.approx(2.2)]}
+        assert start_jumps(db.detections(), 0) == {}
+    cut = target_from_db(path, town01, 0, young_jump=2, **kw)
+    s = cut.summary
+    assert (s["reid_true_matches"], s["reid_false_matches"], s["reid_misses"]) == (2, 0, 0)
+    assert s["reid_jump_cuts"] == 1
+    for x in cut.sightings:  # every sighting is the target's box, none the car's
+        p = town01.waypoint(12, 0, -1, 20.0 + 10.0 * x.t).transform.location
+        assert math.hypot(x.x - p.x, x.y - p.y) < 1e-6
+    assert [(x.track_id, round(x.t, 1)) for x in cut.sightings][-1] == (5, 2.4)
+
+
+def test_only_a_young_tracks_jumps_are_cuts():
+    """A jump counts before the track's ``young``-th box only; touching boxes share no pixel;
+    untracked boxes and other observers' tracks are apart."""
+    from types import SimpleNamespace
+
+    from dashtraj.reidentify.vision import start_jumps
+
+    def det(o, track, t, x0, idx=0):
+        return SimpleNamespace(observer_id=o, track_id=track, t=t, idx=idx, x0=x0, y0=100.0,
+                               x1=x0 + 50.0, y1=150.0)
+
+    rows = [det(1, 3, 0.0, 0), det(1, 3, 0.2, 40), det(1, 3, 0.4, 300),  # 3rd box jumps
+            det(1, 4, 1.0, 0), det(1, 4, 1.2, 50),  # touching at x = 50: a jump
+            det(2, 3, 0.0, 500), det(2, 3, 0.2, 505), det(1, None, 0.1, 200, idx=1)]
+    assert start_jumps(rows, 2) == {(1, 4): [pytest.approx(1.1)]}
+    assert start_jumps(rows, 3) == {(1, 3): [pytest.approx(0.3)], (1, 4): [pytest.approx(1.1)]}
+    assert start_jumps(rows[::-1], 3) == start_jumps(rows, 3)  # any order in

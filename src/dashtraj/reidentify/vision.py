@@ -27,7 +27,10 @@ crop within 15 m that the filter keeps and that belongs to a track (a box the tr
 had not confirmed yet has none, and the query's track is the gate's anchor; the paper's
 first crop when none is); the query's own track is a candidate whatever its distance
 (the user pointed at it), and a candidate seen only before the query is not the target
-(the query is its first sighting; ``start_t`` of `select.select_target_tracks`).
+(the query is its first sighting; ``start_t`` of `select.select_target_tracks`). Before
+the decision, a track is cut where its second box does not overlap its first
+(`start_jumps`) and where its crops' look changes (`split_tracks`); the parts are tracks
+of their own.
 
 Scoring: a track is the target's when most of its used sightings (one every
 `sample_s` within range) are detections that show the target: matched to its true box
@@ -142,6 +145,16 @@ medians at least 0.2 apart, the far side's more than 0.1 beyond the threshold. C
 the development runs (seeds 5-9, `scripts/reid_rescore.py --split`): without the margin
 a run of three crops of the target at 0.43 (the threshold is 0.40) was cut from its
 track and missed; with it, every development set kept or gained true tracks."""
+
+YOUNG_JUMP = 2
+"""Default of `target_from_db`'s ``young_jump`` (`start_jumps`): a track is cut where its
+second box does not overlap its first (a one-box track has no velocity, so the tracker's
+ground-plane gate is at its widest). Chosen on the development runs (seeds 5-9,
+`scripts/reid_rescore.py --young-jump N`): 0, 2 and 3 all give 57 / 0 / 3 true / false /
+missed tracks and the same routes; on the ten (seeds 0-4, perception of 2026-12-07) 2 takes
+65 / 1 / 1 to 67 / 0 / 1 (town10 seed 4's track 145: `start_jumps`), routes the same to the
+millimetre; with look-alikes (``--twins 3``) 58 / 7 / 4 stays. Of 213 such cuts on the ten,
+202 are of boxes beyond 20 m or scored under `SIGHTING_MIN_SCORE` (no sightings)."""
 
 WATCH = False
 """Default of `target_from_db`'s ``watch``: negative evidence in the gate
@@ -355,6 +368,42 @@ def split_tracks(keys: list, times: list[float], distances: np.ndarray, threshol
     return out
 
 
+def start_jumps(detections, young: int = YOUNG_JUMP) -> dict[tuple[int, int], list[float]]:
+    """Where a young track jumped to another box: a track whose detection number ``n < young``
+    (1 = its second) does not overlap the one before it (the image boxes share no pixel).
+
+    The tracker may join a new track's first box to a box elsewhere by its ground-plane gate
+    alone (a one-box track has no velocity yet, so its gate is wide): a car cut by the frame's
+    edge, then the target standing 7 m away 0.4 s later, were one track (town10 seed 4,
+    observer 3, track 145 of the ten from pixels). Its first box's crop was not read (cut by
+    the frame), so the appearance decision accepted it on the target's crop, and the other
+    car's position joined the route.
+
+    Args:
+        detections: rows with observer_id, track_id, t, idx and x0, y0, x1, y1 (every
+            detection of the tracks, any score: the tracker's own sequence).
+        young: jumps before a track's ``young``-th detection count (0: none).
+
+    Returns:
+        (observer_id, track_id) → the times (s) where its parts 1, 2, ... begin, halfway
+        between the two boxes; tracks not cut are absent.
+    """
+    if young < 2:
+        return {}
+    by_track: dict[tuple[int, int], list] = {}
+    for d in detections:
+        if d.track_id is not None:
+            by_track.setdefault((d.observer_id, d.track_id), []).append(d)
+    out: dict[tuple[int, int], list[float]] = {}
+    for k, ds in by_track.items():
+        ds.sort(key=lambda d: (d.t, d.idx))
+        for n in range(1, min(young, len(ds))):
+            a, b = ds[n - 1], ds[n]
+            if min(a.x1, b.x1) <= max(a.x0, b.x0) or min(a.y1, b.y1) <= max(a.y0, b.y0):
+                out.setdefault(k, []).append((a.t + b.t) / 2)
+    return out
+
+
 def _sample(rows: list, sample_s: float) -> list:
     """Per key (rows sorted by key, t, idx): the first row of every `sample_s` seconds."""
     kept, key, t0, last = [], object(), 0.0, -1
@@ -458,6 +507,7 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
                    positions_of: Callable[[int, np.ndarray], np.ndarray] | None = None,
                    stages=None, pin_anchor: bool = PIN_ANCHOR,
                    split: bool = SPLIT_TRACKS,
+                   young_jump: int = YOUNG_JUMP,
                    min_score: float = SIGHTING_MIN_SCORE,
                    gallery_m: float | None = None,
                    route_m: float | None = None,
@@ -495,6 +545,10 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
         split: cut each track where its crops change from one vehicle's look to
             another's (`split_tracks`) before deciding; the parts are decided, gated
             and scored as tracks of their own.
+        young_jump: cut a track where one of its first ``young_jump`` boxes does not
+            overlap the one before (`start_jumps`; 0: never): the tracker joined a new
+            track's box to another box by its ground-plane gate alone. Before the
+            appearance cuts; the parts are decided, gated and scored as tracks of their own.
         min_score: only detections scored at least this are used (crops, sightings,
             the query, the box relations); 0: all.
         gallery_m: the gallery (crops) and the target's sightings are the detections
@@ -556,7 +610,9 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
         if not by_truth:
             track_truth = {(t.observer_id, t.track_id): t.truth_vehicle_id for t in db.tracks()}
 
-        cuts: dict[tuple[int, int], list[float]] = {}  # a track's part boundaries, s
+        # a track's part boundaries, s: first where a young track jumped to another box
+        jumps = {} if by_truth else start_jumps(all_dets, young_jump)
+        cuts: dict[tuple[int, int], list[float]] = {k: list(v) for k, v in jumps.items()}
 
         def key_of(d) -> tuple[int, ...]:
             base = (d.observer_id, d.truth_vehicle_id if by_truth else d.track_id)
@@ -617,10 +673,12 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
             if split and not by_truth and gal:
                 # a track that changes vehicle is cut where its crops' look changes
                 # (`split_tracks`); its later parts get keys (observer, track, part)
-                cuts.update(split_tracks(keys, [d.t for d in good], dists, float(threshold)))
+                looks = split_tracks(keys, [d.t for d in good], dists, float(threshold))
+                for k, at in looks.items():
+                    cuts[k[:2]] = sorted({*cuts.get(k[:2], ()), *at})
                 keys = [key_of(d) for d in good]
-                extra_split = {"reid_split_tracks": len(cuts),
-                               "reid_split_parts": sum(len(v) for v in cuts.values())}
+                extra_split = {"reid_split_tracks": len({k[:2] for k in looks}),
+                               "reid_split_parts": sum(len(v) for v in looks.values())}
     every_row = sorted(((key_of(d), d) for d in near), key=lambda r: (r[0], r[1].t, r[1].idx))
     rows = _sample(every_row, sample_s)
     # each track's last detection in range, where the samples stop before it: the route
@@ -675,7 +733,11 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
         else:
             beyond.setdefault(k, []).append(s)
     anchor = key_of(query) if query is not None else None
+    in_range = {k[:2] for k in tracks}  # the cuts of tracks with sightings in range
+    jump_cuts = sum(len(v) for k, v in jumps.items() if k in in_range)
     extra: dict = {"reid_tracks": len(tracks), "reid_min_score": min_score, **extra_split,
+                   **({"reid_jump_cuts": jump_cuts} if young_jump >= 2 and not by_truth
+                      else {}),
                    "query": None if query is None else
                    {"observer_id": query.observer_id, "frame": query.frame, "t": query.t}}
     if switches.reid == "identity":
