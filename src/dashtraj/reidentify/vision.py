@@ -153,7 +153,8 @@ ground-plane gate is at its widest). Chosen on the development runs (seeds 5-9,
 `scripts/reid_rescore.py --young-jump N`): 0, 2 and 3 all give 57 / 0 / 3 true / false /
 missed tracks and the same routes; on the ten (seeds 0-4, perception of 2026-12-07) 2 takes
 65 / 1 / 1 to 67 / 0 / 1 (town10 seed 4's track 145: `start_jumps`), routes the same to the
-millimetre; with look-alikes (``--twins 3``) 58 / 7 / 4 stays. Of 213 such cuts on the ten,
+millimetre; the look-alike runs (``--twins 3``) stay as they were (the ten's 58 / 7 / 4,
+development's 58 / 5 / 4). Of 213 such cuts on the ten,
 202 are of boxes beyond 20 m or scored under `SIGHTING_MIN_SCORE` (no sightings)."""
 
 WATCH = False
