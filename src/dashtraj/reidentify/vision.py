@@ -64,6 +64,7 @@ import numpy as np
 
 from dashtraj.digest import file_sha256 as sha256_of  # a model file's identity
 from dashtraj.errors import DashtrajError
+from dashtraj.perception.detections import intersection_matrix
 from dashtraj.reidentify.decision import (
     Calibration,
     Recipe,
@@ -397,11 +398,14 @@ def start_jumps(detections, young: int = YOUNG_JUMP) -> dict[tuple[int, int], li
             by_track.setdefault((d.observer_id, d.track_id), []).append(d)
     out: dict[tuple[int, int], list[float]] = {}
     for k, ds in by_track.items():
-        ds.sort(key=lambda d: (d.t, d.idx))
-        for n in range(1, min(young, len(ds))):
-            a, b = ds[n - 1], ds[n]
-            if min(a.x1, b.x1) <= max(a.x0, b.x0) or min(a.y1, b.y1) <= max(a.y0, b.y0):
-                out.setdefault(k, []).append((a.t + b.t) / 2)
+        ds = sorted(ds, key=lambda d: (d.t, d.idx))[:young]
+        box = np.array([[d.x0, d.y0, d.x1, d.y1] for d in ds], np.float64)
+        # each box's intersection with the one before it (the gate's `box_relations` measure)
+        inter = np.diagonal(intersection_matrix(box[:-1], box[1:]))
+        cut = [(a.t + b.t) / 2 for a, b, i in zip(ds[:-1], ds[1:], inter.tolist(), strict=True)
+               if i <= 0.0]
+        if cut:
+            out[k] = cut
     return out
 
 
@@ -613,7 +617,7 @@ def target_from_db(db_path: str | Path, road_map, target_vehicle_id: int | None,
 
         # a track's part boundaries, s: first where a young track jumped to another box
         jumps = {} if by_truth else start_jumps(all_dets, young_jump)
-        cuts: dict[tuple[int, int], list[float]] = {k: list(v) for k, v in jumps.items()}
+        cuts: dict[tuple[int, int], list[float]] = dict(jumps)  # the look cuts join below
 
         def key_of(d) -> tuple[int, ...]:
             base = (d.observer_id, d.truth_vehicle_id if by_truth else d.track_id)
