@@ -14,7 +14,7 @@ import pytest
 from dashtraj.render.labels import DETECTION_CLASSES, relative_yaw, truncation
 from dashtraj.render.meshes import scene_meshes, vehicle_mesh
 from dashtraj.render.scene import Renderer, intrinsics, place, project_points
-from render_scene import BIKE, BUS, MOTO, SEDAN, SUV, TRUCK, VAN, identity
+from render_scene import BIKE, BUS, MOTO, SEDAN, STRAIGHT_XODR, SUV, TRUCK, VAN, identity
 
 CAM = (-95.0, 1.75, 1.6, 0.0, 0.0, 0.0)
 
@@ -278,6 +278,32 @@ def test_scene_meshes_cached_and_deterministic(straight_map):
     # buildings keep clear of the road: |y| > 6.5 m (road) + 3 m (sidewalk) on this map
     y = a.buildings.positions[:, 1]
     assert np.all(np.abs(y) > 9.5 + 2.9)
+
+
+def test_a_map_read_again_gets_the_scene_already_built(straight_map):
+    """Each renderer opens its recording's map anew: a `RoadMap` of the same document gets
+    the same (read-only) scene; another document, seed or sample step builds its own."""
+    from dashtraj.render import meshes
+    from dashtraj.roads import RoadMap
+
+    a = scene_meshes(straight_map, seed=0)
+    again = RoadMap.from_string(STRAIGHT_XODR, name="the same bytes")
+    assert again.opendrive.sha256 == straight_map.opendrive.sha256 != ""
+    assert scene_meshes(again, seed=0) is a
+    assert scene_meshes(again, seed=1) is not a
+    assert scene_meshes(again, seed=0, clutter=False) is not a
+    coarser = RoadMap.from_string(STRAIGHT_XODR, sample_step_m=straight_map.sample_step_m * 2)
+    assert scene_meshes(coarser, seed=0) is not a
+    other = RoadMap.from_string(STRAIGHT_XODR + "<!-- the same roads, other bytes -->")
+    assert other.opendrive.sha256 != straight_map.opendrive.sha256
+    assert scene_meshes(other, seed=0) is not a
+    with pytest.raises(ValueError, match="read-only"):
+        a.buildings.positions[0, 0] = 1.0
+    # the last SCENES_KEPT are kept: after as many others, it is built anew, equal
+    for seed in range(2, 2 + meshes.SCENES_KEPT):
+        scene_meshes(again, seed=seed)
+    b = scene_meshes(again, seed=0)
+    assert b is not a and b.props.positions.tobytes() == a.props.positions.tobytes()
 
 
 def test_vehicle_meshes_fit_their_dimensions():

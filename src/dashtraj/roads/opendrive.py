@@ -17,6 +17,7 @@ road and element.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -124,6 +125,9 @@ class OpenDrive:
     header: dict[str, str]
     roads: dict[int, RoadRecord]
     junctions: dict[int, JunctionRecord]
+    sha256: str = ""
+    """SHA-256 (hex) of the document's bytes as parsed ("" when built otherwise): two
+    documents with the same digest are the same map."""
 
 
 _GEOMETRY_KINDS = {
@@ -259,7 +263,8 @@ def parse_opendrive(data: bytes | str, name: str = "<string>") -> OpenDrive:
             raise OpenDriveError(f"{name}: none of the OpenDRIVE file's <road> elements "
                                  "is usable (see the warnings above)")
         raise OpenDriveError(f"{name}: the OpenDRIVE file has no <road> elements")
-    od = OpenDrive(name=name, header=header, roads=roads, junctions=junctions)
+    od = OpenDrive(name=name, header=header, roads=roads, junctions=junctions,
+                   sha256=hashlib.sha256(data).hexdigest())
     _check_links(od)
     return od
 
