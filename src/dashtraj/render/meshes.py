@@ -517,7 +517,7 @@ def scene_meshes(road_map, seed: int = 0, clutter: bool = True) -> SceneMeshes:
         clutter: add the street clutter (``dashtraj.render.clutter``) to the props.
     """
     key = seed if clutter else (seed, "no clutter")
-    digest = getattr(road_map.opendrive, "sha256", "")
+    digest = road_map.opendrive.sha256  # "" for a document not parsed from bytes
     with _SCENE_LOCK:  # renderers open on several threads build a scene once
         if digest:
             full = (digest, road_map.sample_step_m, key)
