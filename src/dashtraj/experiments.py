@@ -619,8 +619,7 @@ def vision_sightings(config: ExperimentConfig, rec, out: Path, road_map,
                  f"{'s' if s['reid_split_parts'] > 1 else ''})")
     if s.get("reid_jump_cuts"):
         n = s["reid_jump_cuts"]
-        line += (f"; {n} young track{'s' if n > 1 else ''} cut where {'their' if n > 1 else 'its'}"
-                 " box jumps")
+        line += f"; {n} cut{'s' if n > 1 else ''} where a young track's box jumps"
     qc = s.get("reid_query_crops")
     if qc and qc["used"]:
         line += f" (query: the mean of {qc['used']} of its track's {qc['of']} crops)"
