@@ -306,6 +306,85 @@ def test_a_map_read_again_gets_the_scene_already_built(straight_map):
     assert b is not a and b.props.positions.tobytes() == a.props.positions.tobytes()
 
 
+def test_a_scene_is_kept_as_a_file_that_other_processes_read(straight_map, tmp_path,
+                                                              monkeypatch):
+    """The scene of a map read from bytes goes to the cache folder; a process without it in
+    memory reads the file (equal to the last bit) instead of building; a file that is not
+    whole is built again and rewritten; a folder that cannot be written builds in memory;
+    another seed or other code is another file; old files are pruned."""
+    import os
+    import subprocess
+    import sys
+
+    from dashtraj import cache
+    from dashtraj.render import meshes
+
+    monkeypatch.setenv("DASHTRAJ_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(meshes, "_SCENES_BY_CONTENT", type(meshes._SCENES_BY_CONTENT)())
+    built = meshes.build_scene_meshes(straight_map, 0, True)
+    path = meshes.scene_file(straight_map, 0, True)
+    assert path.parent == tmp_path / "cache" / "scenes" and not path.exists()
+    a = scene_meshes(straight_map, seed=0)
+    assert path.is_file() and not list(path.parent.glob(".*.tmp"))
+
+    def same(x, y):
+        return x.extent == y.extent and all(
+            (getattr(x, p) is None) == (getattr(y, p) is None) and (getattr(x, p) is None or all(
+                getattr(getattr(x, p), f).tobytes() == getattr(getattr(y, p), f).tobytes()
+                and getattr(getattr(x, p), f).dtype == getattr(getattr(y, p), f).dtype
+                for f in ("positions", "normals", "colors")))
+            for p in ("ground", "buildings", "marks", "props"))
+
+    assert same(a, built)
+    # another process (as a --workers one) reads the file: it never builds
+    code = ("import sys; from dashtraj.render import meshes; from dashtraj.roads import "
+            "RoadMap\n"
+            "def no(*a, **k): raise SystemExit('built')\n"
+            "meshes.build_scene_meshes = no\n"
+            "s = meshes.scene_meshes(RoadMap.from_string(sys.stdin.read()), seed=0)\n"
+            "print(len(s.props.positions), s.props.positions.sum(dtype='float64'))")
+    out = subprocess.run([sys.executable, "-c", code], input=STRAIGHT_XODR, text=True,
+                         capture_output=True, check=True).stdout.split()
+    assert int(out[0]) == len(built.props.positions)
+    assert float(out[1]) == float(built.props.positions.sum(dtype="float64"))
+    # in this process: from the file once the memory has forgotten it, equal, read-only
+    monkeypatch.setattr(meshes, "_SCENES_BY_CONTENT", type(meshes._SCENES_BY_CONTENT)())
+    calls = []
+    real = meshes.build_scene_meshes
+    monkeypatch.setattr(meshes, "build_scene_meshes",
+                        lambda *a, **k: calls.append(a) or real(*a, **k))
+    b = scene_meshes(straight_map, seed=0)
+    assert b is not a and same(b, built) and calls == []
+    with pytest.raises(ValueError, match="read-only"):
+        b.ground.positions[0, 0] = 1.0
+    # a cut file is built again and written whole
+    path.write_bytes(path.read_bytes()[:1000])
+    monkeypatch.setattr(meshes, "_SCENES_BY_CONTENT", type(meshes._SCENES_BY_CONTENT)())
+    assert same(scene_meshes(straight_map, seed=0), built) and len(calls) == 1
+    assert meshes._read_scene(path) is not None
+    # another seed, clutter off or other code: other files
+    assert meshes.scene_file(straight_map, 1, True) != path
+    assert meshes.scene_file(straight_map, 0, False) != path
+    monkeypatch.setattr(cache, "_CODE_SHA256", ["other code"])
+    assert meshes.scene_file(straight_map, 0, True) != path
+    monkeypatch.undo()
+    # a cache folder that cannot be written (a file in its place): built, nothing written
+    blocked = tmp_path / "blocked"
+    blocked.write_text("not a folder")
+    monkeypatch.setenv("DASHTRAJ_CACHE", str(blocked))
+    monkeypatch.setattr(meshes, "_SCENES_BY_CONTENT", type(meshes._SCENES_BY_CONTENT)())
+    assert same(scene_meshes(straight_map, seed=0), built)
+    # only the last SCENE_FILES_KEPT used are kept
+    monkeypatch.setenv("DASHTRAJ_CACHE", str(tmp_path / "few"))
+    monkeypatch.setattr(meshes, "SCENE_FILES_KEPT", 2)
+    monkeypatch.setattr(meshes, "_SCENES_BY_CONTENT", type(meshes._SCENES_BY_CONTENT)())
+    for seed in (0, 1, 2):
+        scene_meshes(straight_map, seed=seed)
+        os.utime(meshes.scene_file(straight_map, seed, True), (1e9 + seed, 1e9 + seed))
+    kept = {p.name for p in (tmp_path / "few" / "scenes").glob("scene-*.npz")}
+    assert kept == {meshes.scene_file(straight_map, s, True).name for s in (1, 2)}
+
+
 def test_vehicle_meshes_fit_their_dimensions():
     for model in (SEDAN, SUV, VAN, TRUCK, BUS):
         p = vehicle_mesh(model, (10, 20, 30)).positions

@@ -16,12 +16,16 @@ Frames:
 
 from __future__ import annotations
 
+import hashlib
 import math
+import os
 import threading
 import weakref
+import zipfile
 from collections import OrderedDict
 from dataclasses import astuple, dataclass
 from functools import lru_cache
+from pathlib import Path
 from typing import Protocol
 
 import numpy as np
@@ -498,7 +502,10 @@ _SCENE_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 _SCENES_BY_CONTENT: OrderedDict = OrderedDict()
 _SCENE_LOCK = threading.Lock()
 SCENES_KEPT = 4
-"""How many static scenes `scene_meshes` keeps by map content (the last used ones)."""
+SCENE_FILES_KEPT = 16
+"""Scene files kept in the cache folder (the most recently used; about 6 MB each)."""
+_SCENE_PARTS = ("ground", "buildings", "marks", "props")
+_MESH_FIELDS = (("positions", 3), ("normals", 3), ("colors", 4))
 
 
 def scene_meshes(road_map, seed: int = 0, clutter: bool = True) -> SceneMeshes:
@@ -508,8 +515,14 @@ def scene_meshes(road_map, seed: int = 0, clutter: bool = True) -> SceneMeshes:
     known by its bytes' SHA-256: another `RoadMap` of the same document (each renderer
     opens its recording's map anew) gets the scene already built, in this process, for
     the last `SCENES_KEPT` maps, seeds and ``clutter`` used; building one takes seconds
-    (town01: 2.4 s on one core). Other maps are cached weakly on the map object. The
-    scene's arrays are read-only.
+    (town01: 2.4 s on one core). Such a scene is also kept as a file in the cache folder
+    (`dashtraj.cache.cache_root` ``("scenes")``, the last `SCENE_FILES_KEPT` used), named
+    after the document, the map's sample step, the seed, ``clutter`` and the code that
+    builds it (`dashtraj.cache.code_sha256`), so other processes (``--workers``, the next
+    run) read it in milliseconds instead; processes that need one scene at once build it
+    once (a file lock). A file that cannot be read is built again; a folder that cannot be
+    written leaves the scene built in memory only. Other maps are cached weakly on the map
+    object. The scene's arrays are read-only.
 
     Args:
         road_map: a ``dashtraj.roads.RoadMap``.
@@ -524,7 +537,7 @@ def scene_meshes(road_map, seed: int = 0, clutter: bool = True) -> SceneMeshes:
             hit = _SCENES_BY_CONTENT.get(full)
             if hit is None:
                 hit = _SCENES_BY_CONTENT[full] = _frozen_scene(
-                    build_scene_meshes(road_map, seed, clutter))
+                    _scene_from_file(road_map, seed, clutter))
                 while len(_SCENES_BY_CONTENT) > SCENES_KEPT:
                     _SCENES_BY_CONTENT.popitem(last=False)
             _SCENES_BY_CONTENT.move_to_end(full)
@@ -533,6 +546,104 @@ def scene_meshes(road_map, seed: int = 0, clutter: bool = True) -> SceneMeshes:
         if key not in per_map:
             per_map[key] = _frozen_scene(build_scene_meshes(road_map, seed, clutter))
         return per_map[key]
+
+
+def scene_file(road_map, seed: int = 0, clutter: bool = True) -> Path:
+    """The cache file of a map's scene (`scene_meshes`; the map read from bytes)."""
+    from dashtraj.cache import cache_root, code_sha256
+
+    name = (f"{road_map.opendrive.sha256}\0{road_map.sample_step_m!r}\0{int(seed)}\0"
+            f"{bool(clutter)}\0{code_sha256()}")
+    return cache_root("scenes") / f"scene-{hashlib.sha256(name.encode()).hexdigest()[:32]}.npz"
+
+
+def _scene_from_file(road_map, seed: int, clutter: bool) -> SceneMeshes:
+    """The scene read from its cache file, or built (under a lock on the file, so that
+    processes starting at once build it once) and written there."""
+    path = scene_file(road_map, seed, clutter)
+    scene = _read_scene(path)
+    if scene is not None:
+        return scene
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        lock = open(path.with_name(path.name + ".lock"), "a+b")
+    except OSError:  # a folder we may not write: build in memory only
+        return build_scene_meshes(road_map, seed, clutter)
+    with lock:
+        _lock_file(lock)
+        scene = _read_scene(path)  # another process built it while we waited
+        if scene is None:
+            scene = build_scene_meshes(road_map, seed, clutter)
+            _write_scene(path, scene)
+    return scene
+
+
+def _lock_file(fh) -> None:
+    """An exclusive lock on an open file, released when it is closed (no-op where the
+    platform has no ``fcntl``)."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows
+        return
+    try:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
+    except OSError:  # a file system without locks: at worst two processes build
+        pass
+
+
+def _read_scene(path: Path) -> SceneMeshes | None:
+    """A scene file's meshes, or None when it is missing or not whole."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            parts = {}
+            for part in _SCENE_PARTS:
+                if part == "props" and "props_positions" not in z.files:
+                    parts[part] = None
+                    continue
+                arrays = []
+                for field, width in _MESH_FIELDS:
+                    a = z[f"{part}_{field}"]
+                    if a.dtype != np.float32 or a.ndim != 2 or a.shape[1] != width:
+                        return None
+                    arrays.append(a)
+                if len({len(a) for a in arrays}) != 1:
+                    return None
+                parts[part] = Mesh(*arrays)
+            extent = z["extent"]
+            if extent.shape != (4,):
+                return None
+        os.utime(path)  # recently used: the last pruned
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        return None
+    return SceneMeshes(parts["ground"], parts["buildings"], parts["marks"],
+                       tuple(float(v) for v in extent), parts["props"])
+
+
+def _write_scene(path: Path, scene: SceneMeshes) -> None:
+    """Write a scene file whole (a temporary file renamed), then keep the last
+    `SCENE_FILES_KEPT` used; a failure to write leaves no file and is not an error."""
+    arrays = {"extent": np.asarray(scene.extent, np.float64)}
+    for part in _SCENE_PARTS:
+        mesh = getattr(scene, part)
+        if mesh is not None:
+            for field, _ in _MESH_FIELDS:
+                arrays[f"{part}_{field}"] = getattr(mesh, field)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **arrays)
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        return
+    try:
+        files = sorted(path.parent.glob("scene-*.npz"), key=lambda p: p.stat().st_mtime,
+                       reverse=True)
+        for old in files[SCENE_FILES_KEPT:]:
+            old.unlink(missing_ok=True)
+            old.with_name(old.name + ".lock").unlink(missing_ok=True)
+    except OSError:  # another process pruned at the same time
+        pass
 
 
 def _frozen_scene(scene: SceneMeshes) -> SceneMeshes:

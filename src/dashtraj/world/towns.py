@@ -35,6 +35,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from dashtraj.cache import cache_root
 from dashtraj.errors import DashtrajError, OpenDriveError
 from dashtraj.world.xodr_writer import (
     Connection,
@@ -482,15 +483,7 @@ def build_town(name: str) -> str:
 
 
 def _cache_root(cache_dir: str | os.PathLike[str] | None) -> Path:
-    if cache_dir is not None:
-        return Path(cache_dir)
-    env = os.environ.get("DASHTRAJ_CACHE")
-    if env:
-        return Path(env) / "towns"
-    xdg = os.environ.get("XDG_CACHE_HOME")
-    if xdg and Path(xdg).is_absolute():  # the XDG base directory spec ignores relative ones
-        return Path(xdg) / "dashtraj" / "towns"
-    return Path.home() / ".cache" / "dashtraj" / "towns"
+    return Path(cache_dir) if cache_dir is not None else cache_root("towns")
 
 
 def town_path(name: str, cache_dir: str | os.PathLike[str] | None = None) -> Path:
