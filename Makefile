@@ -7,20 +7,28 @@ export MPLBACKEND := Agg
 
 .PHONY: setup demo test lint bench clean weights train-env reid-data reid-heldout reid-train reid-join reid-osnet reid-threshold reid-judge results
 
+# The environment: uv installs the same versions as pip in a third of pip's time (18 s
+# here against 55 s), compiled to bytecode as pip does (an interpreter told not to write
+# bytecode, PYTHONDONTWRITEBYTECODE, would otherwise compile every module at every start);
+# pip where uv cannot be had or fails.
 $(STAMP): pyproject.toml scripts/install_render_deps.sh scripts/fetch_mesa.sh
 	bash scripts/install_render_deps.sh || echo "warning: could not install the EGL/Mesa packages; rendering tests will skip"
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	bash scripts/fetch_mesa.sh $(VENV)/mesa || echo "warning: could not fetch Mesa 25 (faster rendering); the system's Mesa is used"
-	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[dev]'
+	( $(PY) -m pip install -q uv && $(VENV)/bin/uv pip install -q --compile-bytecode --python $(PY) -e '.[dev]' ) \
+	  || ( $(PY) -m pip install -q --upgrade pip && $(PY) -m pip install -q -e '.[dev]' )
 	touch $(STAMP)
 
 setup: $(STAMP)
 
+# dashtraj's own modules compiled to bytecode first (only those changed since; every process
+# of a run, its --workers too, then starts 0.2 s sooner where bytecode is not written)
 demo: $(STAMP)
+	-$(PY) -m compileall -q src
 	$(VENV)/bin/dashtraj demo -o runs/demo --overwrite
 
 test: $(STAMP)
+	-$(PY) -m compileall -q src
 	$(PY) -m pytest -n 2 -q
 
 lint: $(STAMP)
