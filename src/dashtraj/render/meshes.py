@@ -612,9 +612,12 @@ def _read_scene(path: Path) -> SceneMeshes | None:
             extent = z["extent"]
             if extent.shape != (4,):
                 return None
-        os.utime(path)  # recently used: the last pruned
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         return None
+    try:
+        os.utime(path)  # recently used: the last pruned
+    except OSError:  # a cache folder we may read but not write
+        pass
     return SceneMeshes(parts["ground"], parts["buildings"], parts["marks"],
                        tuple(float(v) for v in extent), parts["props"])
 
