@@ -502,6 +502,7 @@ _SCENE_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 _SCENES_BY_CONTENT: OrderedDict = OrderedDict()
 _SCENE_LOCK = threading.Lock()
 SCENES_KEPT = 4
+"""How many static scenes `scene_meshes` keeps by map content (the last used ones)."""
 SCENE_FILES_KEPT = 16
 """Scene files kept in the cache folder (the most recently used; about 6 MB each)."""
 _SCENE_PARTS = ("ground", "buildings", "marks", "props")
@@ -639,6 +640,9 @@ def _write_scene(path: Path, scene: SceneMeshes) -> None:
     except OSError:
         tmp.unlink(missing_ok=True)
         return
+    except BaseException:  # Ctrl-C while writing: no temporary file left behind
+        tmp.unlink(missing_ok=True)
+        raise
     try:
         files = sorted(path.parent.glob("scene-*.npz"), key=lambda p: p.stat().st_mtime,
                        reverse=True)
