@@ -11,10 +11,13 @@ that is an absolute path, as the XDG base directory spec asks), else
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import threading
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import BinaryIO
 
 _CODE_LOCK = threading.Lock()
 _CODE_SHA256: list[str] = []
@@ -47,3 +50,66 @@ def code_sha256() -> str:
                 h.update(hashlib.sha256(p.read_bytes()).digest())
             _CODE_SHA256.append(h.hexdigest())
         return _CODE_SHA256[0]
+
+
+def write_whole(path: Path, write: Callable[[BinaryIO], None]) -> bool:
+    """Write a cache file whole: `write` fills a temporary sibling, which is then renamed
+    over ``path``. Returns False, leaving no file, where the folder cannot be written (a
+    cache is an optimisation: that is no error); Ctrl-C removes the temporary file too."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as fh:
+            write(fh)
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        return False
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return True
+
+
+def touch(path: Path) -> None:
+    """Mark a cache file used now (`prune` keeps the last used); nothing where it cannot."""
+    try:
+        os.utime(path)
+    except OSError:  # a cache folder we may read but not write
+        pass
+
+
+def prune(folder: Path, pattern: str, keep: int) -> None:
+    """Delete all but the ``keep`` most recently used files of ``folder`` matching
+    ``pattern`` (and each one's ``.lock`` file); nothing where another process is at it."""
+    try:
+        files = sorted(folder.glob(pattern), key=lambda p: p.stat().st_mtime, reverse=True)
+        for old in files[keep:]:
+            old.unlink(missing_ok=True)
+            old.with_name(old.name + ".lock").unlink(missing_ok=True)
+    except OSError:
+        pass
+
+
+@contextlib.contextmanager
+def building(path: Path) -> Iterator[bool]:
+    """Hold an exclusive lock on ``path``'s ``.lock`` file while building it, so that
+    processes that need one cache file at once build it once (the others wait, then read
+    it). Yields False where the lock file cannot be made (a folder that cannot be
+    written: build, but do not write); a file system without locks builds in each."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fh = open(path.with_name(path.name + ".lock"), "a+b")
+    except OSError:
+        fh = None
+    if fh is None:
+        yield False
+        return
+    with fh:
+        try:
+            import fcntl
+
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
+        except (ImportError, OSError):  # Windows, or no locks on this file system
+            pass
+        yield True

@@ -236,10 +236,36 @@ def _noise_reference(size: int, seed: int) -> np.ndarray:
 
 @pytest.mark.parametrize(("size", "seed"), [(64, 7), (128, 3), (256, 7)])
 def test_noise_texture_equals_argsort_ranks_and_is_uniform(size, seed):
-    from dashtraj.render.scene import noise_texture
+    from dashtraj.render.scene import build_noise_texture
 
-    got = noise_texture.__wrapped__(size, seed)
+    got = build_noise_texture(size, seed)
     np.testing.assert_array_equal(got, _noise_reference(size, seed))
     for c in range(4):  # rank-equalised: every level holds size² / 256 texels
         np.testing.assert_array_equal(np.bincount(got[..., c].ravel(), minlength=256),
                                       np.full(256, size * size // 256))
+
+
+def test_noise_texture_is_kept_as_a_file_and_read_back(tmp_path, monkeypatch):
+    """The noise texture goes to the cache folder once; a process that has it not in memory
+    reads it (the same bytes, never built), and a file that is not whole is built again."""
+    from dashtraj.render import scene
+
+    monkeypatch.setenv("DASHTRAJ_CACHE", str(tmp_path))
+    want = scene.build_noise_texture(64, 3)
+    scene.noise_texture.cache_clear()
+    try:
+        got = scene.noise_texture(64, 3)
+        (path,) = (tmp_path / "textures").glob("noise-*.npy")
+        np.testing.assert_array_equal(got, want)
+        assert not got.flags.writeable and not list(path.parent.glob(".*.tmp"))
+        scene.noise_texture.cache_clear()
+        monkeypatch.setattr(scene, "build_noise_texture", lambda *a: pytest.fail("built"))
+        np.testing.assert_array_equal(scene.noise_texture(64, 3), want)
+        monkeypatch.undo()
+        monkeypatch.setenv("DASHTRAJ_CACHE", str(tmp_path))
+        path.write_bytes(path.read_bytes()[:500])
+        scene.noise_texture.cache_clear()
+        np.testing.assert_array_equal(scene.noise_texture(64, 3), want)
+        np.testing.assert_array_equal(np.load(path), want)  # written whole again
+    finally:
+        scene.noise_texture.cache_clear()

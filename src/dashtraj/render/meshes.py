@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import hashlib
 import math
-import os
 import threading
 import weakref
 import zipfile
@@ -561,39 +560,25 @@ def scene_file(road_map, seed: int = 0, clutter: bool = True) -> Path:
 def _scene_from_file(road_map, seed: int, clutter: bool) -> SceneMeshes:
     """The scene read from its cache file, or built (under a lock on the file, so that
     processes starting at once build it once) and written there."""
+    from dashtraj.cache import building, prune, write_whole
+
     path = scene_file(road_map, seed, clutter)
     scene = _read_scene(path)
     if scene is not None:
         return scene
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        lock = open(path.with_name(path.name + ".lock"), "a+b")
-    except OSError:  # a folder we may not write: build in memory only
-        return build_scene_meshes(road_map, seed, clutter)
-    with lock:
-        _lock_file(lock)
-        scene = _read_scene(path)  # another process built it while we waited
+    with building(path) as writable:
+        scene = _read_scene(path) if writable else None  # built while we waited
         if scene is None:
             scene = build_scene_meshes(road_map, seed, clutter)
-            _write_scene(path, scene)
+            if writable and write_whole(path, lambda fh: np.savez(fh, **_scene_arrays(scene))):
+                prune(path.parent, "scene-*.npz", SCENE_FILES_KEPT)
     return scene
-
-
-def _lock_file(fh) -> None:
-    """An exclusive lock on an open file, released when it is closed (no-op where the
-    platform has no ``fcntl``)."""
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - Windows
-        return
-    try:
-        fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
-    except OSError:  # a file system without locks: at worst two processes build
-        pass
 
 
 def _read_scene(path: Path) -> SceneMeshes | None:
     """A scene file's meshes, or None when it is missing or not whole."""
+    from dashtraj.cache import touch
+
     try:
         with np.load(path, allow_pickle=False) as z:
             parts = {}
@@ -615,42 +600,20 @@ def _read_scene(path: Path) -> SceneMeshes | None:
                 return None
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         return None
-    try:
-        os.utime(path)  # recently used: the last pruned
-    except OSError:  # a cache folder we may read but not write
-        pass
+    touch(path)
     return SceneMeshes(parts["ground"], parts["buildings"], parts["marks"],
                        tuple(float(v) for v in extent), parts["props"])
 
 
-def _write_scene(path: Path, scene: SceneMeshes) -> None:
-    """Write a scene file whole (a temporary file renamed), then keep the last
-    `SCENE_FILES_KEPT` used; a failure to write leaves no file and is not an error."""
+def _scene_arrays(scene: SceneMeshes) -> dict[str, np.ndarray]:
+    """A scene's arrays by name, as its cache file holds them."""
     arrays = {"extent": np.asarray(scene.extent, np.float64)}
     for part in _SCENE_PARTS:
         mesh = getattr(scene, part)
         if mesh is not None:
             for field, _ in _MESH_FIELDS:
                 arrays[f"{part}_{field}"] = getattr(mesh, field)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **arrays)
-        os.replace(tmp, path)
-    except OSError:
-        tmp.unlink(missing_ok=True)
-        return
-    except BaseException:  # Ctrl-C while writing: no temporary file left behind
-        tmp.unlink(missing_ok=True)
-        raise
-    try:
-        files = sorted(path.parent.glob("scene-*.npz"), key=lambda p: p.stat().st_mtime,
-                       reverse=True)
-        for old in files[SCENE_FILES_KEPT:]:
-            old.unlink(missing_ok=True)
-            old.with_name(old.name + ".lock").unlink(missing_ok=True)
-    except OSError:  # another process pruned at the same time
-        pass
+    return arrays
 
 
 def _frozen_scene(scene: SceneMeshes) -> SceneMeshes:

@@ -1395,11 +1395,50 @@ def _in_thread(fn, *args):
     return result
 
 
+NOISE_FILES_KEPT = 4
+"""Noise texture files kept in the cache folder (the most recently used; 4 MB each)."""
+
+
 @functools.lru_cache(maxsize=2)
 def noise_texture(size: int = NOISE_PX, seed: int = 7) -> np.ndarray:
+    """`build_noise_texture`, kept per (size, seed) in this process and as a file in the
+    cache folder (`dashtraj.cache.cache_root` ``("textures")``, named after the size, the
+    seed and dashtraj's code, `dashtraj.cache.code_sha256`): every later process (the
+    ``--workers`` of a run, the next run) reads it in milliseconds instead of building it
+    (0.5-0.8 s). A file that is not whole is built again. Read-only."""
+    import hashlib
+
+    from dashtraj.cache import building, cache_root, code_sha256, prune, touch, write_whole
+
+    name = hashlib.sha256(f"{int(size)}\0{int(seed)}\0{code_sha256()}".encode()).hexdigest()
+    path = cache_root("textures") / f"noise-{name[:32]}.npy"
+
+    def read() -> np.ndarray | None:
+        try:
+            a = np.load(path, allow_pickle=False)
+        except (OSError, ValueError, EOFError):
+            return None
+        if a.shape != (size, size, 4) or a.dtype != np.uint8:
+            return None
+        touch(path)
+        return a
+
+    out = read()
+    if out is None:
+        with building(path) as writable:
+            out = read() if writable else None  # built while we waited
+            if out is None:
+                out = build_noise_texture(size, seed)
+                if writable and write_whole(path, lambda fh: np.save(fh, out)):
+                    prune(path.parent, "noise-*.npy", NOISE_FILES_KEPT)
+    out.flags.writeable = False
+    return out
+
+
+def build_noise_texture(size: int = NOISE_PX, seed: int = 7) -> np.ndarray:
     """(size, size, 4) uint8 tileable noise, one pattern per channel, each uniform on
     0 … 255 (rank-equalised): R fine grain (≈ 4 texels), G soft blotches (≈ 200 texels),
-    B medium (≈ 50 texels), A fractal (clouds, paint wear). Cached per (size, seed).
+    B medium (≈ 50 texels), A fractal (clouds, paint wear); built (`noise_texture` caches).
     Band-limited white noise filtered in the Fourier domain, so it tiles. Rank
     equalisation: value v of a channel of n texels gets level ⌊rank(v) · 256 / n⌋, i.e.
     the number of the 255 level boundaries (the values of rank ⌈k · n / 256⌉) that are
