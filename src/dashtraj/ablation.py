@@ -1,9 +1,10 @@
 """The error budget (the paper's Table IV, with numbers): each perception stage switched
 between an oracle and the real thing, and the SSPD each real stage adds.
 
-One experiment is simulated once and perceived twice (the renderer's exact boxes and
-the detector model, same frames, look, size and period); the target's sightings are
-then taken five ways, stages turned real one at a time in pipeline order (`ROWS`):
+One experiment is simulated once and perceived twice from the same frames, each rendered
+once (`dashtraj.perception.pipeline.perceive_each`): the renderer's exact boxes and the
+detector model. The target's sightings are then taken five ways, stages turned real one
+at a time in pipeline order (`ROWS`):
 
 1. ``oracle``: exact boxes, tracks by true identity, true positions, the target's
    tracks by identity;
@@ -86,9 +87,9 @@ def run_ablation(config, out: str | Path,
     truth = rec.target_route
     target = int(rec.meta.get("target_vehicle_id", 0))
     dbs = {"oracle": out / "oracle.db", "model": out / "model.db"}
-    for kind, det in (("oracle", "oracle"), ("model", config.detector)):
-        say(f"perceive ({det} detector)")
-        perceive_run(config, rec, dbs[kind], det, look)
+    say(f"perceive (oracle and {config.detector} detectors, each frame rendered once)")
+    perceive_run(config, rec, dbs["oracle"], "oracle", look,
+                 also=[(dbs["model"], config.detector)])
     positions = true_positions(rec)
     rows: dict = {}
     for name, db, tracks, pos, reid in ROWS + EXTRA_ROWS:

@@ -60,7 +60,7 @@ from __future__ import annotations
 import json
 import math
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -528,13 +528,16 @@ def reid_range_of(config: ExperimentConfig) -> float:
 
 
 def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
-                 look: str | None = None, stages: Stages | None = None) -> None:
+                 look: str | None = None, stages: Stages | None = None,
+                 also: Sequence[tuple[Path, str]] = ()) -> None:
     """Perceive every observer of `rec` into `db_path` with the experiment's settings
-    (`config.workers` processes), saying how many frames are done as batches land."""
+    (`config.workers` processes), saying how many frames are done as batches land.
+    `also`: more (database path, detector) outputs perceived from the same frames, each
+    rendered once (`dashtraj.perception.pipeline.perceive_each`)."""
     import math
 
     from dashtraj.datasets.drive import Drive
-    from dashtraj.perception.pipeline import PerceiveConfig, perceive
+    from dashtraj.perception.pipeline import PerceiveConfig, perceive, perceive_each
 
     stages = stages or Stages()
     if isinstance(rec, Drive):
@@ -544,11 +547,13 @@ def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
         n_obs = len(rec.meta.get("observer_ids", [])) or config.observers
         total = n_obs * (math.floor(float(rec.meta.get("simulated_to_t", config.duration_s))
                                     / config.every_s + 1e-9) + 1)
-    stages.start(f"perceive ({detector})",
+    detectors = [detector] + [d for _, d in also]
+    stages.start(f"perceive ({', '.join(detectors)})",
                  f"perceive: {n_obs} observers × {total // max(n_obs, 1)} frames "
                  f"({config.image_size[0] if config.image_size else '?'}×"
                  f"{config.image_size[1] if config.image_size else '?'}, every "
-                 f"{config.every_s:g} s), detector {detector}, {config.workers} workers")
+                 f"{config.every_s:g} s), detector {' and '.join(detectors)}"
+                 f"{' on the same frames' if also else ''}, {config.workers} workers")
     done = [0, 0]
 
     def progress(n: int) -> None:
@@ -557,23 +562,29 @@ def perceive_run(config: ExperimentConfig, rec, db_path: Path, detector: str,
             done[1] = done[0]
             stages.note(f"perceive: {done[0]}/~{total} frames")
 
-    s = perceive(rec, db_path, PerceiveConfig(detector=detector_of(detector),
-                                              size=config.image_size, every_s=config.every_s,
-                                              look=look, reid_range_m=reid_range_of(config),
-                                              agnostic_nms_iou=config.agnostic_nms_iou,
-                                              min_score=config.min_score,
-                                              classifier=config.classifier,
-                                              confirm_score=config.confirm_score,
-                                              localizer=config.localizer,
-                                              pose_noise=config.pose_noise,
-                                              pose_noise_seed=config.seed,
-                                              calibrate_pitch=config.calibrate_pitch,
-                                              live_relink=config.live_relink,
-                                              reid_model=(config.reid_model
-                                                          if config.live_relink else None)),
-                 workers=config.workers, progress=progress)
-    stages.note(f"perceive: {s.frames} frames, {s.detections} detections, {s.tracks} tracks, "
-                f"{s.crops} crops within {reid_range_of(config):g} m")
+    def settings(det: str) -> PerceiveConfig:
+        return PerceiveConfig(detector=detector_of(det), size=config.image_size,
+                              every_s=config.every_s, look=look,
+                              reid_range_m=reid_range_of(config),
+                              agnostic_nms_iou=config.agnostic_nms_iou,
+                              min_score=config.min_score, classifier=config.classifier,
+                              confirm_score=config.confirm_score, localizer=config.localizer,
+                              pose_noise=config.pose_noise, pose_noise_seed=config.seed,
+                              calibrate_pitch=config.calibrate_pitch,
+                              live_relink=config.live_relink,
+                              reid_model=config.reid_model if config.live_relink else None)
+
+    if also:
+        outputs = [(db_path, detector), *also]
+        summaries = perceive_each(rec, [(p, settings(d)) for p, d in outputs],
+                                  workers=config.workers, progress=progress)
+    else:
+        summaries = [perceive(rec, db_path, settings(detector), workers=config.workers,
+                              progress=progress)]
+    for det, s in zip(detectors, summaries, strict=True):
+        stages.note(f"perceive{f' ({det})' if also else ''}: {s.frames} frames, "
+                    f"{s.detections} detections, {s.tracks} tracks, {s.crops} crops within "
+                    f"{reid_range_of(config):g} m")
 
 
 def vision_sightings(config: ExperimentConfig, rec, out: Path, road_map,

@@ -437,3 +437,39 @@ def test_mapped_localizer_in_perceive_keeps_smoothed_on_lane_positions(small_run
             for p, q in zip(da, db_, strict=True) if 1.0 < p.x0 and p.x1 < w - 1.0)
         same = sum(p.x == q.x and p.y == q.y for p, q in zip(da, db_, strict=True))
         assert same >= 0.8 * len(da)
+
+
+def test_perceive_each_renders_once_for_every_output(small_run, small_db, tmp_path,
+                                                     monkeypatch):
+    """Two pipelines on the same frames (the error budget's exact boxes and detector model):
+    each database is the one `perceive` writes with its config alone, the frames are
+    rendered once; outputs whose frames differ are refused before any is made."""
+    from dashtraj.perception.detect import default_model_path
+    from dashtraj.perception.pipeline import PerceiveConfig, PerceiveError, perceive_each
+    from dashtraj.render.scene import Renderer
+
+    path, _ = small_db
+    oracle = PerceiveConfig(observers=(1, 3))
+    model = PerceiveConfig(observers=(1, 3), detector=str(default_model_path()),
+                           tracker="sort", localizer="paper")
+    alone = tmp_path / "model_alone.db"
+    perceive_each(small_run, [(alone, model)])
+    drawn = []
+    real = Renderer.render
+
+    def counted(self, *a, **k):
+        drawn.append(1)
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(Renderer, "render", counted)
+    both = [(tmp_path / "oracle.db", oracle), (tmp_path / "model.db", model)]
+    summaries = perceive_each(small_run, both)
+    frames_drawn = len(drawn)
+    _same_content(path, both[0][0])
+    _same_content(alone, both[1][0])
+    assert [s.frames for s in summaries] == [frames_drawn, frames_drawn]
+    assert summaries[1].detections > 0
+    with pytest.raises(PerceiveError, match="frames differ"):
+        perceive_each(small_run, [(tmp_path / "a.db", oracle),
+                                  (tmp_path / "b.db", PerceiveConfig(observers=(1,)))])
+    assert not (tmp_path / "a.db").exists() and not (tmp_path / "b.db").exists()

@@ -27,7 +27,7 @@ import contextlib
 import math
 import multiprocessing as mp
 import queue as queue_mod
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -354,16 +354,22 @@ def _process_config(config: PerceiveConfig, workers: int) -> PerceiveConfig:
                                     else config.parallel_frames))
 
 
-def _all_batches(recording, observers: list[int], config: PerceiveConfig, road_map,
-                 frames_dir: Path | None) -> Iterator[tuple[int, Batch | None]]:
-    """(observer, batch) for every batch of every observer in order, then (observer,
-    None) when that observer is done. ``config`` is a process's (`_process_config`):
-    with ``parallel_frames`` ≥ 1 the frames are rendered ahead in a thread
-    (`RenderAhead`) and detected that many at once; with 0 everything runs in turn on
-    this thread. The batches are the same either way. A drive's frames are read from
-    its images instead."""
-    from dashtraj.datasets.frames import RenderAhead, recording_renderer
+def _all_batches(recording, observers: list[int], configs: list[PerceiveConfig], road_map,
+                 frames_dir: Path | None) -> Iterator[tuple[int, int, Batch | None]]:
+    """(output, observer, batch) for every batch of every observer in order, then (output,
+    observer, None) when that observer is done for that output. ``configs`` are a
+    process's (`_process_config`), one per output, with the same frames (`_frames_key`):
+    each frame is rendered once and every output's pipeline (detector, tracker, localizer)
+    takes it in turn, a batch at a time. With ``parallel_frames`` ≥ 1 the frames are
+    rendered ahead in a thread (`RenderAhead`) and detected that many at once; with 0
+    everything runs in turn on this thread. The batches are the same either way, and the
+    same as perceiving each output alone. A drive's frames are read from its images
+    instead. ``frames_dir``: the frames written as JPEGs once (by the first output)."""
+    import itertools
 
+    from dashtraj.datasets.frames import RenderAhead, recording_frames, recording_renderer
+
+    config = configs[0]  # the frames' settings, the same in every config
     look = None
     if config.look is not None:
         from dashtraj.render.look import preset
@@ -371,22 +377,36 @@ def _all_batches(recording, observers: list[int], config: PerceiveConfig, road_m
         look = preset(config.look)
     with contextlib.ExitStack() as stack:
         if isinstance(recording, Drive):  # its images are on disk: nothing to render
-            renderer = None
             frames_of = lambda o: recording.frames(o, config.every_s)  # noqa: E731
         elif config.parallel_frames:
             ahead = stack.enter_context(RenderAhead(
                 recording, observers, config.every_s, config.size, config.msaa, look,
                 depth=config.parallel_frames + 2))
-            renderer, frames_of = None, ahead.frames
+            frames_of = ahead.frames
         else:
             renderer = recording_renderer(recording, config.size, config.msaa, look)
             stack.callback(renderer.release)
-            frames_of = lambda o: None  # noqa: E731 - observer_batches renders them
+            frames_of = lambda o: recording_frames(  # noqa: E731
+                recording, config.every_s, config.size, [o], msaa=config.msaa,
+                renderer=renderer)
         for o in observers:
-            for b in observer_batches(recording, o, config, road_map, renderer, frames_dir,
-                                      frames_of(o), config.parallel_frames):
-                yield o, b
-            yield o, None
+            sources = (itertools.tee(frames_of(o), len(configs)) if len(configs) > 1
+                       else [frames_of(o)])
+            runs = [observer_batches(recording, o, c, road_map, None,
+                                     frames_dir if k == 0 else None, src, c.parallel_frames)
+                    for k, (c, src) in enumerate(zip(configs, sources, strict=True))]
+            live = list(range(len(runs)))
+            while live:  # a batch of each in turn: the frames between them are kept once
+                for k in list(live):
+                    b = next(runs[k], None)
+                    if b is None:
+                        live.remove(k)
+                    yield k, o, b
+
+
+def _frames_key(config: PerceiveConfig) -> tuple:
+    """The settings that make a run's frames (outputs perceived together share them)."""
+    return (config.every_s, config.size, config.msaa, config.look, config.observers)
 
 
 def open_source(path: str | Path):
@@ -484,29 +504,32 @@ def check_drive_config(config: PerceiveConfig, drive: Drive) -> None:
                                 "are used as they are")
 
 
-def _worker(recording_path: str, observers: list[int], config_dict: dict, workers: int,
-            out_q, frames_dir: str | None, db_url: str | None = None) -> None:
-    """Process entry point: run `observer_batches` for each observer and send the batches
-    to the writer, or, with ``db_url`` (PostgreSQL: many writers), write them there in
-    this process's own connection and send the frame counts."""
+def _worker(recording_path: str, observers: list[int], config_dicts: list[dict], workers: int,
+            out_q, frames_dir: str | None, db_urls: list[str | None] | None = None) -> None:
+    """Process entry point: run `observer_batches` for each observer and each output and
+    send the batches to the writer, tagged with their output, or, for an output with a
+    URL in ``db_urls`` (PostgreSQL: many writers), write them there in this process's own
+    connection and send the frame counts."""
     try:
         from dashtraj.roads import RoadMap
 
-        config = _process_config(PerceiveConfig.from_dict(config_dict), workers)
+        configs = [_process_config(PerceiveConfig.from_dict(d), workers) for d in config_dicts]
+        urls = list(db_urls) if db_urls else [None] * len(configs)
         rec = open_source(recording_path)
         road_map = RoadMap.from_file(rec.map_path)
         with contextlib.ExitStack() as stack:
-            db = (stack.enter_context(SightingsDB.open(db_url, writable=True))
-                  if db_url else None)
-            for o, b in _all_batches(rec, observers, config, road_map,
-                                     Path(frames_dir) if frames_dir else None):
+            dbs = [stack.enter_context(SightingsDB.open(u, writable=True)) if u else None
+                   for u in urls]
+            for k, o, b in _all_batches(rec, observers, configs, road_map,
+                                        Path(frames_dir) if frames_dir else None):
+                db = dbs[k]
                 if db is None:
-                    out_q.put(("batch", b) if b is not None else ("done", o))
+                    out_q.put(("batch", (k, b)) if b is not None else ("done", (k, o)))
                 elif b is None:
                     db.finish_observer(o)
                 else:
                     db.add_frames(b.poses, b.detections, b.crops, b.tracks, b.updates)
-                    out_q.put(("frames", len(b.poses)))
+                    out_q.put(("frames", (k, len(b.poses))))
     except BaseException as exc:  # reported to the writer, which raises
         out_q.put(("error", f"{type(exc).__name__}: {exc}"))
     out_q.put(("exit", None))
@@ -542,19 +565,46 @@ def perceive(recording, db_path: str | Path, config: PerceiveConfig = PerceiveCo
     Raises:
         PerceiveError: unknown observers, or a worker failed.
     """
+    return perceive_each(recording, [(db_path, config)], workers, progress, frames_dir)[0]
+
+
+def perceive_each(recording, outputs: Sequence[tuple[str | Path, PerceiveConfig]],
+                  workers: int = 1, progress: Callable[[int], None] | None = None,
+                  frames_dir: str | Path | None = None) -> list[PerceiveSummary]:
+    """Perceive ``recording`` into several new databases at once, one per (path, config)
+    of ``outputs``, each frame rendered once: e.g. the error budget's exact boxes and
+    detector model (`dashtraj.ablation`). Every database is the one `perceive` writes
+    with its config alone, to the byte of its rows; the configs must agree on the
+    frames (``every_s``, ``size``, ``msaa``, ``look``, ``observers``) and may differ in
+    everything else (detector, tracker, localizer, …). Paths, URLs, the other arguments
+    and errors as `perceive` (every path must not exist: see `atomic_output`); ``progress``
+    counts the first output's frames.
+
+    Raises:
+        PerceiveError: as `perceive`, or configs whose frames differ, or no output.
+    """
     from dashtraj.datasets.frames import observer_ids
     from dashtraj.roads import RoadMap
 
-    if isinstance(recording, Drive):
-        check_drive_config(config, recording)
-    build_detector(config.detector)  # fail early on a bad name
+    if not outputs:
+        raise PerceiveError("perceive_each: no output")
+    configs = [c for _, c in outputs]
+    frames = {_frames_key(c) for c in configs}
+    if len(frames) > 1:
+        raise PerceiveError("perceive_each: the outputs' frames differ (every_s, size, msaa, "
+                            f"look, observers): {sorted(frames, key=repr)}")
+    config = configs[0]
+    for c in configs:
+        if isinstance(recording, Drive):
+            check_drive_config(c, recording)
+        build_detector(c.detector)  # fail early on a bad name
+        build_tracker(c.tracker)
+        build_localizer(c.localizer)
+        check_relink_config(c)
     if config.look is not None:
         from dashtraj.render.look import preset
 
         preset(config.look)
-    build_tracker(config.tracker)
-    build_localizer(config.localizer)
-    check_relink_config(config)
     all_obs = observer_ids(recording)
     obs = all_obs if config.observers is None else list(config.observers)
     bad = [o for o in obs if o not in all_obs]
@@ -564,38 +614,45 @@ def perceive(recording, db_path: str | Path, config: PerceiveConfig = PerceiveCo
     roles = recording.meta.get("observer_roles", {})
     spec = image_camera(recording, config.size)
     fdir = Path(frames_dir) if frames_dir is not None else None
-    with SightingsDB.create(db_path) as db:
-        db.write_run(str(recording.path), recording.meta.get("map", {}).get("source"),
-                     recording.meta.get("map", {}).get("sha256"), spec.to_dict(),
-                     config.to_dict(), [(o, roles.get(str(o))) for o in obs])
-        db.set_meta(run_meta(recording, config))
+    with contextlib.ExitStack() as stack:
+        dbs = [stack.enter_context(SightingsDB.create(path)) for path, _ in outputs]
+        for db, c in zip(dbs, configs, strict=True):
+            db.write_run(str(recording.path), recording.meta.get("map", {}).get("source"),
+                         recording.meta.get("map", {}).get("sha256"), spec.to_dict(),
+                         c.to_dict(), [(o, roles.get(str(o))) for o in obs])
+            db.set_meta(run_meta(recording, c))
         if workers <= 1 or len(obs) <= 1:
             road_map = RoadMap.from_file(recording.map_path)
-            for o, b in _all_batches(recording, obs, _process_config(config, 1), road_map,
-                                     fdir):
+            for k, o, b in _all_batches(recording, obs,
+                                        [_process_config(c, 1) for c in configs], road_map,
+                                        fdir):
                 if b is None:
-                    db.finish_observer(o)
+                    dbs[k].finish_observer(o)
                     continue
-                db.add_frames(b.poses, b.detections, b.crops, b.tracks, b.updates)
-                if progress is not None:
+                dbs[k].add_frames(b.poses, b.detections, b.crops, b.tracks, b.updates)
+                if progress is not None and k == 0:
                     progress(len(b.poses))
         else:
-            _run_workers(recording, obs, config, workers, db, progress, fdir,
-                         str(db_path) if is_url(db_path) else None)
-        db.finish_run()
-        summary = PerceiveSummary(db.path, len(obs), db.count("poses"),
-                                  db.count("detections"), db.count("tracks"), db.count("crops"))
-    return summary
+            _run_workers(recording, obs, configs, workers, dbs, progress, fdir,
+                         [str(p) if is_url(p) else None for p, _ in outputs])
+        summaries = []
+        for db in dbs:
+            db.finish_run()
+            summaries.append(PerceiveSummary(db.path, len(obs), db.count("poses"),
+                                             db.count("detections"), db.count("tracks"),
+                                             db.count("crops")))
+    return summaries
 
 
-def _run_workers(recording, obs, config, workers, db, progress, fdir,
-                 db_url: str | None = None) -> None:
+def _run_workers(recording, obs, configs, workers, dbs, progress, fdir,
+                 db_urls: list[str | None]) -> None:
     ctx = mp.get_context("spawn")
     q = ctx.Queue(maxsize=4 * workers)
     k = min(workers, len(obs))
+    urls = db_urls if any(db_urls) else None
     procs = [ctx.Process(target=_worker, daemon=True,
-                         args=(str(recording.path), obs[i::k], config.to_dict(), k, q,
-                               str(fdir) if fdir else None, db_url)) for i in range(k)]
+                         args=(str(recording.path), obs[i::k], [c.to_dict() for c in configs],
+                               k, q, str(fdir) if fdir else None, urls)) for i in range(k)]
     for p in procs:
         p.start()
     live = k
@@ -608,15 +665,17 @@ def _run_workers(recording, obs, config, workers, db, progress, fdir,
                     raise PerceiveError("a perception worker died without a word") from None
                 continue
             if kind == "batch":
-                db.add_frames(item.poses, item.detections, item.crops, item.tracks,
-                             item.updates)
-                if progress is not None:
-                    progress(len(item.poses))
+                out, b = item
+                dbs[out].add_frames(b.poses, b.detections, b.crops, b.tracks, b.updates)
+                if progress is not None and out == 0:
+                    progress(len(b.poses))
             elif kind == "frames":
-                if progress is not None:
-                    progress(item)
+                out, n = item
+                if progress is not None and out == 0:
+                    progress(n)
             elif kind == "done":
-                db.finish_observer(item)
+                out, o = item
+                dbs[out].finish_observer(o)
             elif kind == "error":
                 raise PerceiveError(f"perception worker failed: {item}")
             elif kind == "exit":
